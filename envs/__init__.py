@@ -1,0 +1,1 @@
+"""gymnasium environments driven by mjkin (registered on import)."""

@@ -1,0 +1,36 @@
+"""The exceptions mjkin raises: one root, one subclass per kind of mistake."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class MjkinError(Exception):
+    """Root of every error mjkin raises on purpose."""
+
+
+class ModelError(MjkinError):
+    """The model cannot be read or compiled, or lacks what was asked of it."""
+
+
+class UnknownNameError(MjkinError, KeyError):
+    """A body, joint or site name that the model does not have."""
+
+    def __init__(self, kind: str, name: str, known: Iterable[str]) -> None:
+        names = ", ".join(repr(n) for n in known) or "none"
+        super().__init__(f"unknown {kind} {name!r}; the model's {kind} names are: {names}")
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+class InputError(MjkinError, ValueError):
+    """An array argument (q, a target, an option) has the wrong shape or value."""
+
+
+class GoalError(InputError):
+    """A goal is malformed: non-finite target, wrong shape, zero-length direction."""
+
+
+class MjkinIOError(MjkinError, OSError):
+    """A file cannot be read or written."""

@@ -1,0 +1,258 @@
+"""The kinematic tree read from a compiled MuJoCo model, and :func:`load`."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import qspace, spatial
+from .errors import InputError, ModelError, MjkinIOError, UnknownNameError
+
+if TYPE_CHECKING:
+    from .fk import Frames, Plan
+
+Array = NDArray[np.float64]
+Kind = Literal["body", "joint", "site"]
+
+
+
+def _ro(a: ArrayLike, dtype: type = np.float64) -> NDArray:
+    out = np.array(a, dtype=dtype)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Tree:
+    """An articulated tree: bodies (links) joined by hinge, slide, ball and free joints.
+
+    Everything is read once from a compiled :class:`mujoco.MjModel` into
+    read-only arrays; mjkin's FK and Jacobians use only these. Body 0 is the
+    world. Ids equal MuJoCo's, so results index like ``MjData.xpos``.
+    """
+
+    model: mujoco.MjModel
+    body_parent: NDArray[np.int64]  # (nbody,)
+    body_pos: Array  # (nbody, 3) in the parent frame
+    body_rot: Array  # (nbody, 3, 3) in the parent frame
+    jnt_type: NDArray[np.int64]  # (njnt,)
+    jnt_body: NDArray[np.int64]
+    jnt_qadr: NDArray[np.int64]
+    jnt_dofadr: NDArray[np.int64]
+    jnt_pos: Array  # (njnt, 3) anchor in the body frame
+    jnt_axis: Array  # (njnt, 3) unit axis in the body frame
+    jnt_limited: NDArray[np.bool_]
+    jnt_range: Array  # (njnt, 2); for ball joints (0, max angle)
+    qpos0: Array  # (nq,)
+    site_body: NDArray[np.int64]
+    site_pos: Array
+    site_rot: Array
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel) -> Tree:
+        """Read the kinematic tree of a compiled model."""
+        return cls(
+            model=model,
+            body_parent=_ro(model.body_parentid, np.int64),
+            body_pos=_ro(model.body_pos),
+            body_rot=_ro(spatial.quat_to_mat(spatial.quat_normalize(model.body_quat))),
+            jnt_type=_ro(model.jnt_type, np.int64),
+            jnt_body=_ro(model.jnt_bodyid, np.int64),
+            jnt_qadr=_ro(model.jnt_qposadr, np.int64),
+            jnt_dofadr=_ro(model.jnt_dofadr, np.int64),
+            jnt_pos=_ro(model.jnt_pos),
+            jnt_axis=_ro(model.jnt_axis),
+            jnt_limited=_ro(model.jnt_limited, bool),
+            jnt_range=_ro(model.jnt_range),
+            qpos0=_ro(model.qpos0),
+            site_body=_ro(model.site_bodyid, np.int64),
+            site_pos=_ro(model.site_pos),
+            site_rot=_ro(spatial.quat_to_mat(spatial.quat_normalize(model.site_quat))),
+        )
+
+    # ------------------------------------------------------------- sizes, names
+    @property
+    def nq(self) -> int:
+        """Length of a configuration q (MuJoCo's ``nq``)."""
+        return int(self.model.nq)
+
+    @property
+    def nv(self) -> int:
+        """Degrees of freedom, the number of Jacobian columns (MuJoCo's ``nv``)."""
+        return int(self.model.nv)
+
+    @property
+    def nbody(self) -> int:
+        """Number of bodies, the world (id 0) included."""
+        return int(self.model.nbody)
+
+    @property
+    def njnt(self) -> int:
+        """Number of joints."""
+        return int(self.model.njnt)
+
+    def names(self, kind: Kind) -> list[str]:
+        """Names of all bodies, joints or sites in id order (unnamed ones as ``""``)."""
+        return list(self._names(kind))
+
+    def _names(self, kind: str) -> tuple[str, ...]:
+        count = {"body": self.model.nbody, "joint": self.model.njnt, "site": self.model.nsite}
+        if kind not in count:
+            raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
+        return tuple(self.model.names[self._name_adr(kind)[i]:].split(b"\0", 1)[0].decode()
+                     for i in range(count[kind]))
+
+    def _name_adr(self, kind: str) -> NDArray:
+        m = self.model
+        return {"body": m.name_bodyadr, "joint": m.name_jntadr, "site": m.name_siteadr}[kind]
+
+    @cached_property
+    def _ids(self) -> dict[str, dict[str, int]]:
+        return {k: {n: i for i, n in enumerate(self._names(k)) if n} for k in ("body", "joint", "site")}
+
+    def id(self, name: str, kind: Kind) -> int:
+        """MuJoCo id of a named body, joint or site; :class:`UnknownNameError` lists the names."""
+        if kind not in self._ids:
+            raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
+        ids = self._ids[kind]
+        if name not in ids:
+            raise UnknownNameError(kind, name, ids)
+        return ids[name]
+
+    def frame(self, name: str, kind: Kind | None = None) -> tuple[Literal["body", "site"], int]:
+        """Resolve a frame name to ``(kind, id)``; ``kind=None`` tries sites first, then bodies."""
+        if kind not in (None, "site", "body"):
+            raise InputError(f"frame kind must be 'site', 'body' or None, not {kind!r}")
+        if kind is None:
+            for k in ("site", "body"):
+                if name in self._ids[k]:
+                    return k, self._ids[k][name]  # type: ignore[return-value]
+            known = [f"site {n}" for n in self._ids["site"]] + [f"body {n}" for n in self._ids["body"]]
+            raise UnknownNameError("frame", name, known)
+        return kind, self.id(name, kind)
+
+    def frame_body(self, name: str, kind: Kind | None = None) -> tuple[int, Array]:
+        """The body a frame is fixed to and the frame's pose in that body ``(4, 4)``."""
+        k, i = self.frame(name, kind)
+        if k == "body":
+            return i, np.eye(4)
+        return int(self.site_body[i]), spatial.make_transform(self.site_rot[i], self.site_pos[i])
+
+    # ------------------------------------------------------------------ joints
+    @cached_property
+    def layout(self) -> qspace.Layout:
+        """Joints grouped by kind, for vectorised q arithmetic."""
+        return qspace.Layout.of(self)
+
+    @cached_property
+    def plan(self) -> Plan:
+        """Index arrays that drive the vectorised FK."""
+        from .fk import Plan
+
+        return Plan.of(self)
+
+    @cached_property
+    def body_dofs(self) -> tuple[NDArray[np.int64], ...]:
+        """For each body, the dof indices that move it (its own and its ancestors'), ascending."""
+        m = self.model
+        own = [list(range(m.body_dofadr[b], m.body_dofadr[b] + m.body_dofnum[b])) if m.body_dofnum[b] else []
+               for b in range(m.nbody)]
+        out: list[list[int]] = [[] for _ in range(m.nbody)]
+        for b in range(1, m.nbody):
+            out[b] = sorted(out[int(self.body_parent[b])] + own[b])
+        return tuple(_ro(d, np.int64) for d in out)
+
+    def check_q(self, q: ArrayLike, name: str = "q") -> Array:
+        """``q`` as float64 ``(..., nq)``; raises :class:`InputError` for a wrong shape or NaN/inf."""
+        return qspace.check(self, q, name)
+
+    def random_q(self, rng: np.random.Generator | int | None = None, n: int | None = None) -> Array:
+        """Random configurations inside the joint limits, ``(n, nq)`` (``(nq,)`` when ``n`` is None)."""
+        return qspace.random(self, rng, n)
+
+    def clip(self, q: ArrayLike) -> Array:
+        """Project ``q (..., nq)`` into the joint limits and renormalise quaternions."""
+        return qspace.clip(self, self.check_q(q))
+
+    def integrate(self, q: ArrayLike, v: ArrayLike) -> Array:
+        """Move ``q (..., nq)`` along a velocity ``v (..., nv)`` for unit time (as ``mj_integratePos``)."""
+        return qspace.integrate(self, self.check_q(q), np.asarray(v, dtype=np.float64))
+
+    def difference(self, q1: ArrayLike, q0: ArrayLike) -> Array:
+        """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``)."""
+        return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"))
+
+    # -------------------------------------------------------------- kinematics
+    def kinematics(self, q: ArrayLike) -> Frames:
+        """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
+        from .fk import forward
+
+        return forward(self, self.check_q(q))
+
+    def fk(self, q: ArrayLike) -> Array:
+        """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
+        f = self.kinematics(q)
+        return spatial.make_transform(f.rot, f.pos)
+
+    def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
+        """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
+        return self.kinematics(q).pose(*self.frame(name, kind))
+
+    def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
+                 offset: ArrayLike | None = None) -> Array:
+        """Jacobian ``(..., 6, nv)`` at a site/body origin, or at ``offset (3,)`` in its local frame.
+
+        Rows are ``[linear; angular]`` in world-aligned axes, as ``mj_jac`` stacked
+        ``[jacp; jacr]``: ``d(point, world)/dt = J[:3] @ qvel`` and ``omega = J[3:] @ qvel``.
+        """
+        return self.kinematics(q).jacobian(*self.frame(name, kind), offset=offset)
+
+
+def bundled_models() -> dict[str, Path]:
+    """Models shipped with mjkin, by name (file stem)."""
+    from importlib.resources import files
+
+    root = Path(str(files("mjkin.models")))
+    return {p.stem: p for p in sorted(root.glob("*.xml"))}
+
+
+def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:
+    """Read a kinematic tree from an MJCF/URDF path, an XML string, a bundled model name,
+    a :class:`mujoco.MjSpec` or a compiled :class:`mujoco.MjModel`.
+
+    Raises:
+        MjkinIOError: the file does not exist or cannot be read.
+        ModelError: MuJoCo cannot compile it (the message says why).
+    """
+    if isinstance(src, mujoco.MjModel):
+        return Tree.from_model(src)
+    try:
+        if isinstance(src, mujoco.MjSpec):
+            return Tree.from_model(src.compile())
+        text = os.fspath(src)
+        if text.lstrip().startswith("<"):
+            return Tree.from_model(mujoco.MjModel.from_xml_string(text))
+        path = Path(text)
+        if not path.exists() and path.suffix == "" and text in bundled_models():
+            path = bundled_models()[text]
+        if not path.is_file():
+            hint = ", ".join(bundled_models())
+            raise MjkinIOError(f"model file not found: {text!r} (give an MJCF/URDF path or one of: {hint})")
+        return Tree.from_model(mujoco.MjModel.from_xml_path(str(path)))
+    except (ValueError, mujoco.FatalError) as e:
+        msg = " ".join(str(e).split())
+        raise ModelError(f"cannot compile model {_describe(src)}: {msg}") from None
+    except TypeError as e:
+        raise InputError(f"load() takes a path, XML string, MjSpec or MjModel, not {type(src).__name__}") from e
+
+
+def _describe(src: object) -> str:
+    text = str(src) if not isinstance(src, mujoco.MjSpec) else "<MjSpec>"
+    return repr(text if len(text) < 80 and "\n" not in text else text.lstrip()[:40] + "...")

@@ -1,0 +1,1 @@
+"""MJCF models shipped with mjkin (package data; see ``mjkin.bundled_models()``)."""
