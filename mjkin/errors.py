@@ -16,9 +16,10 @@ class ModelError(MjkinError):
 class UnknownNameError(MjkinError, KeyError):
     """A body, joint or site name that the model does not have."""
 
-    def __init__(self, kind: str, name: str, known: Iterable[str]) -> None:
-        names = ", ".join(repr(n) for n in known) or "none"
-        super().__init__(f"unknown {kind} {name!r}; the model's {kind} names are: {names}")
+    def __init__(self, kind: str, name: str, known: Iterable[str] | dict[str, Iterable[str]]) -> None:
+        groups = known if isinstance(known, dict) else {f"the model's {kind} names": known}
+        listing = "; ".join(f"{g}: {', '.join(repr(n) for n in ns) or 'none'}" for g, ns in groups.items())
+        super().__init__(f"unknown {kind} {name!r}; {listing}")
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])

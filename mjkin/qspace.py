@@ -47,6 +47,7 @@ class Layout:
     ball_max: Array  # (nb,) largest rotation angle, inf when unlimited
     free_q: Index  # (nf, 7)
     free_v: Index  # (nf, 6)
+    quats: Index  # (nb + nf, 4) every quaternion in q
 
     @classmethod
     def of(cls, tree: Tree) -> Layout:
@@ -63,6 +64,7 @@ class Layout:
             ball_q=tree.jnt_qadr[b, None] + np.arange(4), ball_v=tree.jnt_dofadr[b, None] + np.arange(3),
             ball_max=np.where(lim[b], tree.jnt_range[b, 1], np.inf),
             free_q=tree.jnt_qadr[f, None] + np.arange(7), free_v=tree.jnt_dofadr[f, None] + np.arange(6),
+            quats=np.concatenate([tree.jnt_qadr[b, None] + np.arange(4), tree.jnt_qadr[f, None] + np.arange(3, 7)]),
         )
 
 
@@ -74,11 +76,10 @@ def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
         raise InputError(f"{name} must be an array of numbers of shape (..., {tree.nq})") from None
     if a.ndim == 0 or a.shape[-1] != tree.nq:
         raise InputError(f"{name} has shape {a.shape}; this model needs (..., {tree.nq}) (nq = {tree.nq})")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise InputError(f"{name} contains NaN or inf")
-    lay = tree.layout
-    quats = np.concatenate([lay.ball_q, lay.free_q[:, 3:]])
-    if quats.size and np.any(np.linalg.norm(a[..., quats], axis=-1) < 1e-9):
+    quats = tree.layout.quats
+    if quats.size and (np.square(a[..., quats]).sum(-1) < 1e-18).any():
         raise InputError(f"{name} has a zero quaternion for a ball or free joint; use (1, 0, 0, 0) for no rotation")
     return a
 

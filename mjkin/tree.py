@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import qspace, spatial
-from .errors import InputError, ModelError, MjkinIOError, UnknownNameError
+from .errors import InputError, MjkinIOError, ModelError, UnknownNameError
 
 if TYPE_CHECKING:
     from .fk import Frames, Plan
@@ -24,7 +24,7 @@ Kind = Literal["body", "joint", "site"]
 
 
 def _ro(a: ArrayLike, dtype: type = np.float64) -> NDArray:
-    out = np.array(a, dtype=dtype)
+    out: NDArray = np.array(a, dtype=dtype)
     out.setflags(write=False)
     return out
 
@@ -79,6 +79,11 @@ class Tree:
 
     # ------------------------------------------------------------- sizes, names
     @property
+    def name(self) -> str:
+        """The model's name (MJCF ``<mujoco model=...>``)."""
+        return bytes(self.model.names).split(b"\0", 1)[0].decode()
+
+    @property
     def nq(self) -> int:
         """Length of a configuration q (MuJoCo's ``nq``)."""
         return int(self.model.nq)
@@ -123,7 +128,7 @@ class Tree:
             raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
         ids = self._ids[kind]
         if name not in ids:
-            raise UnknownNameError(kind, name, ids)
+            raise UnknownNameError(kind, name, list(ids))
         return ids[name]
 
     def frame(self, name: str, kind: Kind | None = None) -> tuple[Literal["body", "site"], int]:
@@ -134,8 +139,7 @@ class Tree:
             for k in ("site", "body"):
                 if name in self._ids[k]:
                     return k, self._ids[k][name]  # type: ignore[return-value]
-            known = [f"site {n}" for n in self._ids["site"]] + [f"body {n}" for n in self._ids["body"]]
-            raise UnknownNameError("frame", name, known)
+            raise UnknownNameError("site or body", name, {"sites": self._ids["site"], "bodies": self._ids["body"]})
         return kind, self.id(name, kind)
 
     def frame_body(self, name: str, kind: Kind | None = None) -> tuple[int, Array]:
@@ -198,8 +202,7 @@ class Tree:
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
-        f = self.kinematics(q)
-        return spatial.make_transform(f.rot, f.pos)
+        return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
@@ -224,7 +227,9 @@ def bundled_models() -> dict[str, Path]:
 
 
 def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:
-    """Read a kinematic tree from an MJCF/URDF path, an XML string, a bundled model name,
+    """Read a kinematic tree.
+
+    ``src`` is an MJCF or URDF path, an XML string, the name of a bundled model,
     a :class:`mujoco.MjSpec` or a compiled :class:`mujoco.MjModel`.
 
     Raises:

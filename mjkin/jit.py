@@ -1,0 +1,63 @@
+"""numba set-up and the small 3-D helpers the compiled kernels share.
+
+The kernels (FK, Jacobians, IK iterations) are plain loops over a leading
+batch axis compiled by numba: numpy's per-call overhead (~1 µs a call, dozens
+of calls per FK) would otherwise dominate single configurations, and its
+stacked 3x3 products are slow for large batches. Compiled code is cached on
+disk next to the modules, so only the first run pays for compilation.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+njit = numba.njit(cache=True, nogil=True, fastmath=False)
+
+
+@njit
+def quat_to_mat(w: float, x: float, y: float, z: float, out: np.ndarray) -> None:
+    """Write the rotation matrix of the quaternion ``(w, x, y, z)``, normalised, into ``out (3, 3)``."""
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    out[0, 0] = 1 - 2 * (y * y + z * z)
+    out[0, 1] = 2 * (x * y - w * z)
+    out[0, 2] = 2 * (x * z + w * y)
+    out[1, 0] = 2 * (x * y + w * z)
+    out[1, 1] = 1 - 2 * (x * x + z * z)
+    out[1, 2] = 2 * (y * z - w * x)
+    out[2, 0] = 2 * (x * z - w * y)
+    out[2, 1] = 2 * (y * z + w * x)
+    out[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit
+def axis_angle(u: np.ndarray, angle: float, out: np.ndarray) -> None:
+    """Write Rodrigues' rotation by ``angle`` about the unit axis ``u (3,)`` into ``out (3, 3)``."""
+    s, c = np.sin(angle), np.cos(angle)
+    t = 1.0 - c
+    x, y, z = u[0], u[1], u[2]
+    out[0, 0] = c + t * x * x
+    out[0, 1] = t * x * y - s * z
+    out[0, 2] = t * x * z + s * y
+    out[1, 0] = t * x * y + s * z
+    out[1, 1] = c + t * y * y
+    out[1, 2] = t * y * z - s * x
+    out[2, 0] = t * x * z - s * y
+    out[2, 1] = t * y * z + s * x
+    out[2, 2] = c + t * z * z
+
+
+@njit
+def matmul3(A: np.ndarray, C: np.ndarray, out: np.ndarray) -> None:
+    """``out = A @ C`` for 3x3 matrices (``out`` must not alias ``A`` or ``C``)."""
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = A[i, 0] * C[0, k] + A[i, 1] * C[1, k] + A[i, 2] * C[2, k]
+
+
+@njit
+def matvec3(A: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    """``out = A @ v`` for a 3x3 matrix and a 3-vector (``out`` must not alias ``v``)."""
+    for i in range(3):
+        out[i] = A[i, 0] * v[0] + A[i, 1] * v[1] + A[i, 2] * v[2]

@@ -1,0 +1,83 @@
+"""Shared test helpers: model lists, the MuJoCo oracle, tolerances, seeded generators."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import mjkin
+from mjkin.bench import shared_models_dir
+
+FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
+FD_TOL = 1e-6  # finite-difference checks (central differences, step 1e-6)
+
+ROOT = Path(__file__).resolve().parent.parent
+GYM_ASSETS = Path(__import__("gymnasium").__file__).parent / "envs" / "mujoco" / "assets"
+
+
+def bundled() -> list[Path]:
+    return list(mjkin.bundled_models().values())
+
+
+def gym_assets() -> list[Path]:
+    return sorted(GYM_ASSETS.glob("*.xml"))
+
+
+def shared() -> list[Path]:
+    root = shared_models_dir()
+    return sorted(root.rglob("*.xml")) if root else []
+
+
+def model_id(p: Path) -> str:
+    return f"{p.parent.name}/{p.stem}"
+
+
+ALL_MODELS = bundled() + gym_assets() + shared()
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
+
+
+_TREES: dict[str, mjkin.Tree] = {}
+
+
+def tree_of(src: str | Path) -> mjkin.Tree:
+    """Load a model once per session."""
+    key = str(src)
+    if key not in _TREES:
+        _TREES[key] = mjkin.load(src)
+    return _TREES[key]
+
+
+def mujoco_state(model: mujoco.MjModel, q: np.ndarray) -> mujoco.MjData:
+    """MjData after ``mj_kinematics`` and ``mj_comPos`` (what ``mj_jac`` needs) at ``q``."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = q
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    return data
+
+
+def mujoco_jacobian(model: mujoco.MjModel, data: mujoco.MjData, kind: str, i: int) -> np.ndarray:
+    jp, jr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    (mujoco.mj_jacSite if kind == "site" else mujoco.mj_jacBody)(model, data, jp, jr, i)
+    return np.vstack([jp, jr])
+
+
+def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """Angle between rotation matrices (radians)."""
+    return mjkin.spatial.quat_distance(mjkin.spatial.mat_to_quat(R1), mjkin.spatial.mat_to_quat(R2))
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    root = shared_models_dir()
+    return f"mjkin models: {len(bundled())} bundled, {len(gym_assets())} gymnasium, {len(shared())} shared ({root})"
+
+
+os.environ.setdefault("MUJOCO_GL", "egl")

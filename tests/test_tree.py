@@ -1,0 +1,159 @@
+"""Loading models, names, configuration-space arithmetic, and bad input."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import mjkin
+from conftest import tree_of
+from mjkin.qspace import BALL, HINGE, SLIDE
+
+TWO_LINK = """<mujoco><worldbody><body name="a"><joint name="j1" axis="0 0 1"/><geom size=".1"/>
+<body name="b" pos="1 0 0"><joint name="j2" axis="0 0 1" range="-1 1"/><geom size=".1"/>
+<site name="tip" pos="0.5 0 0"/></body></body></worldbody></mujoco>"""
+
+URDF = """<robot name="r"><link name="base"/><link name="l1">
+<visual><geometry><box size="0.1 0.1 0.1"/></geometry></visual>
+<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.5"/><axis xyz="0 1 0"/>
+<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>"""
+
+
+def test_load_every_kind_of_source(tmp_path):
+    path = tmp_path / "two.xml"
+    path.write_text(TWO_LINK)
+    urdf = tmp_path / "r.urdf"
+    urdf.write_text(URDF)
+    model = mujoco.MjModel.from_xml_string(TWO_LINK)
+    trees = [mjkin.load(path), mjkin.load(str(path)), mjkin.load(TWO_LINK), mjkin.load(model),
+             mjkin.load(mujoco.MjSpec.from_string(TWO_LINK))]
+    for t in trees:
+        assert (t.nq, t.nv) == (2, 2)
+        np.testing.assert_allclose(t.pose([0.0, np.pi / 2], "tip")[:3, 3], [1.0, 0.5, 0.0], atol=1e-15)
+    assert mjkin.load(urdf).names("joint") == ["j1"]
+    assert mjkin.load("arm7").nq == 7
+
+
+def test_names_and_frames():
+    t = mjkin.load(TWO_LINK)
+    assert t.names("body") == ["world", "a", "b"]
+    assert t.names("joint") == ["j1", "j2"] and t.names("site") == ["tip"]
+    assert t.frame("tip") == ("site", 0) and t.frame("b") == ("body", 2)
+    np.testing.assert_array_equal(t.pose(t.qpos0, "b", "body"), t.fk(t.qpos0)[2])
+
+
+@pytest.mark.parametrize("src, error, text", [
+    ("/no/such/model.xml", mjkin.MjkinIOError, "model file not found"),
+    ("<mujoco><worldbody><body>", mjkin.ModelError, "cannot compile"),
+    ("<mujoco><worldbody><body><joint type='bogus'/></body></worldbody></mujoco>", mjkin.ModelError, "bogus"),
+    (42, mjkin.InputError, "not int"),
+])
+def test_load_errors_are_one_line(src, error, text):
+    with pytest.raises(error, match=text) as info:
+        mjkin.load(src)
+    assert "\n" not in str(info.value)
+    assert isinstance(info.value, mjkin.MjkinError)
+
+
+def test_unknown_names_list_the_known_ones():
+    t = mjkin.load(TWO_LINK)
+    with pytest.raises(mjkin.UnknownNameError, match="'tip'.*'b'") as info:
+        t.pose(t.qpos0, "hand")
+    assert "hand" in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(mjkin.UnknownNameError, match="'tip'"):
+        t.jacobian(t.qpos0, "tpi", "site")
+    with pytest.raises(mjkin.InputError, match="kind"):
+        t.pose(t.qpos0, "tip", "geom")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("q, text", [
+    (np.zeros(3), r"shape \(3,\).*\(\.\.\., 2\)"),
+    (np.zeros((4, 1)), "shape"),
+    (np.array([0.0, np.nan]), "NaN"),
+    (np.array([np.inf, 0.0]), "NaN or inf"),
+    ("zero", "array of numbers"),
+    (3.0, "shape"),
+])
+def test_bad_q(q, text):
+    t = mjkin.load(TWO_LINK)
+    with pytest.raises(mjkin.InputError, match=text):
+        t.fk(q)
+
+
+def test_zero_quaternion_is_rejected():
+    t = tree_of("ball_chain")
+    q = t.qpos0.copy()
+    q[4:8] = 0.0
+    with pytest.raises(mjkin.InputError, match="zero quaternion"):
+        t.pose(q, "tip")
+
+
+def test_bad_offset():
+    t = tree_of("arm7")
+    with pytest.raises(mjkin.InputError, match="offset"):
+        t.jacobian(t.qpos0, "ee", offset=[1.0, 2.0])
+
+
+@pytest.mark.parametrize("name", ["arm7", "primate", "ball_chain", "planar_prismatic"])
+def test_random_q_respects_limits_and_is_seeded(name):
+    t = tree_of(name)
+    Q = t.random_q(7, 500)
+    assert Q.shape == (500, t.nq)
+    np.testing.assert_array_equal(Q, t.random_q(np.random.default_rng(7), 500))
+    np.testing.assert_allclose(t.clip(Q), Q, atol=1e-12)  # already inside
+    for j in range(t.njnt):
+        a = t.jnt_qadr[j]
+        if t.jnt_limited[j] and t.jnt_type[j] in (HINGE, SLIDE):
+            lo, hi = t.jnt_range[j]
+            assert np.all((Q[:, a] >= lo) & (Q[:, a] <= hi))
+        if t.jnt_type[j] == BALL:
+            angle = mjkin.spatial.quat_distance(Q[:, a:a + 4], [1, 0, 0, 0])
+            assert np.all(angle <= t.jnt_range[j, 1] + 1e-12) if t.jnt_limited[j] else np.all(angle <= np.pi)
+
+
+@pytest.mark.parametrize("name", ["primate", "ball_chain", "arm7"])
+def test_integrate_and_difference_match_mujoco(name, rng):
+    t = tree_of(name)
+    m = t.model
+    for q in t.random_q(rng, 20):
+        v = rng.normal(size=t.nv)
+        expected = q.copy()
+        mujoco.mj_integratePos(m, expected, v, 1.0)
+        ours = t.integrate(q, v)
+        np.testing.assert_allclose(t.fk(ours), t.fk(expected), atol=1e-10)
+        diff = np.zeros(t.nv)
+        mujoco.mj_differentiatePos(m, diff, 1.0, q, ours)
+        np.testing.assert_allclose(t.difference(ours, q), diff, atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(np.float64, 37, elements=st.floats(-5, 5, allow_nan=False)))
+def test_clip_lands_inside_limits(q):
+    t = tree_of("primate")
+    q = q.copy()
+    q[t.layout.quats[:, 0]] += 0.5  # keep quaternions away from zero
+    c = t.clip(q)
+    np.testing.assert_allclose(t.clip(c), c, atol=1e-12)  # idempotent
+    lay = t.layout
+    assert np.all((c[lay.scalar_q] >= lay.scalar_lo) & (c[lay.scalar_q] <= lay.scalar_hi))
+    np.testing.assert_allclose(np.linalg.norm(c[lay.quats], axis=-1), 1.0, atol=1e-12)
+    angles = mjkin.spatial.quat_distance(c[lay.ball_q], [1, 0, 0, 0])
+    assert np.all(angles <= lay.ball_max + 1e-9)
+
+
+def test_tree_arrays_are_read_only():
+    t = tree_of("arm7")
+    with pytest.raises(ValueError):
+        t.qpos0[0] = 1.0
+    with pytest.raises(ValueError):
+        t.jnt_range[0, 0] = 1.0
+
+
+def test_public_names_exist():
+    for name in mjkin.__all__:
+        assert hasattr(mjkin, name), name
