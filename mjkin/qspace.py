@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import spatial
 from .errors import InputError
+from .jit import njit
 
 if TYPE_CHECKING:
     from .tree import Tree
@@ -38,15 +39,12 @@ class Layout:
     """Index arrays grouping the joints by kind, for vectorised q arithmetic."""
 
     scalar_q: Index  # (ns,) qpos index of each hinge/slide joint
-    scalar_v: Index  # (ns,) its dof index
     scalar_hinge: NDArray[np.bool_]
     scalar_lo: Array  # (ns,) lower limit, -inf when unlimited
     scalar_hi: Array
     ball_q: Index  # (nb, 4)
-    ball_v: Index  # (nb, 3)
     ball_max: Array  # (nb,) largest rotation angle, inf when unlimited
     free_q: Index  # (nf, 7)
-    free_v: Index  # (nf, 6)
     quats: Index  # (nb + nf, 4) every quaternion in q
 
     @classmethod
@@ -58,12 +56,12 @@ class Layout:
         f = np.flatnonzero(t == FREE)
         lim = tree.jnt_limited
         return cls(
-            scalar_q=tree.jnt_qadr[s], scalar_v=tree.jnt_dofadr[s], scalar_hinge=t[s] == HINGE,
+            scalar_q=tree.jnt_qadr[s], scalar_hinge=t[s] == HINGE,
             scalar_lo=np.where(lim[s], tree.jnt_range[s, 0], -np.inf),
             scalar_hi=np.where(lim[s], tree.jnt_range[s, 1], np.inf),
-            ball_q=tree.jnt_qadr[b, None] + np.arange(4), ball_v=tree.jnt_dofadr[b, None] + np.arange(3),
+            ball_q=tree.jnt_qadr[b, None] + np.arange(4),
             ball_max=np.where(lim[b], tree.jnt_range[b, 1], np.inf),
-            free_q=tree.jnt_qadr[f, None] + np.arange(7), free_v=tree.jnt_dofadr[f, None] + np.arange(6),
+            free_q=tree.jnt_qadr[f, None] + np.arange(7),
             quats=np.concatenate([tree.jnt_qadr[b, None] + np.arange(4), tree.jnt_qadr[f, None] + np.arange(3, 7)]),
         )
 
@@ -124,53 +122,135 @@ def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | No
     return q[0] if n is None else q
 
 
+@njit
+def _quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
+    """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``."""
+    w, x, y, z = q[a], q[a + 1], q[a + 2], q[a + 3]
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = np.sqrt(x * x + y * y + z * z)
+    if 2.0 * np.arctan2(s, w) > max_angle:
+        h = 0.5 * max_angle
+        w, x, y, z = np.cos(h), np.sin(h) * x / s, np.sin(h) * y / s, np.sin(h) * z / s
+    q[a], q[a + 1], q[a + 2], q[a + 3] = w, x, y, z
+
+
+@njit
+def clip_kernel(q: Array, jnt_type: Index, jnt_qadr: Index, lo: Array, hi: Array) -> None:
+    """Project ``q (B, nq)`` into the joint limits, in place.
+
+    Hinges and slides are clamped to ``[lo, hi]`` (per joint), ball joints pulled
+    into their cone (``hi`` is the max angle), every quaternion normalised.
+    """
+    for b in range(q.shape[0]):
+        for j in range(jnt_type.shape[0]):
+            a = jnt_qadr[j]
+            if jnt_type[j] == HINGE or jnt_type[j] == SLIDE:
+                q[b, a] = min(max(q[b, a], lo[j]), hi[j])
+            elif jnt_type[j] == BALL:
+                _quat_angle_clip(q[b], a, hi[j])
+            else:
+                _quat_angle_clip(q[b], a + 3, np.inf)
+
+
+@njit
+def _turn(q: Array, a: int, wx: float, wy: float, wz: float) -> None:
+    """``q[a:a+4] <- q ⊗ exp(w)``, normalised (local-frame angular velocity, as mj_integratePos)."""
+    th = np.sqrt(wx * wx + wy * wy + wz * wz)
+    c = np.cos(0.5 * th)
+    s = 0.5 if th < 1e-12 else np.sin(0.5 * th) / th
+    bw, bx, by, bz = c, s * wx, s * wy, s * wz
+    aw, ax, ay, az = q[a], q[a + 1], q[a + 2], q[a + 3]
+    w = aw * bw - ax * bx - ay * by - az * bz
+    x = aw * bx + ax * bw + ay * bz - az * by
+    y = aw * by - ax * bz + ay * bw + az * bx
+    z = aw * bz + ax * by - ay * bx + az * bw
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    q[a], q[a + 1], q[a + 2], q[a + 3] = w / n, x / n, y / n, z / n
+
+
+@njit
+def integrate_kernel(q: Array, v: Array, jnt_type: Index, jnt_qadr: Index, jnt_dofadr: Index) -> None:
+    """In place ``q <- q ⊕ v`` for ``q (B, nq)``, ``v (B, nv)``."""
+    for b in range(q.shape[0]):
+        for j in range(jnt_type.shape[0]):
+            a, d = jnt_qadr[j], jnt_dofadr[j]
+            if jnt_type[j] == HINGE or jnt_type[j] == SLIDE:
+                q[b, a] += v[b, d]
+            elif jnt_type[j] == BALL:
+                _turn(q[b], a, v[b, d], v[b, d + 1], v[b, d + 2])
+            else:
+                for i in range(3):
+                    q[b, a + i] += v[b, d + i]
+                _turn(q[b], a + 3, v[b, d + 3], v[b, d + 4], v[b, d + 5])
+
+
+@njit
+def _log_rel(p: Array, a: int, r: Array, c: int, out: Array, d: int) -> None:
+    """``out[d:d+3] = log(p[a:a+4]^-1 ⊗ r[c:c+4])`` for unit quaternions, angle in [0, π]."""
+    pw, px, py, pz = p[a], -p[a + 1], -p[a + 2], -p[a + 3]
+    rw, rx, ry, rz = r[c], r[c + 1], r[c + 2], r[c + 3]
+    w = pw * rw - px * rx - py * ry - pz * rz
+    x = pw * rx + px * rw + py * rz - pz * ry
+    y = pw * ry - px * rz + py * rw + pz * rx
+    z = pw * rz + px * ry - py * rx + pz * rw
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 / w if s < 1e-12 else 2.0 * np.arctan2(s, w) / s
+    out[d], out[d + 1], out[d + 2] = k * x, k * y, k * z
+
+
+@njit
+def difference_kernel(q1: Array, q0: Array, jnt_type: Index, jnt_qadr: Index, jnt_dofadr: Index, v: Array) -> None:
+    """``v = q1 ⊖ q0`` (the velocity taking ``q0`` to ``q1`` in unit time), rows of ``(B, ·)``."""
+    for b in range(v.shape[0]):
+        for j in range(jnt_type.shape[0]):
+            a, d = jnt_qadr[j], jnt_dofadr[j]
+            if jnt_type[j] == HINGE or jnt_type[j] == SLIDE:
+                v[b, d] = q1[b, a] - q0[b, a]
+            elif jnt_type[j] == BALL:
+                _log_rel(q0[b], a, q1[b], a, v[b], d)
+            else:
+                for i in range(3):
+                    v[b, d + i] = q1[b, a + i] - q0[b, a + i]
+                _log_rel(q0[b], a + 3, q1[b], a + 3, v[b], d + 3)
+
+
+def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
+    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(-1, n), dtype=np.float64)
+
+
 def clip(tree: Tree, q: Array) -> Array:
     """Project into the joint limits; ball joints past their cone are pulled back onto it."""
-    lay = tree.layout
-    q = q.copy()
-    q[..., lay.scalar_q] = np.clip(q[..., lay.scalar_q], lay.scalar_lo, lay.scalar_hi)
-    if len(lay.ball_q):
-        r = spatial.quat_to_rotvec(spatial.quat_normalize(q[..., lay.ball_q]))
-        angle = np.linalg.norm(r, axis=-1, keepdims=True)
-        over = angle > lay.ball_max[:, None]
-        r = np.where(over, r * lay.ball_max[:, None] / np.where(over, angle, 1.0), r)
-        q[..., lay.ball_q] = spatial.rotvec_to_quat(r)
-    if len(lay.free_q):
-        q[..., lay.free_q[:, 3:]] = spatial.quat_normalize(q[..., lay.free_q[:, 3:]])
-    return q
+    out = _rows(q, tree.nq, q.shape[:-1]).copy()
+    clip_kernel(out, tree.jnt_type, tree.jnt_qadr, *limits(tree))
+    return out.reshape(q.shape)
+
+
+def limits(tree: Tree) -> tuple[Array, Array]:
+    """Per joint ``(lo, hi)``: hinge/slide range (±inf when unlimited), ball max angle in ``hi``."""
+    lo = np.where(tree.jnt_limited, tree.jnt_range[:, 0], -np.inf)
+    hi = np.where(tree.jnt_limited, tree.jnt_range[:, 1], np.inf)
+    return lo, hi
 
 
 def integrate(tree: Tree, q: Array, v: Array) -> Array:
     """``q ⊕ v``: add hinge/slide velocities, rotate quaternions by ``exp(w)`` in the local frame."""
-    lay = tree.layout
-    if v.shape[-1] != tree.nv:
+    if v.ndim == 0 or v.shape[-1] != tree.nv:
         raise InputError(f"velocity has shape {v.shape}; this model needs (..., {tree.nv})")
     shape = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
-    out = np.broadcast_to(q, shape + (tree.nq,)).copy()
-    out[..., lay.scalar_q] += v[..., lay.scalar_v]
-    if len(lay.ball_q):
-        out[..., lay.ball_q] = _turn(out[..., lay.ball_q], v[..., lay.ball_v])
-    if len(lay.free_q):
-        out[..., lay.free_q[:, :3]] += v[..., lay.free_v[:, :3]]
-        out[..., lay.free_q[:, 3:]] = _turn(out[..., lay.free_q[:, 3:]], v[..., lay.free_v[:, 3:]])
-    return out
-
-
-def _turn(quat: Array, w: Array) -> Array:
-    return spatial.quat_normalize(spatial.quat_mul(spatial.quat_normalize(quat), spatial.rotvec_to_quat(w)))
+    out = _rows(q, tree.nq, shape).copy()
+    integrate_kernel(out, _rows(v, tree.nv, shape), tree.jnt_type, tree.jnt_qadr, tree.jnt_dofadr)
+    return out.reshape(shape + (tree.nq,))
 
 
 def difference(tree: Tree, q1: Array, q0: Array) -> Array:
     """``q1 ⊖ q0``: the velocity ``(..., nv)`` with ``integrate(q0, v) == q1``."""
-    lay = tree.layout
     shape = np.broadcast_shapes(q1.shape[:-1], q0.shape[:-1])
-    v = np.zeros(shape + (tree.nv,))
-    v[..., lay.scalar_v] = q1[..., lay.scalar_q] - q0[..., lay.scalar_q]
-    for qi, vi in ((lay.ball_q, lay.ball_v), (lay.free_q[:, 3:], lay.free_v[:, 3:])):
-        if len(qi):
-            rel = spatial.quat_mul(spatial.quat_conj(spatial.quat_normalize(q0[..., qi])),
-                                   spatial.quat_normalize(q1[..., qi]))
-            v[..., vi] = spatial.quat_to_rotvec(rel)
-    if len(lay.free_q):
-        v[..., lay.free_v[:, :3]] = q1[..., lay.free_q[:, :3]] - q0[..., lay.free_q[:, :3]]
-    return v
+    v = np.empty((int(np.prod(shape, dtype=np.int64)), tree.nv))
+    a1, a0 = _rows(q1, tree.nq, shape), _rows(q0, tree.nq, shape)
+    difference_kernel(a1, a0, tree.jnt_type, tree.jnt_qadr, tree.jnt_dofadr, v)
+    return v.reshape(shape + (tree.nv,))
