@@ -12,8 +12,9 @@ import os
 if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and os.name == "posix":
     os.environ["MUJOCO_GL"] = "egl"  # headless default for offscreen rendering; set before mujoco loads
 
-from . import spatial  # noqa: E402
+from . import goals, spatial  # noqa: E402
 from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError  # noqa: E402
+from .ik import Result, singular_values, solve  # noqa: E402
 from .tree import Tree, bundled_models, load  # noqa: E402
 
 __version__ = "0.1.0"
@@ -24,9 +25,13 @@ __all__ = [
     "MjkinError",
     "MjkinIOError",
     "ModelError",
+    "Result",
     "Tree",
     "UnknownNameError",
     "bundled_models",
+    "goals",
     "load",
+    "singular_values",
+    "solve",
     "spatial",
 ]

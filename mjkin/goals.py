@@ -1,0 +1,442 @@
+"""What IK should achieve: goals with a residual, its Jacobian, a weight and a priority.
+
+Every goal defines a residual ``g(q)`` that is zero when the goal is met and
+its Jacobian ``dg/dv`` (``v`` is MuJoCo's velocity, so ``(m, nv)``). Solvers
+minimise ``Σ weight · |g|²`` level by level: priority 0 first, and a larger
+priority only uses the freedom the smaller ones leave (seed 002: weighted goal
+potentials, base/effector pairs ordered by priority). ``weight=0`` switches a
+goal off.
+
+Frame goals name a site or body (``kind`` as in :meth:`Tree.frame`) and may
+act on a point ``offset`` fixed in that frame. Targets may carry a leading
+batch axis: ``Position("ee", xyz)`` with ``xyz`` of shape ``(B, 3)`` asks for
+``B`` solves at once.
+
+The goal math lives in one compiled evaluator (:mod:`mjkin.ik.kernel`); here
+goals are validated and encoded as arrays (:func:`compile_goals`), and
+:func:`evaluate` gives residuals and Jacobians for inspection and tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import spatial
+from .errors import GoalError, MjkinError
+from .qspace import HINGE, SLIDE
+
+if TYPE_CHECKING:
+    from .tree import Kind, Tree
+
+Array = NDArray[np.float64]
+
+# goal kinds understood by the compiled evaluator
+POSITION, ORIENTATION, AXIS, POSE, AIM, LINE, PLANE, HALFSPACE, REST, COUPLING = range(10)
+DATA = 12  # per-goal target numbers: [0:3] a point, [3:12] a rotation (row-major) or [3:6] a direction
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def _array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
+    """``value`` as float64 with trailing ``shape`` and at most one leading batch axis."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GoalError(f"{what} must be numbers of shape {shape} or (B, {', '.join(map(str, shape))})") from None
+    if a.shape[a.ndim - len(shape):] != shape or a.ndim > len(shape) + 1:
+        batched = "(B, " + ", ".join(map(str, shape)) + ")"
+        raise GoalError(f"{what} has shape {a.shape}; expected {shape} or {batched}")
+    if not np.isfinite(a).all():
+        raise GoalError(f"{what} contains NaN or inf")
+    return a
+
+
+def _unit(value: ArrayLike, what: str) -> Array:
+    a = _array(value, (3,), what)
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    if np.any(n < 1e-12):
+        raise GoalError(f"{what} must have non-zero length")
+    return a / n
+
+
+def _rotation(value: ArrayLike, what: str) -> Array:
+    """A rotation given as quaternion(s) ``(..., 4)`` or matrix(es) ``(..., 3, 3)`` → matrices."""
+    a = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+    if a.shape[-1:] == (4,):
+        q = _array(a, (4,), what)
+        n = np.linalg.norm(q, axis=-1, keepdims=True)
+        if np.any(n < 1e-12):
+            raise GoalError(f"{what} is a zero quaternion")
+        return spatial.quat_to_mat(q / n)
+    R = _array(a, (3, 3), what)
+    if np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max() > 1e-6 or np.any(np.linalg.det(R) < 0):
+        raise GoalError(f"{what} is not a rotation matrix (orthonormal, det +1)")
+    return spatial.orthonormalize(R)
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Base of all goals: a weight (0 = ignored) and a priority (0 = highest)."""
+
+    weight: float = field(default=1.0, kw_only=True)
+    priority: int = field(default=0, kw_only=True)
+    code: ClassVar[int]
+    rows: ClassVar[int]
+
+    def __post_init__(self) -> None:
+        w = float(self.weight)
+        if not np.isfinite(w) or w < 0:
+            raise GoalError(f"{type(self).__name__}: weight must be a finite number >= 0, got {self.weight!r}")
+        if not isinstance(self.priority, (int, np.integer)) or self.priority < 0:
+            raise GoalError(f"{type(self).__name__}: priority must be an integer >= 0, got {self.priority!r}")
+
+    def nrows(self, tree: Tree) -> int:
+        """Number of residual rows."""
+        return self.rows
+
+    def batch(self) -> tuple[int, ...]:
+        """Leading batch shape of the targets: ``()`` or ``(B,)``."""
+        return ()
+
+    def encode(self, tree: Tree, data: Array) -> int:
+        """Write target numbers into ``data (B, DATA)``; return the goal's auxiliary integer."""
+        return 0
+
+
+@dataclass(frozen=True)
+class FrameGoal(Goal):
+    """A goal on a site or body frame, or on a point ``offset`` fixed in that frame."""
+
+    name: str
+    kind: Kind | None = field(default=None, kw_only=True)
+    offset: tuple[float, float, float] | None = field(default=None, kw_only=True)
+
+    def frame(self, tree: Tree) -> tuple[int, Array, Array]:
+        """Body, local rotation ``(3, 3)`` and local point ``(3,)`` of the goal frame."""
+        body, T = tree.frame_body(self.name, self.kind)
+        point = T[:3, 3]
+        if self.offset is not None:
+            point = point + T[:3, :3] @ _array(self.offset, (3,), f"{type(self).__name__} offset")
+        return body, T[:3, :3], point
+
+    _cores: ClassVar[tuple[int, ...]] = (1, 1)  # number of non-batch axes of each target
+
+    def _targets(self) -> list[Array]:
+        return []
+
+    def batch(self) -> tuple[int, ...]:
+        """Leading batch shape shared by the targets."""
+        shapes = [t.shape[: t.ndim - core] for t, core in zip(self._targets(), self._cores, strict=False)]
+        try:
+            return tuple(np.broadcast_shapes(*shapes)) if shapes else ()
+        except ValueError:
+            raise GoalError(f"{type(self).__name__}: targets have different batch sizes {shapes}") from None
+
+
+@dataclass(frozen=True)
+class Position(FrameGoal):
+    """Put the frame origin (or ``offset``) at ``xyz``: ``g = p - xyz``."""
+
+    xyz: ArrayLike = (0.0, 0.0, 0.0)
+    code: ClassVar[int] = POSITION
+    rows: ClassVar[int] = 3
+
+    def _targets(self) -> list[Array]:
+        return [_array(self.xyz, (3,), "Position xyz")]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        data[:, 0:3] = self._targets()[0]
+        return 0
+
+
+@dataclass(frozen=True)
+class Orientation(FrameGoal):
+    """Turn the frame to ``quat`` (or a rotation matrix): ``g = log(R R_targetᵀ)``, world axes.
+
+    ``axes`` names the frame axes that must match the target's: ``"xyz"`` (all,
+    the default) is the full orientation; a single axis such as ``"z"`` leaves
+    the rotation about it free (the seed's direction-or-up vector with ``c = 0``).
+    """
+
+    quat: ArrayLike = (1.0, 0.0, 0.0, 0.0)
+    axes: str = "xyz"
+    code: ClassVar[int] = ORIENTATION
+    rows: ClassVar[int] = 3
+    _cores: ClassVar[tuple[int, ...]] = (2,)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.axes or set(self.axes) - set(_AXES) or len(set(self.axes)) != len(self.axes):
+            raise GoalError(f"Orientation axes must be one or more of 'x', 'y', 'z', got {self.axes!r}")
+
+    def _targets(self) -> list[Array]:
+        return [_rotation(self.quat, "Orientation quat")]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        data[:, 3:12] = self._targets()[0].reshape(-1, 9)
+        return _AXES[self.axes] if len(self.axes) == 1 else -1
+
+    @property
+    def single_axis(self) -> bool:
+        """Only one axis is constrained."""
+        return len(self.axes) == 1
+
+
+@dataclass(frozen=True)
+class Pose(FrameGoal):
+    """Position and orientation at once, from a 4x4 pose ``T``: rows ``[position; orientation]``."""
+
+    T: ArrayLike = field(default_factory=lambda: np.eye(4))
+    code: ClassVar[int] = POSE
+    rows: ClassVar[int] = 6
+    _cores: ClassVar[tuple[int, ...]] = (2, 1)
+
+    def _targets(self) -> list[Array]:
+        T = _array(self.T, (4, 4), "Pose T")
+        return [_rotation(T[..., :3, :3], "Pose T rotation"), T[..., :3, 3]]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        R, p = self._targets()
+        data[:, 0:3] = p
+        data[:, 3:12] = R.reshape(-1, 9)
+        return 0
+
+
+@dataclass(frozen=True)
+class Aim(FrameGoal):
+    """Point the frame's local ``axis`` at the world ``point`` (look at): ``g = R axis - unit(point - p)``."""
+
+    axis: ArrayLike = (1.0, 0.0, 0.0)
+    point: ArrayLike = (0.0, 0.0, 0.0)
+    code: ClassVar[int] = AIM
+    rows: ClassVar[int] = 3
+
+    def _targets(self) -> list[Array]:
+        axis = _unit(self.axis, "Aim axis")
+        if axis.ndim != 1:
+            raise GoalError("Aim axis is fixed in the frame: give one (3,) vector")
+        return [_array(self.point, (3,), "Aim point"), axis]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        point, axis = self._targets()
+        data[:, 0:3] = point
+        data[:, 3:6] = axis
+        return 0
+
+
+@dataclass(frozen=True)
+class Line(FrameGoal):
+    """Keep the frame origin on the line through ``point`` along ``direction``."""
+
+    point: ArrayLike = (0.0, 0.0, 0.0)
+    direction: ArrayLike = (0.0, 0.0, 1.0)
+    code: ClassVar[int] = LINE
+    rows: ClassVar[int] = 3
+
+    def _targets(self) -> list[Array]:
+        return [_array(self.point, (3,), "Line point"), _unit(self.direction, "Line direction")]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        point, u = self._targets()
+        data[:, 0:3] = point
+        data[:, 3:6] = u
+        return 0
+
+
+@dataclass(frozen=True)
+class Plane(FrameGoal):
+    """Keep the frame origin on the plane through ``point`` with ``normal``: ``g = n·(p - point)``."""
+
+    point: ArrayLike = (0.0, 0.0, 0.0)
+    normal: ArrayLike = (0.0, 0.0, 1.0)
+    code: ClassVar[int] = PLANE
+    rows: ClassVar[int] = 1
+
+    def _targets(self) -> list[Array]:
+        return [_array(self.point, (3,), f"{type(self).__name__} point"),
+                _unit(self.normal, f"{type(self).__name__} normal")]
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        point, n = self._targets()
+        data[:, 0:3] = point
+        data[:, 3:6] = n
+        return 0
+
+
+@dataclass(frozen=True)
+class HalfSpace(Plane):
+    """Stay on the side of a wall that ``normal`` points to: ``g = min(0, n·(p - point))``."""
+
+    code: ClassVar[int] = HALFSPACE
+
+
+@dataclass(frozen=True)
+class Rest(Goal):
+    """Stay near a rest ("comfort") pose: ``g = sqrt(stiffness) · (q ⊖ q_rest)``, one row per dof.
+
+    ``stiffness`` is a number or one per dof (``nv``); stiff joints move less.
+    Never counted for success. Usually given a small weight or a low priority.
+    """
+
+    q_rest: ArrayLike = ()
+    stiffness: ArrayLike = 1.0
+    code: ClassVar[int] = REST
+    rows: ClassVar[int] = -1
+
+    def nrows(self, tree: Tree) -> int:  # noqa: D102
+        return tree.nv
+
+    def batch(self) -> tuple[int, ...]:  # noqa: D102
+        a = np.asarray(self.q_rest, dtype=np.float64)
+        return a.shape[:-1] if a.ndim > 1 else ()
+
+    def arrays(self, tree: Tree) -> tuple[Array, Array]:
+        """Validated ``q_rest (…, nq)`` and ``sqrt(stiffness) (nv,)``."""
+        try:
+            q = tree.check_q(self.q_rest, "Rest q_rest")
+        except MjkinError as e:
+            raise GoalError(str(e)) from None
+        k = np.broadcast_to(np.asarray(self.stiffness, dtype=np.float64), (tree.nv,)) \
+            if np.ndim(self.stiffness) == 0 else _array(self.stiffness, (tree.nv,), "Rest stiffness")
+        if k.ndim != 1 or np.any(k < 0) or not np.isfinite(k).all():
+            raise GoalError(f"Rest stiffness must be >= 0, one number or {tree.nv} (nv)")
+        return q, np.sqrt(k)
+
+
+@dataclass(frozen=True)
+class Coupling(Goal):
+    """A linear equality between hinge/slide joints: ``Σ coef_j q_j = value`` (e.g. coupled fingers)."""
+
+    coefficients: Mapping[str, float] = field(default_factory=dict)
+    value: float = 0.0
+    code: ClassVar[int] = COUPLING
+    rows: ClassVar[int] = 1
+
+    def row(self, tree: Tree) -> Array:
+        """Coefficients laid out over the dofs ``(nv,)``."""
+        if not self.coefficients:
+            raise GoalError("Coupling needs at least one joint coefficient")
+        c = np.zeros(tree.nv)
+        for name, coef in self.coefficients.items():
+            j = tree.id(name, "joint")
+            if tree.jnt_type[j] not in (HINGE, SLIDE):
+                raise GoalError(f"Coupling joint {name!r} must be a hinge or slide")
+            if not np.isfinite(coef):
+                raise GoalError(f"Coupling coefficient of {name!r} is not finite")
+            c[tree.jnt_dofadr[j]] = coef
+        return c
+
+    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
+        if not np.isfinite(self.value):
+            raise GoalError("Coupling value is not finite")
+        data[:, 0] = self.value
+        return 0
+
+
+@dataclass(frozen=True)
+class Program:
+    """Goals encoded as arrays for the compiled evaluator, sorted by priority level.
+
+    ``G`` goals, ``B`` targets, ``m`` residual rows. ``level_rows[l]:level_rows[l+1]``
+    are the rows of level ``l`` (priorities compressed to 0, 1, ...).
+    """
+
+    goals: tuple[Goal, ...]
+    batch: tuple[int, ...]  # () or (B,)
+    kind: NDArray[np.int64]  # (G,)
+    body: NDArray[np.int64]  # (G,) -1 for joint-space goals
+    lrot: Array  # (G, 3, 3) goal frame in its body
+    lpos: Array  # (G, 3)
+    data: Array  # (B, G, DATA)
+    aux: NDArray[np.int64]  # (G,) orientation axis (-1 = all), rest or coupling index
+    sqrt_w: Array  # (G,)
+    row: NDArray[np.int64]  # (G + 1,) first residual row of each goal
+    level_rows: NDArray[np.int64]  # (L + 1,)
+    rest_q: Array  # (R, B, nq)
+    rest_k: Array  # (R, nv) square roots of stiffness
+    coupling: Array  # (C, nv)
+    counted: NDArray[np.bool_]  # (G,) counts for success (weight > 0 and not a rest goal)
+
+    @property
+    def B(self) -> int:
+        """Number of targets (1 when unbatched)."""
+        return int(self.data.shape[0])
+
+
+def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
+    """Validate goals against ``tree`` and encode them (see :class:`Program`).
+
+    Raises:
+        GoalError: a goal is malformed (non-finite, wrong shape, zero direction) or
+            batches disagree.
+        UnknownNameError: a frame or joint name the model does not have.
+    """
+    goals = (goals,) if isinstance(goals, Goal) else tuple(goals)
+    if not goals:
+        raise GoalError("give at least one goal")
+    for g in goals:
+        if not isinstance(g, Goal):
+            raise GoalError(f"goals must be mjkin.goals objects, got {type(g).__name__}")
+    goals = tuple(sorted(goals, key=lambda g: g.priority))  # stable: order within a level kept
+    try:
+        batch = tuple(np.broadcast_shapes(*(g.batch() for g in goals)))
+    except ValueError:
+        raise GoalError(f"goal targets have different batch sizes: {[g.batch() for g in goals]}") from None
+    if len(batch) > 1:
+        raise GoalError(f"targets may have one leading batch axis, got batch shape {batch}")
+    B = batch[0] if batch else 1
+    G = len(goals)
+    kind = np.array([g.code for g in goals], dtype=np.int64)
+    body = np.full(G, -1, dtype=np.int64)
+    lrot = np.tile(np.eye(3), (G, 1, 1))
+    lpos = np.zeros((G, 3))
+    data = np.zeros((B, G, DATA))
+    aux = np.zeros(G, dtype=np.int64)
+    rest_q: list[Array] = []
+    rest_k: list[Array] = []
+    coupling: list[Array] = []
+    nrows = []
+    for i, g in enumerate(goals):
+        if isinstance(g, FrameGoal):
+            body[i], lrot[i], lpos[i] = g.frame(tree)
+        aux[i] = g.encode(tree, data[:, i])
+        if isinstance(g, Orientation) and g.single_axis:
+            kind[i] = AXIS
+        if isinstance(g, Rest):
+            q, k = g.arrays(tree)
+            aux[i] = len(rest_q)
+            rest_q.append(np.broadcast_to(q, (B, tree.nq)))
+            rest_k.append(k)
+        if isinstance(g, Coupling):
+            aux[i] = len(coupling)
+            coupling.append(g.row(tree))
+        nrows.append(g.nrows(tree))
+    levels = np.unique([g.priority for g in goals], return_inverse=True)[1]
+    row = np.concatenate([[0], np.cumsum(nrows)]).astype(np.int64)
+    level_rows = np.array([row[np.flatnonzero(levels == lv)[0]] for lv in range(levels.max() + 1)] + [row[-1]],
+                          dtype=np.int64)
+    return Program(
+        goals=goals, batch=batch, kind=kind, body=body, lrot=lrot, lpos=lpos, data=data, aux=aux,
+        sqrt_w=np.sqrt([float(g.weight) for g in goals]), row=row, level_rows=level_rows,
+        rest_q=np.array(rest_q).reshape(len(rest_q), B, tree.nq),
+        rest_k=np.array(rest_k).reshape(len(rest_k), tree.nv),
+        coupling=np.array(coupling).reshape(len(coupling), tree.nv),
+        counted=np.array([g.weight > 0 and not isinstance(g, Rest) for g in goals]),
+    )
+
+
+def evaluate(tree: Tree, goals: Goal | Sequence[Goal], q: ArrayLike) -> tuple[Array, Array, Array]:
+    """Weighted residuals ``(B, m)``, Jacobians ``(B, m, nv)`` and per-goal errors ``(B, G, 2)``.
+
+    Errors are ``[position (m), rotation (rad)]`` of each goal in natural units
+    (unweighted). Goals come back sorted by priority, as the solvers see them.
+    """
+    from .ik.kernel import evaluate_program
+
+    prog = compile_goals(tree, goals)
+    qs = np.broadcast_to(tree.check_q(q), (prog.B, tree.nq))
+    return evaluate_program(tree, prog, np.ascontiguousarray(qs))

@@ -1,0 +1,146 @@
+"""Cyclic coordinate descent (seeds 000, 001): one joint at a time, base to tip or tip to base.
+
+Each joint turns (or slides) to bring the tool point as close to the goal as
+that joint alone can: a hinge by the angle between (tool - joint) and
+(goal - joint) about its axis (the seed's ``atan2`` difference, in 3D), a slide
+by the tool-to-goal offset along its axis, a ball joint by the shortest arc.
+One iteration is one full sweep. Limits are respected by clamping each move.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import GoalError
+from ..goals import POSITION, Program
+from ..jit import matvec3, njit
+from ..qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
+from ..tree import Tree
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, _frames_scratch, kinematic_arrays
+from .solve import History, Result, package, parallel_chunks
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+
+@njit
+def _tool(rot: Array, pos: Array, body: int, lpos: Array, out: Array) -> None:
+    matvec3(rot[0, body], lpos, out)
+    for a in range(3):
+        out[a] += pos[0, body, a]
+
+
+@njit
+def ccd_one(tk: tuple, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
+            patience: int, hist_q: Array, hist_err: Array) -> tuple:
+    """CCD for one target; ``q (1, nq)`` is updated in place. Returns (sweeps, status, error)."""
+    rot, pos, irot, ipos = _frames_scratch(tk)
+    jtype, qadr, axis, anchor, inner, jbody, lo, hi = tk[9], tk[10], tk[11], tk[12], tk[5], tk[27], tk[23], tk[24]
+    p, u, a, v1, v2, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    best, since, status, it = np.inf, 0, MAX_ITERATIONS, 0
+    pinned = False
+    while True:
+        _fk(tk, q, rot, pos, irot, ipos)
+        _tool(rot, pos, body, lpos, p)
+        e = np.sqrt((p[0] - goal[0]) ** 2 + (p[1] - goal[1]) ** 2 + (p[2] - goal[2]) ** 2)
+        if it < hist_q.shape[0]:
+            hist_q[it] = q[0]
+            hist_err[it, 0] = e
+        if e <= tol:
+            status = CONVERGED
+            break
+        if e < best * (1 - 1e-9):
+            best, since = e, 0
+        else:
+            since += 1
+        if since >= patience:
+            status = LIMITS if pinned else UNREACHABLE
+            break
+        if it >= sweeps:
+            break
+        it += 1
+        pinned = False
+        for j in order:
+            _fk(tk, q, rot, pos, irot, ipos)
+            _tool(rot, pos, body, lpos, p)
+            R, x = (irot[0, inner[j]], ipos[0, inner[j]]) if inner[j] >= 0 else (rot[0, jbody[j]], pos[0, jbody[j]])
+            matvec3(R, axis[j], u)
+            matvec3(R, anchor[j], a)
+            for k in range(3):
+                a[k] += x[k]
+                v1[k] = p[k] - a[k]
+                v2[k] = goal[k] - a[k]
+            c = qadr[j]
+            if jtype[j] == SLIDE:
+                step = u[0] * (goal[0] - p[0]) + u[1] * (goal[1] - p[1]) + u[2] * (goal[2] - p[2])
+                q[0, c] = min(max(q[0, c] + step, lo[j]), hi[j])
+                pinned = pinned or q[0, c] == lo[j] or q[0, c] == hi[j]
+            elif jtype[j] == HINGE:  # angle between the projections of v1 and v2 on the plane normal to u
+                cx, cy, cz = v1[1] * v2[2] - v1[2] * v2[1], v1[2] * v2[0] - v1[0] * v2[2], v1[0] * v2[1] - v1[1] * v2[0]
+                d1, d2 = v1 @ u, v2 @ u
+                sin = u[0] * cx + u[1] * cy + u[2] * cz
+                cos = v1 @ v2 - d1 * d2
+                q[0, c] = min(max(q[0, c] + np.arctan2(sin, cos), lo[j]), hi[j])
+                pinned = pinned or q[0, c] == lo[j] or q[0, c] == hi[j]
+            elif jtype[j] == BALL:  # shortest arc from v1 to v2, as a local rotation vector
+                n1, n2 = np.sqrt(v1 @ v1), np.sqrt(v2 @ v2)
+                if n1 < 1e-12 or n2 < 1e-12:
+                    continue
+                w[0] = v1[1] * v2[2] - v1[2] * v2[1]
+                w[1] = v1[2] * v2[0] - v1[0] * v2[2]
+                w[2] = v1[0] * v2[1] - v1[1] * v2[0]
+                s = np.sqrt(w @ w)
+                if s < 1e-15:
+                    continue
+                angle = np.arctan2(s, v1 @ v2)
+                for k in range(3):  # R^T (axis * angle): angular velocity in the joint frame
+                    u[k] = (R[0, k] * w[0] + R[1, k] * w[1] + R[2, k] * w[2]) * angle / s
+                _turn(q[0], c, u[0], u[1], u[2])
+                _quat_angle_clip(q[0], c, hi[j])
+    return it, status, e
+
+
+@njit
+def _ccd_batch(tk: tuple, q: Array, body: int, lpos: Array, goals: Array, order: Index, tol: float, sweeps: int,
+               patience: int, iters: Index, status: Index, err: Array, hist_q: Array, hist_err: Array,
+               lo: int, hi: int) -> None:
+    for b in range(lo, hi):
+        it, st, e = ccd_one(tk, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, hist_q[b],
+                            hist_err[b])
+        iters[b] = it
+        status[b] = st
+        err[b] = e
+
+
+def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, sweeps: int, sweep: str,
+              active: NDArray[np.bool_], history: bool, patience: int = 10) -> Result:
+    """CCD on one position goal (see :func:`mjkin.solve`)."""
+    if len(prog.goals) != 1 or prog.kind[0] != POSITION:
+        raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
+    if sweep not in ("forward", "backward"):
+        raise GoalError(f"sweep must be 'forward' (base to tip) or 'backward' (tip to base), not {sweep!r}")
+    body = int(prog.body[0])
+    dof_jnt = tree.plan.dof_jnt
+    chain = [int(j) for j in np.unique(dof_jnt[tree.body_dofs[body]])
+             if active[tree.jnt_dofadr[j]] and tree.jnt_type[j] in (HINGE, SLIDE, BALL)]
+    order = np.array(chain if sweep == "forward" else chain[::-1], dtype=np.int64)
+    B = prog.B
+    H = sweeps + 1 if history else 0
+    hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
+    hist_err[..., 1] = 0.0
+    iters, status, err = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B)
+    tk = kinematic_arrays(tree)
+    goals = np.ascontiguousarray(prog.data[:, 0, :3])
+
+    def run(lo: int, hi: int) -> None:
+        _ccd_batch(tk, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, iters, status, err, hist_q,
+                   hist_err, lo, hi)
+
+    parallel_chunks(run, B)
+    hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
+    errors = np.zeros((B, 1, 2))
+    errors[:, 0, 0] = err
+    used = np.zeros(B, np.int64)
+    return package(prog, q, errors, iters, status, used, tol, rot_tol, "ccd",
+                   History(hist_q, hist_err) if history else None)

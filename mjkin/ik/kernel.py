@@ -1,0 +1,510 @@
+"""The compiled IK core: goal residuals and Jacobians, one step, and whole solves.
+
+A solve of one target runs entirely inside :func:`solve_one`; :func:`solve_batch`
+runs a range of targets (the caller splits large batches across threads: the
+compiled code releases the GIL). Each iteration (seed 000/002):
+
+1. forward kinematics at ``q`` and every goal's weighted residual ``g`` and
+   Jacobian ``J`` (rows grouped by priority level);
+2. a step ``dq`` by task-priority resolution: level by level, solve the
+   level's rows restricted to the null space ``P`` of the levels above,
+   ``dq += (J_l P)^# (-g_l - J_l dq)``, then shrink ``P``. ``^#`` is the
+   damped least-squares inverse ``Aᵀ(AAᵀ + λ²I)⁻¹`` (``dls``, and ``lm`` with
+   an adaptive λ), the SVD pseudoinverse (``pinv``), or the scaled transpose
+   ``αAᵀ`` with Buss's step size (``transpose``);
+3. joints that the step would push through a limit are locked (their column
+   removed) and the step recomputed; the step is integrated (quaternions for
+   ball/free joints) and clamped into the limits;
+4. ``lm`` accepts a step only if it lowers the cost (level by level), else it
+   raises λ (Levenberg–Marquardt, ``λ² = λ_min² + μ·cost``); ``halving`` instead retracts and halves the way to the goal
+   (seed 002 §4.6.3).
+
+A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
+stalled (no progress for ``patience`` iterations: ``unreachable``, or
+``limits`` when a joint limit blocks the way), or at ``max_iters``. ``lm``
+restarts from given random configurations when it stalls; the best
+configuration seen is returned.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..fk import fk_kernel
+from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
+from ..jacobian import jacobian_kernel
+from ..jit import matmul3, matvec3, njit
+from ..qspace import HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel, limits
+
+if TYPE_CHECKING:
+    from ..goals import Program
+    from ..tree import Tree
+
+Array = NDArray[np.float64]
+
+DLS, PINV, TRANSPOSE, LM = 0, 1, 2, 3
+CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS = 0, 1, 2, 3
+STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits")
+
+
+def kinematic_arrays(tree: Tree) -> tuple:
+    """The tree as a tuple of arrays for the compiled code (see :func:`_fk`, :func:`_jac`)."""
+    cached = tree.__dict__.get("_kin_arrays")
+    if cached is None:
+        p = tree.plan
+        dofs = tree.body_dofs
+        ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
+        idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
+        lo, hi = limits(tree)
+        cached = (p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
+                  p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos,
+                  tree.qpos0, tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt],
+                  p.dof_axis, p.dof_world, p.dof_rot, p.dof_anchor, lo, hi,
+                  np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt, tree.jnt_body)
+        object.__setattr__(tree, "_kin_arrays", cached)
+    return cached
+
+
+def program_arrays(prog: Program) -> tuple:
+    """The goals as a tuple of arrays for the compiled code."""
+    return (prog.kind, prog.body, prog.lrot, prog.lpos, prog.data, prog.aux, prog.sqrt_w, prog.row,
+            prog.rest_q, prog.rest_k, prog.coupling, prog.level_rows, prog.counted)
+
+
+# ------------------------------------------------------------------ kinematics
+@njit
+def _fk(tk: tuple, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
+    fk_kernel(q, tk[0], tk[1], tk[2], tk[3], tk[4], tk[5], tk[6], tk[7], tk[8], tk[9], tk[10], tk[11], tk[12],
+              tk[13], rot, pos, irot, ipos)
+
+
+@njit
+def _frames_scratch(tk: tuple) -> tuple[Array, Array, Array, Array]:
+    """Empty FK outputs for one configuration."""
+    n_inner = 0
+    for j in range(tk[5].shape[0]):
+        if tk[5][j] >= 0:
+            n_inner += 1
+    nbody = tk[0].shape[0]
+    return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+
+
+@njit
+def _jac(tk: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, body: int, point: Array, J6: Array) -> None:
+    J6[:] = 0.0
+    jacobian_kernel(rot, pos, irot, ipos, tk[16][tk[15][body]:tk[15][body + 1]], tk[17], tk[18], tk[19], tk[20],
+                    tk[21], tk[22], point, J6)
+
+
+@njit
+def _skew_times(v: Array, M: Array, out: Array) -> None:
+    """``out = -[v]x M`` for ``M (3, n)``: the rate of a frame-fixed vector ``v`` is ``ω × v = -[v]x ω``."""
+    for k in range(M.shape[1]):
+        out[0, k] = -(v[1] * M[2, k] - v[2] * M[1, k])
+        out[1, k] = -(v[2] * M[0, k] - v[0] * M[2, k])
+        out[2, k] = -(v[0] * M[1, k] - v[1] * M[0, k])
+
+
+@njit
+def _log_rotation(E: Array, out: Array) -> float:
+    """Rotation vector of ``E (3, 3)`` into ``out (3,)``; returns its angle in ``[0, π]``."""
+    tr = E[0, 0] + E[1, 1] + E[2, 2]
+    # Shepperd: pick the largest quaternion component for accuracy
+    if tr >= E[0, 0] and tr >= E[1, 1] and tr >= E[2, 2]:
+        w = 0.5 * np.sqrt(max(1.0 + tr, 0.0))
+        x, y, z = (E[2, 1] - E[1, 2]) / (4 * w), (E[0, 2] - E[2, 0]) / (4 * w), (E[1, 0] - E[0, 1]) / (4 * w)
+    elif E[0, 0] >= E[1, 1] and E[0, 0] >= E[2, 2]:
+        x = 0.5 * np.sqrt(max(1.0 + E[0, 0] - E[1, 1] - E[2, 2], 0.0))
+        w, y, z = (E[2, 1] - E[1, 2]) / (4 * x), (E[0, 1] + E[1, 0]) / (4 * x), (E[0, 2] + E[2, 0]) / (4 * x)
+    elif E[1, 1] >= E[2, 2]:
+        y = 0.5 * np.sqrt(max(1.0 - E[0, 0] + E[1, 1] - E[2, 2], 0.0))
+        w, x, z = (E[0, 2] - E[2, 0]) / (4 * y), (E[0, 1] + E[1, 0]) / (4 * y), (E[1, 2] + E[2, 1]) / (4 * y)
+    else:
+        z = 0.5 * np.sqrt(max(1.0 - E[0, 0] - E[1, 1] + E[2, 2], 0.0))
+        w, x, y = (E[1, 0] - E[0, 1]) / (4 * z), (E[0, 2] + E[2, 0]) / (4 * z), (E[1, 2] + E[2, 1]) / (4 * z)
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = np.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * np.arctan2(s, w)
+    k = 2.0 / w if s < 1e-12 else angle / s
+    out[0], out[1], out[2] = k * x, k * y, k * z
+    return angle
+
+
+@njit
+def _left_jacobian_inverse(phi: Array, theta: float, out: Array) -> None:
+    """``J_l⁻¹(φ) = I - ½[φ]x + c [φ]x²``, the map from world angular velocity to ``dφ/dt``."""
+    if theta < 1e-4:
+        c = 1.0 / 12.0 + theta * theta / 720.0
+    else:
+        c = 1.0 / (theta * theta) - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(max(theta, 1e-9)))
+    x, y, z = phi[0], phi[1], phi[2]
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    K2 = K @ K
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = (1.0 if i == k else 0.0) - 0.5 * K[i, k] + c * K2[i, k]
+
+
+@njit
+def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array,
+                   g: Array, J: Array, err: Array) -> None:
+    """Weighted residuals ``g (m,)``, Jacobians ``J (m, nv)``, errors ``err (G, 2)`` at ``q (1, nq)``.
+
+    ``rot``/``pos``/``irot``/``ipos`` must hold FK at ``q``. ``b`` selects the target.
+    """
+    kind, body, lrot, lpos, data, aux, sqrt_w, row = pa[0], pa[1], pa[2], pa[3], pa[4], pa[5], pa[6], pa[7]
+    rest_q, rest_k, coupling = pa[8], pa[9], pa[10]
+    nv = J.shape[1]
+    J6 = np.empty((1, 6, nv))
+    pt = np.empty((1, 3))
+    R = np.empty((3, 3))
+    E = np.empty((3, 3))
+    Li = np.empty((3, 3))
+    v = np.empty(3)
+    f = np.empty(3)
+    for i in range(kind.shape[0]):
+        r0, k = row[i], kind[i]
+        d = data[b, i]
+        w = sqrt_w[i]
+        err[i, 0] = 0.0
+        err[i, 1] = 0.0
+        if k == REST:
+            dv = np.empty((1, nv))
+            difference_kernel(q, rest_q[aux[i], b:b + 1], tk[9], tk[10], tk[14], dv)
+            for j in range(nv):
+                g[r0 + j] = w * rest_k[aux[i], j] * dv[0, j]
+                J[r0 + j] = 0.0
+                J[r0 + j, j] = w * rest_k[aux[i], j]
+            continue
+        if k == COUPLING:
+            s = -d[0]
+            for j in range(nv):
+                s += coupling[aux[i], j] * q[0, tk[25][j]]
+                J[r0, j] = w * coupling[aux[i], j]
+            g[r0] = w * s
+            err[i, 0] = abs(s)
+            continue
+        # a frame goal: world frame (R, p) of the goal point and its Jacobian
+        bd = body[i]
+        matmul3(rot[0, bd], lrot[i], R)
+        matvec3(rot[0, bd], lpos[i], v)
+        for a in range(3):
+            pt[0, a] = pos[0, bd, a] + v[a]
+        _jac(tk, rot, pos, irot, ipos, bd, pt, J6)
+        Jp, Jr = J6[0, :3], J6[0, 3:]
+        p = pt[0]
+        if k == POSITION or k == POSE:
+            for a in range(3):
+                g[r0 + a] = w * (p[a] - d[a])
+                J[r0 + a] = w * Jp[a]
+            err[i, 0] = np.sqrt((p[0] - d[0]) ** 2 + (p[1] - d[1]) ** 2 + (p[2] - d[2]) ** 2)
+        if k == ORIENTATION or k == POSE:
+            o = r0 + (3 if k == POSE else 0)
+            Rt = d[3:12].reshape(3, 3)
+            for a in range(3):  # E = R Rtᵀ: the rotation from the target to the frame, world axes
+                for c in range(3):
+                    E[a, c] = R[a, 0] * Rt[c, 0] + R[a, 1] * Rt[c, 1] + R[a, 2] * Rt[c, 2]
+            theta = _log_rotation(E, v)
+            _left_jacobian_inverse(v, theta, Li)
+            for a in range(3):
+                g[o + a] = w * v[a]
+                for j in range(nv):
+                    J[o + a, j] = w * (Li[a, 0] * Jr[0, j] + Li[a, 1] * Jr[1, j] + Li[a, 2] * Jr[2, j])
+            err[i, 1] = theta
+        elif k == AXIS or k == AIM:
+            if k == AXIS:  # frame axis e_aux must match the target's
+                for a in range(3):
+                    f[a] = R[a, aux[i]]
+                    v[a] = d[3 + 3 * a + aux[i]]
+            else:  # frame axis (local d[3:6]) must point from p at the point d[0:3]
+                matvec3(R, d[3:6], f)
+                L = np.sqrt((d[0] - p[0]) ** 2 + (d[1] - p[1]) ** 2 + (d[2] - p[2]) ** 2)
+                for a in range(3):
+                    v[a] = (d[a] - p[a]) / L if L > 1e-12 else f[a]
+            _skew_times(f, Jr, J[r0:r0 + 3])
+            if k == AIM and L > 1e-12:  # the direction to the point moves with p
+                for a in range(3):
+                    for c in range(3):
+                        P = ((1.0 if a == c else 0.0) - v[a] * v[c]) / L
+                        for j in range(nv):
+                            J[r0 + a, j] += P * Jp[c, j]
+            n2 = 0.0
+            for a in range(3):
+                g[r0 + a] = w * (f[a] - v[a])
+                n2 += (f[a] - v[a]) ** 2
+                for j in range(nv):
+                    J[r0 + a, j] *= w
+            err[i, 1] = 2.0 * np.arcsin(min(0.5 * np.sqrt(n2), 1.0))
+        elif k == LINE:
+            u = d[3:6]
+            s = (p[0] - d[0]) * u[0] + (p[1] - d[1]) * u[1] + (p[2] - d[2]) * u[2]
+            n2 = 0.0
+            for a in range(3):
+                e = p[a] - d[a] - s * u[a]
+                g[r0 + a] = w * e
+                n2 += e * e
+                for j in range(nv):
+                    J[r0 + a, j] = w * (Jp[a, j] - u[a] * (u[0] * Jp[0, j] + u[1] * Jp[1, j] + u[2] * Jp[2, j]))
+            err[i, 0] = np.sqrt(n2)
+        elif k == PLANE or k == HALFSPACE:
+            n = d[3:6]
+            s = (p[0] - d[0]) * n[0] + (p[1] - d[1]) * n[1] + (p[2] - d[2]) * n[2]
+            active = k == PLANE or s < 0.0
+            g[r0] = w * s if active else 0.0
+            for j in range(nv):
+                J[r0, j] = w * (n[0] * Jp[0, j] + n[1] * Jp[1, j] + n[2] * Jp[2, j]) if active else 0.0
+            err[i, 0] = abs(s) if active else 0.0
+
+
+# ------------------------------------------------------------------------ step
+@njit
+def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array) -> int:
+    """``x = A^# e`` for the method.
+
+    Also writes an orthonormal basis of A's row space into the rows of
+    ``basis`` and returns its rank, for the null-space projector.
+    """
+    m, n = A.shape
+    x[:] = 0.0
+    if m == 0:
+        return 0
+    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    cutoff = max(1e-10, 1e-12 * s[0]) if s.shape[0] else 1e-10
+    rank = 0
+    for i in range(s.shape[0]):
+        if s[i] > cutoff:
+            basis[rank] = Vt[i]
+            rank += 1
+    if method == TRANSPOSE:
+        Ae = A.T @ e
+        AAe = A @ Ae
+        den = AAe @ AAe
+        a = alpha if alpha > 0 else ((e @ AAe) / den if den > 1e-300 else 0.0)
+        x[:] = a * Ae
+        return rank
+    for i in range(s.shape[0]):
+        if method == PINV:
+            if s[i] <= cutoff:
+                continue
+            k = 1.0 / s[i]
+        else:
+            k = s[i] / (s[i] * s[i] + lam2)
+        x += (k * (U[:, i] @ e)) * Vt[i]
+    return rank
+
+
+@njit
+def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam2: Array, alpha: float,
+          scale: float, dq: Array) -> None:
+    """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put."""
+    nv = J.shape[1]
+    P = np.eye(nv)
+    for j in range(nv):
+        if locked[j]:
+            P[j, j] = 0.0
+    dq[:] = 0.0
+    x = np.empty(nv)
+    basis = np.empty((nv, nv))
+    for lv in range(level_rows.shape[0] - 1):
+        Jl = J[level_rows[lv]:level_rows[lv + 1]]
+        e = -scale * g[level_rows[lv]:level_rows[lv + 1]] - Jl @ dq
+        A = Jl @ P
+        rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis)
+        dq += P @ x
+        for r in range(rank):
+            P -= np.outer(basis[r], basis[r])
+
+
+# ----------------------------------------------------------------------- solve
+@njit
+def _costs(g: Array, level_rows: Array, out: Array) -> None:
+    for lv in range(level_rows.shape[0] - 1):
+        out[lv] = 0.0
+        for r in range(level_rows[lv], level_rows[lv + 1]):
+            out[lv] += g[r] * g[r]
+
+
+PRIORITY_WEIGHT = 1e4  # merit weight of a level relative to the next one down
+
+
+@njit
+def _merit(cost: Array) -> float:
+    """One number to compare configurations: level costs weighted ``PRIORITY_WEIGHT`` apart.
+
+    Steps are strictly prioritised; acceptance is by merit, so a met higher
+    level drifting by a second-order amount does not veto progress below it,
+    while a real loss at a higher level outweighs gains below.
+    """
+    m, w = 0.0, 1.0
+    for lv in range(cost.shape[0] - 1, -1, -1):
+        m += w * cost[lv]
+        w *= PRIORITY_WEIGHT
+    return m
+
+
+@njit
+def _converged(err: Array, counted: Array, tol: float, rot_tol: float) -> bool:
+    for i in range(err.shape[0]):
+        if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
+            return False
+    return True
+
+
+@njit
+def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array, max_iters: int,
+              restarts: Array, active: NDArray[np.bool_], err_out: Array, hist_q: Array, hist_err: Array) -> tuple:
+    """Solve target ``b`` from ``q (1, nq)`` (overwritten with the best configuration found).
+
+    ``params``: tol, rot_tol, damping λ, adaptive-λ factor, transpose α, max step,
+    halving (0/1), patience. ``restarts (K, nq)``: starts tried when ``lm`` stalls.
+    ``active (nv,)``: dofs allowed to move. Returns (iterations, status, restarts used).
+    """
+    tol, rot_tol, lam, lm_c, alpha, max_step = params[0], params[1], params[2], params[3], params[4], params[5]
+    halving, patience = params[6] > 0, int(params[7])
+    nq, nv = q.shape[1], tk[17].shape[0]
+    level_rows, counted = pa[11], pa[12]
+    m, G, L = pa[7][-1], pa[0].shape[0], level_rows.shape[0] - 1
+    rot, pos, irot, ipos = _frames_scratch(tk)
+    g, gt = np.empty(m), np.empty(m)
+    J, Jt = np.empty((m, nv)), np.empty((m, nv))
+    err, errt = np.empty((G, 2)), np.empty((G, 2))
+    cost, costt = np.empty(L), np.empty(L)
+    lam2 = np.empty(L)
+    dq = np.empty((1, nv))
+    qt = np.empty((1, nq))
+    best_q = q.copy()
+    locked = np.zeros(nv, dtype=np.bool_)
+    lo, hi, dof_q, dof_j = tk[23], tk[24], tk[25], tk[26]
+    _fk(tk, q, rot, pos, irot, ipos)
+    evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
+    _costs(g, level_rows, cost)
+    best = run_best = _merit(cost)  # best overall (returned) and of this run (for stall detection)
+    err_out[:] = err
+    status, it, used, since_best = MAX_ITERATIONS, 0, 0, 0
+    mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
+    any_locked = False
+    while True:
+        if it < hist_q.shape[0]:
+            hist_q[it] = q[0]
+            for i in range(G):
+                if counted[i]:
+                    hist_err[it, 0] = max(hist_err[it, 0], err[i, 0])
+                    hist_err[it, 1] = max(hist_err[it, 1], err[i, 1])
+        if _converged(err, counted, tol, rot_tol):
+            status = CONVERGED
+            best_q[:] = q
+            err_out[:] = err
+            break
+        if it >= max_iters:
+            break
+        stalled = since_best >= patience
+        if stalled:
+            if method == LM and used < restarts.shape[0]:
+                q[0] = restarts[used]
+                used += 1
+                run_best = np.inf
+                since_best = 0
+                mu = lm_c
+                _fk(tk, q, rot, pos, irot, ipos)
+                evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
+                _costs(g, level_rows, cost)
+                continue
+            status = LIMITS if any_locked else UNREACHABLE
+            break
+        it += 1
+        for lv in range(L):
+            lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
+        scale = 1.0
+        accepted = False
+        for _attempt in range(12):
+            for d in range(nv):
+                locked[d] = not active[d]
+            for _ in range(3):  # lock joints the step would push through a limit, then re-solve
+                _step(J, g, level_rows, locked, method, lam2, alpha, scale, dq[0])
+                big = np.max(np.abs(dq[0]))
+                if big > max_step:
+                    dq[0] *= max_step / big
+                changed = False
+                for d in range(nv):
+                    jj, qd = dof_j[d], q[0, dof_q[d]]
+                    if locked[d] or not (tk[9][jj] == HINGE or tk[9][jj] == SLIDE):
+                        continue
+                    if (dq[0, d] < 0 and qd <= lo[jj] + 1e-12) or (dq[0, d] > 0 and qd >= hi[jj] - 1e-12):
+                        locked[d] = True  # at the limit and pushing outwards
+                        changed = True
+                if not changed:
+                    break
+            qt[:] = q
+            integrate_kernel(qt, dq, tk[9], tk[10], tk[14])
+            clip_kernel(qt, tk[9], tk[10], lo, hi)
+            _fk(tk, qt, rot, pos, irot, ipos)
+            evaluate_goals(tk, pa, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
+            _costs(gt, level_rows, costt)
+            if method == LM or halving:
+                if _merit(costt) <= _merit(cost) or np.max(np.abs(dq[0])) < 1e-15:
+                    accepted = True
+                elif method == LM:
+                    mu *= 10.0
+                    for lv in range(L):
+                        lam2[lv] = lam * lam + mu * cost[lv]
+                else:
+                    scale *= 0.5
+            else:
+                accepted = True
+            if accepted:
+                break
+        any_locked = False
+        for d in range(nv):
+            any_locked = any_locked or (locked[d] and active[d])
+        if not accepted:  # no attempt helped: stay, count as no progress
+            since_best = patience
+            continue
+        mu = max(mu / 3.0, 1e-9)
+        q[:] = qt
+        g, gt = gt, g
+        J, Jt = Jt, J
+        err, errt = errt, err
+        cost[:] = costt
+        merit = _merit(cost)
+        since_best = 0 if merit < run_best * (1 - 1e-9) else since_best + 1
+        run_best = min(run_best, merit)
+        if merit < best:
+            best = merit
+            best_q[:] = q
+            err_out[:] = err
+    q[:] = best_q
+    return it, status, used
+
+
+@njit
+def solve_batch(tk: tuple, pa: tuple, q: Array, method: int, params: Array, max_iters: int, restarts: Array,
+                active: NDArray[np.bool_], iters: NDArray[np.int64], status: NDArray[np.int64],
+                used: NDArray[np.int64], err: Array, hist_q: Array,
+                hist_err: Array, lo: int, hi: int) -> None:
+    """Solve targets ``lo <= b < hi`` of ``q (B, nq)`` in place; see :func:`solve_one`."""
+    for b in range(lo, hi):
+        it, st, u = solve_one(tk, pa, b, q[b:b + 1], method, params, max_iters, restarts[b], active, err[b],
+                              hist_q[b], hist_err[b])
+        iters[b] = it
+        status[b] = st
+        used[b] = u
+
+
+@njit
+def _evaluate_batch(tk: tuple, pa: tuple, q: Array, g: Array, J: Array, err: Array) -> None:
+    rot, pos, irot, ipos = _frames_scratch(tk)
+    for b in range(q.shape[0]):
+        _fk(tk, q[b:b + 1], rot, pos, irot, ipos)
+        evaluate_goals(tk, pa, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
+
+
+def evaluate_program(tree: Tree, prog: Program, q: Array) -> tuple[Array, Array, Array]:
+    """Residuals ``(B, m)``, Jacobians ``(B, m, nv)`` and errors ``(B, G, 2)`` at ``q (B, nq)``."""
+    B, m = q.shape[0], int(prog.row[-1])
+    g, J, err = np.zeros((B, m)), np.zeros((B, m, tree.nv)), np.zeros((B, len(prog.goals), 2))
+    _evaluate_batch(kinematic_arrays(tree), program_arrays(prog), q, g, J, err)
+    return g, J, err

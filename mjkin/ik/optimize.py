@@ -1,0 +1,121 @@
+"""IK as constrained optimisation (seed 002, after Zhao & Badler: the Jack system).
+
+Minimise the goal potentials ``Σ w |g|²`` level by level (lexicographic
+priorities: a level may not raise the cost of the levels above it), subject
+to the joint limits as bounds, :class:`~mjkin.goals.Coupling` goals as linear
+equalities and :class:`~mjkin.goals.HalfSpace` goals as inequalities, with
+SciPy's SLSQP and analytic gradients ``Jᵀg``. Variables are a velocity ``v``
+in the tangent space at the start (``q = q_start ⊕ v``), re-centred a few times
+so ball and free joints stay exact. A local minimum is accepted; ``restarts``
+tries perturbed starts for another.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize
+
+from ..goals import COUPLING, HALFSPACE, Program
+from ..qspace import HINGE, SLIDE
+from ..tree import Tree
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, evaluate_program
+from .solve import Result, package
+
+Array = NDArray[np.float64]
+
+
+def _target(prog: Program, b: int) -> Program:
+    return replace(prog, data=prog.data[b:b + 1], rest_q=prog.rest_q[:, b:b + 1], batch=())
+
+
+def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDArray[np.bool_]) -> tuple[Array, bool]:
+    """Lexicographic SLSQP from ``q0``; returns the configuration and whether SciPy hit its iteration limit."""
+    rows = prog.row
+    free = np.flatnonzero(active)
+    constraint_goal = np.isin(prog.kind, (COUPLING, HALFSPACE))
+    scalar = np.isin(tree.jnt_type[tree.plan.dof_jnt], (HINGE, SLIDE))
+    q_start = q0.copy()
+    hit_limit = False
+
+    def at(v: Array) -> Array:
+        full = np.zeros(tree.nv)
+        full[free] = v
+        return tree.integrate(q_start, full)
+
+    def rows_of(mask: Array) -> Array:
+        return np.concatenate([np.arange(rows[i], rows[i + 1]) for i in np.flatnonzero(mask)] or [np.zeros(0, int)])
+
+    def cost(v: Array, idx: Array) -> tuple[float, Array]:
+        g, J, _ = evaluate_program(tree, prog, at(v)[None])
+        gi, Ji = g[0, idx], J[0][idx][:, free]
+        return 0.5 * float(gi @ gi), Ji.T @ gi
+
+    level_of = np.searchsorted(prog.level_rows, rows[:-1], side="right") - 1
+    for _ in range(4):  # re-centre the tangent space (exact for hinge/slide in one pass)
+        lo, hi = np.full(tree.nv, -np.inf), np.full(tree.nv, np.inf)
+        for d in np.flatnonzero(scalar):
+            j = tree.plan.dof_jnt[d]
+            if tree.jnt_limited[j]:
+                a = tree.jnt_qadr[j]
+                lo[d], hi[d] = tree.jnt_range[j, 0] - q_start[a], tree.jnt_range[j, 1] - q_start[a]
+        bounds = list(zip(np.minimum(lo[free], 0), np.maximum(hi[free], 0), strict=True))
+        cons: list[dict] = []
+        for i in np.flatnonzero(constraint_goal & (prog.sqrt_w > 0)):
+            r = rows[i]
+            sign = 1.0  # coupling: g = 0; half-space: g = min(0, s) >= 0 holds exactly on the allowed side
+            cons.append({"type": "eq" if prog.kind[i] == COUPLING else "ineq",
+                         "fun": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[0][0, r],
+                         "jac": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
+        v = np.zeros(len(free))
+        for lv in range(len(prog.level_rows) - 1):
+            idx = rows_of((level_of == lv) & ~constraint_goal)
+            if len(idx) == 0:
+                continue
+            res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                           options={"maxiter": max_iters, "ftol": 1e-16})
+            hit_limit = hit_limit or res.status == 9
+            v = res.x
+            achieved = res.fun
+            cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
+                            "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
+        q_new = tree.clip(at(v))
+        done = np.abs(tree.difference(q_new, q_start)).max() < 1e-12
+        q_start = q_new
+        if done or not (tree.layout.quats.size):
+            break
+    return q_start, hit_limit
+
+
+def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
+                   active: NDArray[np.bool_],
+                   restarts: int, seed: int | None) -> Result:
+    """Solve every target with SLSQP (see :func:`mjkin.solve`); restarts from seeded random starts."""
+    rng = np.random.default_rng(seed)
+    B = prog.B
+    out = np.empty_like(q)
+    err = np.zeros((B, len(prog.goals), 2))
+    status = np.zeros(B, np.int64)
+    used = np.zeros(B, np.int64)
+    iters = np.ones(B, np.int64)
+    for b in range(B):
+        one = _target(prog, b)
+        best, best_cost = None, np.inf
+        starts = [q[b]] + list(tree.random_q(rng, restarts)) if restarts else [q[b]]
+        for k, start in enumerate(starts):
+            qb, hit = _solve_one(tree, one, start, max_iters, active)
+            g, _, e = evaluate_program(tree, one, qb[None])
+            c = float(g[0] @ g[0])
+            if c < best_cost:
+                best, best_cost, err[b], used[b] = qb, c, e[0], k
+                ok = np.all((e[0][one.counted, 0] <= tol) & (e[0][one.counted, 1] <= rot_tol))
+                lay = tree.layout
+                at_limit = np.any(np.isclose(qb[lay.scalar_q], lay.scalar_lo, atol=1e-9)
+                                  | np.isclose(qb[lay.scalar_q], lay.scalar_hi, atol=1e-9))
+                status[b] = CONVERGED if ok else MAX_ITERATIONS if hit else LIMITS if at_limit else UNREACHABLE
+                if ok:
+                    break
+        out[b] = best
+    return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize")

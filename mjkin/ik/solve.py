@@ -1,0 +1,256 @@
+"""``mjkin.solve``: one front door to every IK method, batched over targets."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .. import goals as G
+from ..errors import InputError
+from ..tree import Tree
+from . import kernel
+from .kernel import STATUS_NAMES
+
+Array = NDArray[np.float64]
+
+METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
+_CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
+_MAX_ITERS = {"lm": 100, "dls": 100, "pinv": 100, "transpose": 1000, "ccd": 100, "optimize": 500}
+
+
+@dataclass(frozen=True)
+class History:
+    """Per-iteration record of a solve (iteration 0 is the start).
+
+    ``q (..., H, nq)`` and ``error (..., H, 2)`` (worst position and rotation
+    error over the counted goals); rows after a solve's last iteration repeat nothing
+    and are NaN.
+    """
+
+    q: Array
+    error: Array
+
+
+@dataclass(frozen=True)
+class Result:
+    """What :func:`solve` found. Shapes carry the batch shape ``...`` of the targets (none if unbatched).
+
+    Attributes:
+        q: ``(..., nq)`` best configuration found, inside the joint limits, a valid ``qpos``.
+        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians).
+        error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
+        iterations: ``(...)`` steps taken (CCD: sweeps).
+        status: ``"converged"``, ``"unreachable"`` (stalled away from the goal), ``"limits"``
+            (stalled with a joint held at its limit) or ``"max_iterations"``.
+        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
+        goals: the goals as solved.
+        method: the method that ran.
+        restarts: ``(...)`` random restarts used.
+        history: per-iteration record when asked for (``history=True``).
+    """
+
+    q: Array
+    success: Array
+    error: Array
+    iterations: Array
+    status: Array
+    goal_errors: Array
+    goals: tuple[G.Goal, ...]
+    method: str
+    restarts: Array
+    history: History | None = None
+
+    @property
+    def position_error(self) -> Array:
+        """Worst position error (m), ``(...)``."""
+        return self.error[..., 0]
+
+    @property
+    def rotation_error(self) -> Array:
+        """Worst rotation error (rad), ``(...)``."""
+        return self.error[..., 1]
+
+
+def _shaped(batch: tuple[int, ...], a: Array) -> Array:
+    return a.reshape(batch + a.shape[1:]) if batch else a[0]
+
+
+def singular_values(tree: Tree, goals: G.Goal | Sequence[G.Goal], q: ArrayLike) -> NDArray:
+    """Singular values ``(..., k)`` (descending) of the highest-priority goals' Jacobian at ``q``.
+
+    The smallest tends to zero at a singularity (a stretched arm);
+    ``prod(s)`` is Yoshikawa's manipulability.
+    """
+    prog = G.compile_goals(tree, goals)
+    q = tree.check_q(q)
+    qs = np.ascontiguousarray(np.broadcast_to(q, (prog.B, tree.nq)) if q.ndim == 1 else q.reshape(-1, tree.nq))
+    _, J, _ = kernel.evaluate_program(tree, prog, qs)
+    rows = J[:, prog.level_rows[0]:prog.level_rows[1]]
+    s = np.linalg.svd(rows, compute_uv=False)
+    return s.reshape(q.shape[:-1] + s.shape[-1:]) if q.ndim > 1 else (s[0] if prog.batch == () else s)
+
+
+def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> Array:
+    if q0 is None:
+        q0 = tree.qpos0
+    q = tree.check_q(q0, "q0")
+    if q.ndim == 2 and q.shape[0] != B or q.ndim > 2 or (q.ndim == 2 and not batch):
+        raise InputError(f"q0 has shape {q.shape}; expected ({tree.nq},) or ({B}, {tree.nq}) for these targets")
+    return tree.clip(np.ascontiguousarray(np.broadcast_to(q, (B, tree.nq)), dtype=np.float64))
+
+
+def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
+                 joints: Sequence[str] | None) -> NDArray[np.bool_]:
+    """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies."""
+    active = np.ones(tree.nv, dtype=bool)
+    if joints is not None:
+        active[:] = False
+        for name in joints:
+            j = tree.id(name, "joint")
+            n = {0: 6, 1: 3}.get(int(tree.jnt_type[j]), 1)
+            active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + n] = True
+    if base is not None:
+        b = tree.id(base, "body")
+        below = np.zeros(tree.nv, dtype=bool)
+        for body in {int(x) for x in prog.body if x >= 0}:
+            chain = set(tree.body_dofs[body].tolist()) - set(tree.body_dofs[b].tolist())
+            below[list(chain)] = True
+        active &= below
+    return active
+
+
+def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = None, method: str = "auto",
+          tol: float = 1e-6, rot_tol: float = 1e-5, max_iters: int | None = None, *,
+          damping: float | None = None, alpha: float | None = None, max_step: float | None = None,
+          halving: bool = False, restarts: int | None = None, seed: int | None = 0, patience: int = 10,
+          base: str | None = None, joints: Sequence[str] | None = None, root: str | None = None,
+          history: bool = False, sweep: str = "backward") -> Result:
+    """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
+
+    Args:
+        tree: the kinematic tree.
+        goals: one goal or several (see :mod:`mjkin.goals`); targets may carry one
+            leading batch axis ``B``, solved together.
+        q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits.
+        method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
+            error-dependent λ, step acceptance and seeded random restarts when it
+            stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
+            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar), or
+            ``"optimize"`` (SciPy, box and coupling constraints).
+        tol: position tolerance in metres.
+        rot_tol: rotation tolerance in radians.
+        max_iters: iteration (CCD: sweep) limit; a per-method default when None.
+        damping: λ of ``dls`` (default 1 % of the model's size), the floor of ``lm``'s λ.
+        alpha: step size of ``transpose``; default Buss's ``<e, JJᵀe> / |JJᵀe|²``.
+        max_step: largest joint change per iteration (rad or m); default unlimited
+            for the seeds' methods, 0.5 for ``lm``.
+        halving: iterative goal halving (seed 002 §4.6.3): when a step does not
+            lower the error, retract and aim halfway, repeatedly.
+        restarts: random restarts (within limits) when ``lm`` stalls; default 8 for
+            ``auto``, 0 otherwise.
+        seed: seeds the restarts, so solves are reproducible.
+        patience: iterations without progress before a solve counts as stalled.
+        base: only joints between this body and the goal frames move.
+        joints: only these joints move.
+        root: a body that stays where it is (e.g. a planted foot): a top-priority
+            pose goal holds it while the free root joint moves the rest.
+        history: keep every iterate (``Result.history``).
+        sweep: CCD joint order, ``"backward"`` (tip to base) or ``"forward"``.
+
+    Raises:
+        GoalError, UnknownNameError, InputError: malformed goals, names or options.
+    """
+    if method not in METHODS:
+        raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
+    if not (np.isfinite(tol) and tol > 0 and np.isfinite(rot_tol) and rot_tol > 0):
+        raise InputError(f"tol and rot_tol must be positive numbers, got {tol!r}, {rot_tol!r}")
+    goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
+    if root is not None:
+        body = tree.id(root, "body")
+        start = tree.check_q(tree.qpos0 if q0 is None else q0, "q0")
+        pose = tree.kinematics(start).pose("body", body)
+        low = min((g.priority for g in goal_list if isinstance(g, G.Goal)), default=0)
+        goal_list = [G.Pose(root, kind="body", T=pose)] + [replace(g, priority=g.priority + 1 - low)
+                                                         if isinstance(g, G.Goal) else g for g in goal_list]
+    prog = G.compile_goals(tree, goal_list)
+    name = "lm" if method == "auto" else method
+    iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
+    if iters < 0:
+        raise InputError(f"max_iters must be >= 0, got {max_iters}")
+    q = _start(tree, q0, prog.B, prog.batch)
+    active = _active_dofs(tree, prog, base, joints)
+    if name == "analytic2":
+        from .analytic import solve_analytic2
+
+        return solve_analytic2(tree, prog, q, tol)
+    if name == "ccd":
+        from .ccd import solve_ccd
+
+        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history)
+    if name == "optimize":
+        from .optimize import solve_optimize
+
+        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, restarts or 0, seed)
+    extent = float(tree.model.stat.extent) or 1.0
+    n_restarts = (8 if method == "auto" else 0) if restarts is None else int(restarts)
+    starts = tree.random_q(np.random.default_rng(seed), prog.B * n_restarts).reshape(prog.B, n_restarts, tree.nq)
+    params = np.array([tol, rot_tol, 0.01 * extent if damping is None else damping,
+                       0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
+                       (0.5 if name == "lm" else np.inf) if max_step is None else max_step,
+                       float(halving), float(patience)])
+    return run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method)
+
+
+def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, max_iters: int, starts: Array,
+               active: NDArray[np.bool_], history: bool, method: str) -> Result:
+    """Run the compiled solver on every target and package the result."""
+    B = prog.B
+    H = max_iters + 1 if history else 0
+    hist_q = np.full((B, H, tree.nq), np.nan)
+    hist_err = np.zeros((B, H, 2))
+    iters, status, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
+    err = np.zeros((B, len(prog.goals), 2))
+    tk, pa = kernel.kinematic_arrays(tree), kernel.program_arrays(prog)
+    starts = np.ascontiguousarray(starts)
+
+    def run(lo: int, hi: int) -> None:  # targets lo..hi-1; the compiled code releases the GIL
+        kernel.solve_batch(tk, pa, q, code, params, max_iters, starts, active, iters, status, used, err,
+                           hist_q, hist_err, lo, hi)
+
+    parallel_chunks(run, B)
+    if history:
+        valid = np.arange(H)[None, :] <= iters[:, None]
+        hist_err[~valid] = np.nan
+    return package(prog, q, err, iters, status, used, params[0], params[1], method,
+                   History(hist_q, hist_err) if history else None)
+
+
+def parallel_chunks(run: Callable[[int, int], None], n: int, min_chunk: int = 32) -> None:
+    """Call ``run(lo, hi)`` over ``range(n)`` split across the machine's cores (threads)."""
+    workers = min(os.cpu_count() or 1, max(1, n // min_chunk))
+    if workers <= 1:
+        run(0, n)
+        return
+    edges = np.linspace(0, n, workers + 1).astype(int)
+    with ThreadPoolExecutor(workers) as pool:
+        for f in [pool.submit(run, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]:
+            f.result()
+
+
+def package(prog: G.Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
+            rot_tol: float, method: str, history: History | None = None) -> Result:
+    """Build a :class:`Result` from flat per-target arrays."""
+    counted = err[:, prog.counted] if prog.counted.any() else np.zeros((len(q), 1, 2))
+    worst = counted.max(axis=1)
+    success = (worst[:, 0] <= tol) & (worst[:, 1] <= rot_tol)
+    names = np.array(STATUS_NAMES)[status]
+    b = prog.batch
+    hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
+    return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
+                  iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist)
