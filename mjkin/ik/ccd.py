@@ -103,18 +103,31 @@ def ccd_one(tk: tuple, q: Array, body: int, lpos: Array, goal: Array, order: Ind
 
 @njit
 def _ccd_batch(tk: tuple, q: Array, body: int, lpos: Array, goals: Array, order: Index, tol: float, sweeps: int,
-               patience: int, iters: Index, status: Index, err: Array, hist_q: Array, hist_err: Array,
-               lo: int, hi: int) -> None:
+               patience: int, starts: Array, iters: Index, status: Index, err: Array, used: Index, hist_q: Array,
+               hist_err: Array, lo: int, hi: int) -> None:
+    """CCD for targets ``lo <= b < hi``, restarting from ``starts[b]`` when a run stalls; keeps the best."""
     for b in range(lo, hi):
+        best = q[b].copy()
         it, st, e = ccd_one(tk, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, hist_q[b],
                             hist_err[b])
-        iters[b] = it
-        status[b] = st
-        err[b] = e
+        iters[b], status[b], err[b] = it, st, e
+        best[:] = q[b]
+        for k in range(starts.shape[1]):
+            if status[b] == CONVERGED:
+                break
+            q[b] = starts[b, k]
+            it, st, e = ccd_one(tk, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience,
+                                hist_q[b, :0], hist_err[b, :0])
+            iters[b] += it
+            used[b] = k + 1
+            if e < err[b]:
+                err[b], status[b] = e, st
+                best[:] = q[b]
+        q[b] = best
 
 
 def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, sweeps: int, sweep: str,
-              active: NDArray[np.bool_], history: bool, patience: int = 10) -> Result:
+              active: NDArray[np.bool_], history: bool, starts: Array, patience: int = 10) -> Result:
     """CCD on one position goal (see :func:`mjkin.solve`)."""
     if len(prog.goals) != 1 or prog.kind[0] != POSITION:
         raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
@@ -129,18 +142,17 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
     H = sweeps + 1 if history else 0
     hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
     hist_err[..., 1] = 0.0
-    iters, status, err = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B)
+    iters, status, err, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B), np.zeros(B, np.int64)
     tk = kinematic_arrays(tree)
     goals = np.ascontiguousarray(prog.data[:, 0, :3])
 
     def run(lo: int, hi: int) -> None:
-        _ccd_batch(tk, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, iters, status, err, hist_q,
-                   hist_err, lo, hi)
+        _ccd_batch(tk, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, np.ascontiguousarray(starts),
+                   iters, status, err, used, hist_q, hist_err, lo, hi)
 
     parallel_chunks(run, B)
     hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
     errors = np.zeros((B, 1, 2))
     errors[:, 0, 0] = err
-    used = np.zeros(B, np.int64)
     return package(prog, q, errors, iters, status, used, tol, rot_tol, "ccd",
                    History(hist_q, hist_err) if history else None)

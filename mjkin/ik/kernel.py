@@ -21,8 +21,8 @@ compiled code releases the GIL). Each iteration (seed 000/002):
 
 A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
 stalled (no progress for ``patience`` iterations: ``unreachable``, or
-``limits`` when a joint limit blocks the way), or at ``max_iters``. ``lm``
-restarts from given random configurations when it stalls; the best
+``limits`` when a joint limit blocks the way), or at ``max_iters``. A stalled
+solve restarts from the given random configurations, if any; the best
 configuration seen is returned.
 """
 
@@ -360,7 +360,8 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     """Solve target ``b`` from ``q (1, nq)`` (overwritten with the best configuration found).
 
     ``params``: tol, rot_tol, damping λ, adaptive-λ factor, transpose α, max step,
-    halving (0/1), patience. ``restarts (K, nq)``: starts tried when ``lm`` stalls.
+    halving (0/1), patience. ``restarts (K, nq)``: starts tried when a run stalls or
+    uses up ``max_iters``.
     ``active (nv,)``: dofs allowed to move. Returns (iterations, status, restarts used).
     """
     tol, rot_tol, lam, lm_c, alpha, max_step = params[0], params[1], params[2], params[3], params[4], params[5]
@@ -384,7 +385,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     _costs(g, level_rows, cost)
     best = run_best = _merit(cost)  # best overall (returned) and of this run (for stall detection)
     err_out[:] = err
-    status, it, used, since_best = MAX_ITERATIONS, 0, 0, 0
+    status, it, run_it, used, since_best = MAX_ITERATIONS, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     any_locked = False
     while True:
@@ -399,23 +400,23 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
             best_q[:] = q
             err_out[:] = err
             break
-        if it >= max_iters:
-            break
         stalled = since_best >= patience
-        if stalled:
-            if method == LM and used < restarts.shape[0]:
+        if stalled or run_it >= max_iters:
+            if used < restarts.shape[0]:
                 q[0] = restarts[used]
                 used += 1
                 run_best = np.inf
-                since_best = 0
+                since_best = run_it = 0
                 mu = lm_c
                 _fk(tk, q, rot, pos, irot, ipos)
                 evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
                 _costs(g, level_rows, cost)
                 continue
-            status = LIMITS if any_locked else UNREACHABLE
+            if stalled:
+                status = LIMITS if any_locked else UNREACHABLE
             break
         it += 1
+        run_it += 1
         for lv in range(L):
             lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
         scale = 1.0

@@ -2,7 +2,8 @@
 
 Minimise the goal potentials ``Σ w |g|²`` level by level (lexicographic
 priorities: a level may not raise the cost of the levels above it), subject
-to the joint limits as bounds, :class:`~mjkin.goals.Coupling` goals as linear
+to the joint limits as bounds (ball cones as inequalities),
+:class:`~mjkin.goals.Coupling` goals as linear
 equalities and :class:`~mjkin.goals.HalfSpace` goals as inequalities, with
 SciPy's SLSQP and analytic gradients ``Jᵀg``. Variables are a velocity ``v``
 in the tangent space at the start (``q = q_start ⊕ v``), re-centred a few times
@@ -18,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
+from .. import spatial
 from ..goals import COUPLING, HALFSPACE, Program
 from ..qspace import HINGE, SLIDE
 from ..tree import Tree
@@ -69,6 +71,11 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
             cons.append({"type": "eq" if prog.kind[i] == COUPLING else "ineq",
                          "fun": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[0][0, r],
                          "jac": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
+        lay = tree.layout
+        for qi, limit in zip(lay.ball_q, lay.ball_max, strict=True):  # ball cones (numeric gradients)
+            if np.isfinite(limit):
+                cons.append({"type": "ineq", "fun": lambda v, qi=qi, c=limit: c - float(
+                    spatial.quat_distance(at(v)[qi], [1.0, 0.0, 0.0, 0.0]))})
         v = np.zeros(len(free))
         for lv in range(len(prog.level_rows) - 1):
             idx = rows_of((level_of == lv) & ~constraint_goal)

@@ -20,7 +20,7 @@ Array = NDArray[np.float64]
 
 METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
-_MAX_ITERS = {"lm": 100, "dls": 100, "pinv": 100, "transpose": 1000, "ccd": 100, "optimize": 500}
+_MAX_ITERS = {"lm": 100, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
 
 
 @dataclass(frozen=True)
@@ -144,15 +144,17 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             ``"optimize"`` (SciPy, box and coupling constraints).
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
-        max_iters: iteration (CCD: sweep) limit; a per-method default when None.
-        damping: λ of ``dls`` (default 1 % of the model's size), the floor of ``lm``'s λ.
+        max_iters: iteration (CCD: sweep) limit of each run (the start and every
+            restart); a per-method default when None.
+        damping: λ of ``dls`` (default 5 % of the model's size, ``MjModel.stat.extent``),
+            the floor of ``lm``'s λ (default 1e-5 of it).
         alpha: step size of ``transpose``; default Buss's ``<e, JJᵀe> / |JJᵀe|²``.
         max_step: largest joint change per iteration (rad or m); default unlimited
             for the seeds' methods, 0.5 for ``lm``.
         halving: iterative goal halving (seed 002 §4.6.3): when a step does not
             lower the error, retract and aim halfway, repeatedly.
-        restarts: random restarts (within limits) when ``lm`` stalls; default 8 for
-            ``auto``, 0 otherwise.
+        restarts: random restarts (within limits) when a solve stalls; default 8
+            for ``auto``, 0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
         patience: iterations without progress before a solve counts as stalled.
         base: only joints between this body and the goal frames move.
@@ -188,18 +190,21 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .analytic import solve_analytic2
 
         return solve_analytic2(tree, prog, q, tol)
-    if name == "ccd":
-        from .ccd import solve_ccd
-
-        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history)
+    n_restarts = (8 if method == "auto" else 0) if restarts is None else int(restarts)
+    if n_restarts < 0:
+        raise InputError(f"restarts must be >= 0, got {restarts}")
     if name == "optimize":
         from .optimize import solve_optimize
 
-        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, restarts or 0, seed)
-    extent = float(tree.model.stat.extent) or 1.0
-    n_restarts = (8 if method == "auto" else 0) if restarts is None else int(restarts)
+        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
     starts = tree.random_q(np.random.default_rng(seed), prog.B * n_restarts).reshape(prog.B, n_restarts, tree.nq)
-    params = np.array([tol, rot_tol, 0.01 * extent if damping is None else damping,
+    if name == "ccd":
+        from .ccd import solve_ccd
+
+        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience)
+    extent = float(tree.model.stat.extent) or 1.0
+    default_damping = (1e-5 if name == "lm" else 0.05) * extent
+    params = np.array([tol, rot_tol, default_damping if damping is None else damping,
                        0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
                        (0.5 if name == "lm" else np.inf) if max_step is None else max_step,
                        float(halving), float(patience)])
