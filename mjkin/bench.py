@@ -18,6 +18,7 @@ from .progress import track
 from .tree import Tree, load
 
 Row = dict[str, object]
+Tables = dict[str, list[Row]]
 
 
 def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 3) -> float:
@@ -82,7 +83,7 @@ def fk_models() -> list[tuple[str, Tree]]:
     return models
 
 
-def bench_fk(sizes: tuple[int, ...] = (1, 100, 10_000), seed: int = 0, min_time: float = 0.2) -> list[Row]:
+def bench_fk(sizes: tuple[int, ...] = (1, 100, 10_000), seed: int = 0, min_time: float = 0.2) -> Tables:
     """Batched FK throughput of mjkin vs a Python loop of ``mj_kinematics``."""
     rows: list[Row] = []
     rng = np.random.default_rng(seed)
@@ -95,7 +96,46 @@ def bench_fk(sizes: tuple[int, ...] = (1, 100, 10_000), seed: int = 0, min_time:
                      "mjkin q/s": B / t_mjkin, "mujoco-loop q/s": B / t_mj,
                      "mjkin us/q": 1e6 * t_mjkin / B, "mujoco us/q": 1e6 * t_mj / B,
                      "ratio": t_mj / t_mjkin})
-    return rows
+    return {"batched FK: mjkin vs a Python loop of mj_kinematics (ratio > 1: mjkin faster)": rows}
+
+
+def bench_seeds(out: Path | None = None) -> Tables:
+    """The seeds' examples (SEEDS.md §4): tables, and PNG figures in ``out`` when matplotlib is there."""
+    from . import seeds
+
+    one = []
+    for label, goal in (("(-20, 5)", seeds.REACHABLE), ("(-35, 5)", seeds.UNREACHABLE)):
+        for method in seeds.METHODS:
+            res = seeds.three_link(method, goal)
+            e = res.history.error[:, 0] if res.history is not None else np.zeros(1)
+            one.append({"goal": label, "method": method, "status": str(res.status),
+                        "frames": int(res.iterations), **{f"err@{f}": float(e[min(f, int(res.iterations))])
+                                                          for f in (0, 5, 10, 15, 20)},
+                        "max joint step": float(seeds.joint_steps(res).max())})
+    two = []
+    runs = {n: seeds.ccd_convergence(n) for n in (3, 20)}
+    for i in range(7):
+        row: Row = {"sweep": i}
+        for n, err in runs.items():
+            row[f"n={n} error"] = f"{err[i]:.2e}"
+            row[f"n={n} ratio"] = f"{err[i] / err[i - 1]:.2g}" if i else ""
+        two.append(row)
+    three = []
+    for xyz in ([0.9, 0.8, 0.0], [2.0, 0.0, 0.0], [0.1, 0.1, 0.0]):
+        goal = np.array(xyz)
+        q, ok = seeds.two_link(goal)
+        tip = load("planar_2link").pose(q, "tip")[:, :3, 3] if ok else None
+        three.append({"goal": str(xyz[:2]), "reachable": ok,
+                      "elbow + (q)": np.round(q[0], 4).tolist() if ok else "-",
+                      "elbow - (q)": np.round(q[1], 4).tolist() if ok else "-",
+                      "FK error": float(np.abs(tip - goal).max()) if tip is not None else "-"})
+    files = seeds.figures(out or Path("mjkin-seeds"))
+    tables = {"seed 1: three-link arm 15/10/5 from [pi/8, pi/4, pi/4], one step per frame": one,
+              "seed 2: CCD on n unit links toward (0.9, 0.75), error after each sweep": two,
+              "seed 3: two-link analytic IK (links 1.0, 0.7)": three}
+    tables["figures"] = [{"file": str(f)} for f in files] or [{"file": "(matplotlib not installed: pip install "
+                                                                      "'mjkin[plot]')"}]
+    return tables
 
 
 def format_table(rows: list[Row]) -> str:
@@ -116,4 +156,4 @@ def format_table(rows: list[Row]) -> str:
     return "\n".join([line, "-" * len(line), *body])
 
 
-BENCHMARKS: dict[str, Callable[[], list[Row]]] = {"fk": bench_fk}
+BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "seeds": bench_seeds}

@@ -90,9 +90,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """Run benchmarks and print their tables."""
     names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
     for name in names:
-        print(f"== mjkin bench {name}")
-        print(bench.format_table(bench.BENCHMARKS[name]()))
-        print()
+        for title, rows in bench.BENCHMARKS[name]().items():
+            print(f"== mjkin bench {name}: {title}")
+            print(bench.format_table(rows))
+            print()
     return 0
 
 

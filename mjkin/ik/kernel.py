@@ -12,6 +12,8 @@ compiled code releases the GIL). Each iteration (seed 000/002):
    damped least-squares inverse ``Aᵀ(AAᵀ + λ²I)⁻¹`` (``dls``, and ``lm`` with
    an adaptive λ), the SVD pseudoinverse (``pinv``), or the scaled transpose
    ``αAᵀ`` with Buss's step size (``transpose``);
+   With ``goal_step`` each level aims only that far per step (the seeds'
+   animation: ``V = G - E`` walked frame by frame, Buss's error clamping);
 3. joints that the step would push through a limit are locked (their column
    removed) and the step recomputed; the step is integrated (quaternions for
    ball/free joints) and clamped into the limits;
@@ -299,8 +301,11 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
 
 @njit
 def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam2: Array, alpha: float,
-          scale: float, dq: Array) -> None:
-    """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put."""
+          scale: float, clamp: float, dq: Array) -> None:
+    """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
+
+    Each level aims to remove ``scale`` times its residual, at most ``clamp`` of it in norm.
+    """
     nv = J.shape[1]
     P = np.eye(nv)
     for j in range(nv):
@@ -311,7 +316,10 @@ def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam
     basis = np.empty((nv, nv))
     for lv in range(level_rows.shape[0] - 1):
         Jl = J[level_rows[lv]:level_rows[lv + 1]]
-        e = -scale * g[level_rows[lv]:level_rows[lv + 1]] - Jl @ dq
+        gl = g[level_rows[lv]:level_rows[lv + 1]]
+        n = np.sqrt(gl @ gl)
+        k = scale * (clamp / n if n > clamp else 1.0)
+        e = -k * gl - Jl @ dq
         A = Jl @ P
         rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis)
         dq += P @ x
@@ -360,12 +368,12 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     """Solve target ``b`` from ``q (1, nq)`` (overwritten with the best configuration found).
 
     ``params``: tol, rot_tol, damping λ, adaptive-λ factor, transpose α, max step,
-    halving (0/1), patience. ``restarts (K, nq)``: starts tried when a run stalls or
-    uses up ``max_iters``.
+    halving (0/1), patience, goal step (largest residual norm one step aims to remove).
+    ``restarts (K, nq)``: starts tried when a run stalls or uses up ``max_iters``.
     ``active (nv,)``: dofs allowed to move. Returns (iterations, status, restarts used).
     """
     tol, rot_tol, lam, lm_c, alpha, max_step = params[0], params[1], params[2], params[3], params[4], params[5]
-    halving, patience = params[6] > 0, int(params[7])
+    halving, patience, goal_step = params[6] > 0, int(params[7]), params[8]
     nq, nv = q.shape[1], tk[17].shape[0]
     level_rows, counted = pa[11], pa[12]
     m, G, L = pa[7][-1], pa[0].shape[0], level_rows.shape[0] - 1
@@ -425,7 +433,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
             for d in range(nv):
                 locked[d] = not active[d]
             for _ in range(3):  # lock joints the step would push through a limit, then re-solve
-                _step(J, g, level_rows, locked, method, lam2, alpha, scale, dq[0])
+                _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, dq[0])
                 big = np.max(np.abs(dq[0]))
                 if big > max_step:
                     dq[0] *= max_step / big

@@ -127,7 +127,8 @@ def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
 def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = None, method: str = "auto",
           tol: float = 1e-6, rot_tol: float = 1e-5, max_iters: int | None = None, *,
           damping: float | None = None, alpha: float | None = None, max_step: float | None = None,
-          halving: bool = False, restarts: int | None = None, seed: int | None = 0, patience: int = 10,
+          halving: bool = False, goal_step: float | None = None, restarts: int | None = None,
+          seed: int | None = 0, patience: int = 10,
           base: str | None = None, joints: Sequence[str] | None = None, root: str | None = None,
           history: bool = False, sweep: str = "backward") -> Result:
     """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
@@ -153,6 +154,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             for the seeds' methods, 0.5 for ``lm``.
         halving: iterative goal halving (seed 002 §4.6.3): when a step does not
             lower the error, retract and aim halfway, repeatedly.
+        goal_step: the most residual (m, or rad for orientation rows) a step aims to
+            remove, so the effector walks toward a far goal (error clamping); default
+            unlimited.
         restarts: random restarts (within limits) when a solve stalls; default 8
             for ``auto``, 0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
@@ -207,7 +211,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     params = np.array([tol, rot_tol, default_damping if damping is None else damping,
                        0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
                        (0.5 if name == "lm" else np.inf) if max_step is None else max_step,
-                       float(halving), float(patience)])
+                       float(halving), float(patience), np.inf if goal_step is None else goal_step])
+    if not params[8] > 0:
+        raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
     return run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method)
 
 
