@@ -39,7 +39,7 @@ from ..fk import fk_kernel
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
 from ..jacobian import jacobian_kernel
 from ..jit import matmul3, matvec3, njit
-from ..qspace import HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel, limits
+from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel, limits
 
 if TYPE_CHECKING:
     from ..goals import Program
@@ -180,7 +180,18 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
             for j in range(nv):
                 g[r0 + j] = w * rest_k[aux[i], j] * dv[0, j]
                 J[r0 + j] = 0.0
-                J[r0 + j, j] = w * rest_k[aux[i], j]
+                J[r0 + j, j] = 1.0
+            for jt in range(tk[9].shape[0]):  # rotations: d log(q_rest⁻¹ q) = J_r⁻¹(φ) ω (local ω)
+                if tk[9][jt] == BALL or tk[9][jt] == FREE:
+                    d0 = tk[14][jt] + (3 if tk[9][jt] == FREE else 0)
+                    for a in range(3):
+                        v[a] = -dv[0, d0 + a]
+                    _left_jacobian_inverse(v, np.sqrt(v @ v), Li)  # J_l⁻¹(-φ) = J_r⁻¹(φ)
+                    for a in range(3):
+                        for c in range(3):
+                            J[r0 + d0 + a, d0 + c] = Li[a, c]
+            for j in range(nv):
+                J[r0 + j] *= w * rest_k[aux[i], j]
             continue
         if k == COUPLING:
             s = -d[0]
@@ -355,6 +366,19 @@ def _merit(cost: Array) -> float:
 
 
 @njit
+def _levels_met(err: Array, counted: Array, row: Array, level_rows: Array, tol: float, rot_tol: float) -> int:
+    """How many levels, from the top, have every counted goal within tolerance."""
+    met = level_rows.shape[0] - 1
+    for i in range(err.shape[0]):
+        if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
+            lv = 0
+            while level_rows[lv + 1] <= row[i]:
+                lv += 1
+            met = min(met, lv)
+    return met
+
+
+@njit
 def _converged(err: Array, counted: Array, tol: float, rot_tol: float) -> bool:
     for i in range(err.shape[0]):
         if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
@@ -392,6 +416,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
     _costs(g, level_rows, cost)
     best = run_best = _merit(cost)  # best overall (returned) and of this run (for stall detection)
+    best_met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
     err_out[:] = err
     status, it, run_it, used, since_best = MAX_ITERATIONS, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
@@ -481,8 +506,9 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
         merit = _merit(cost)
         since_best = 0 if merit < run_best * (1 - 1e-9) else since_best + 1
         run_best = min(run_best, merit)
-        if merit < best:
-            best = merit
+        met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
+        if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit
+            best, best_met = merit, met
             best_q[:] = q
             err_out[:] = err
     q[:] = best_q

@@ -124,6 +124,16 @@ def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
     return active
 
 
+def _frozen_q(tree: Tree, active: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Mask over q of the joints none of whose dofs are active."""
+    frozen = np.zeros(tree.nq, dtype=bool)
+    for j in range(tree.njnt):
+        nv_j, nq_j = {0: (6, 7), 1: (3, 4)}.get(int(tree.jnt_type[j]), (1, 1))
+        if not active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + nv_j].any():
+            frozen[tree.jnt_qadr[j]:tree.jnt_qadr[j] + nq_j] = True
+    return frozen
+
+
 def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = None, method: str = "auto",
           tol: float = 1e-6, rot_tol: float = 1e-5, max_iters: int | None = None, *,
           damping: float | None = None, alpha: float | None = None, max_step: float | None = None,
@@ -201,7 +211,13 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .optimize import solve_optimize
 
         return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
-    starts = tree.random_q(np.random.default_rng(seed), prog.B * n_restarts).reshape(prog.B, n_restarts, tree.nq)
+    # one seeded set of restarts shared by every target (a batch solves exactly as a loop of single
+    # solves); joints that may not move keep their start values
+    starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts), (prog.B, n_restarts, tree.nq))
+    frozen = _frozen_q(tree, active)
+    if frozen.any():
+        starts = starts.copy()
+        starts[:, :, frozen] = q[:, None, frozen]
     if name == "ccd":
         from .ccd import solve_ccd
 
