@@ -186,7 +186,7 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
                     d0 = tk[14][jt] + (3 if tk[9][jt] == FREE else 0)
                     for a in range(3):
                         v[a] = -dv[0, d0 + a]
-                    _left_jacobian_inverse(v, np.sqrt(v @ v), Li)  # J_l⁻¹(-φ) = J_r⁻¹(φ)
+                    _left_jacobian_inverse(v, float(np.sqrt(v @ v)), Li)  # J_l⁻¹(-φ) = J_r⁻¹(φ)
                     for a in range(3):
                         for c in range(3):
                             J[r0 + d0 + a, d0 + c] = Li[a, c]
