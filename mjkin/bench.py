@@ -156,4 +156,116 @@ def format_table(rows: list[Row]) -> str:
     return "\n".join([line, "-" * len(line), *body])
 
 
-BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "seeds": bench_seeds}
+IK_ARMS = (  # name, model (bundled name or path under shared/models), frame, frame kind
+    ("arm7", "arm7", "ee", "site"),
+    ("panda", "franka_emika_panda/panda_nohand.xml", "attachment_site", "site"),
+    ("ur5e", "universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
+    ("iiwa14", "kuka_iiwa_14/iiwa14.xml", "attachment_site", "site"),
+    ("gen3", "kinova_gen3/gen3.xml", "pinch_site", "site"),
+    ("xarm7", "ufactory_xarm7/xarm7_nohand.xml", "attachment_site", "site"),
+)
+
+
+def pose_errors(T: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and rotation (rad) distances between poses ``(..., 4, 4)``."""
+    from .spatial import mat_to_quat, quat_distance
+
+    return (np.linalg.norm(T[..., :3, 3] - target[..., :3, 3], axis=-1),
+            quat_distance(mat_to_quat(T[..., :3, :3]), mat_to_quat(target[..., :3, :3])))
+
+
+def mujoco_dls(model: mujoco.MjModel, frame: str, kind: str, targets: np.ndarray, q0: np.ndarray, tol: float,
+               rot_tol: float, max_iters: int = 200, damping: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """The baseline: damped least squares on MuJoCo's own ``mj_kinematics`` + ``mj_jacSite``/``mj_jacBody``.
+
+    Returns reached poses ``(N, 4, 4)`` and seconds per solve ``(N,)``.
+    """
+    data = mujoco.MjData(model)
+    obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
+    i = mujoco.mj_name2id(model, obj, frame)
+    limited = model.jnt_limited.astype(bool) & (model.jnt_type > 1)
+    qa = model.jnt_qposadr[limited]
+    lo, hi = model.jnt_range[limited, 0], model.jnt_range[limited, 1]
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    cur, neg, diff, err = np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(6)
+    lam2 = damping ** 2 * np.eye(6)
+    reached, times = np.empty((len(targets), 4, 4)), np.empty(len(targets))
+    for n, T in enumerate(targets):
+        goal_q = np.zeros(4)
+        mujoco.mju_mat2Quat(goal_q, T[:3, :3].ravel())
+        start = time.perf_counter()
+        q = q0.copy()
+        for _ in range(max_iters + 1):
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            x = data.site_xpos[i] if kind == "site" else data.xpos[i]
+            R = data.site_xmat[i] if kind == "site" else data.xmat[i]
+            err[:3] = T[:3, 3] - x
+            mujoco.mju_mat2Quat(cur, R)
+            mujoco.mju_negQuat(neg, cur)
+            mujoco.mju_mulQuat(diff, goal_q, neg)
+            mujoco.mju_quat2Vel(err[3:], diff, 1.0)
+            if np.linalg.norm(err[:3]) <= tol and np.linalg.norm(err[3:]) <= rot_tol:
+                break
+            (mujoco.mj_jacSite if kind == "site" else mujoco.mj_jacBody)(model, data, jacp, jacr, i)
+            J = np.vstack([jacp, jacr])
+            dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
+            mujoco.mj_integratePos(model, q, dq, 1.0)
+            q[qa] = np.clip(q[qa], lo, hi)
+        times[n] = time.perf_counter() - start
+        reached[n, :3, :3] = R.reshape(3, 3)
+        reached[n, :3, 3] = x
+        reached[n, 3] = [0, 0, 0, 1]
+    return reached, times
+
+
+def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1e-3) -> Tables:
+    """6-D pose IK on random reachable targets: mjkin (single and batched) vs a MuJoCo DLS loop (and mink)."""
+    from . import goals as G
+    from .ik import solve
+
+    rows: list[Row] = []
+    root = shared_models_dir()
+    arms = [(name, load(src) if src == "arm7" else (load(root / src) if root and (root / src).is_file() else None),
+             frame, kind) for name, src, frame, kind in IK_ARMS]
+    for name, tree, frame, kind in track([a for a in arms if a[1] is not None], "bench ik"):
+        assert tree is not None
+        rng = np.random.default_rng(seed)
+        targets = tree.pose(tree.random_q(rng, n), frame, kind)  # type: ignore[arg-type]
+        home = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
+        solve(tree, G.Pose(frame, T=targets[:2], kind=kind), q0=home, tol=tol, rot_tol=rot_tol)  # warm up
+        single = np.empty(n)
+        q_single = np.empty((n, tree.nq))
+        for k in range(n):
+            start = time.perf_counter()
+            q_single[k] = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=home, tol=tol, rot_tol=rot_tol).q
+            single[k] = time.perf_counter() - start
+        start = time.perf_counter()
+        res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
+        batched = time.perf_counter() - start
+        for label, q, times in (("mjkin", q_single, single), ("mjkin batched", res.q, None)):
+            ep, er = pose_errors(tree.pose(q, frame, kind), targets)  # type: ignore[arg-type]
+            ok = (ep <= tol) & (er <= rot_tol)
+            rows.append({"arm": name, "solver": label, "success %": 100 * ok.mean(),
+                         "median ms": 1e3 * float(np.median(times)) if times is not None else "-",
+                         "p95 ms": 1e3 * float(np.percentile(times, 95)) if times is not None else "-",
+                         "solves/s": n / batched if times is None else 1 / float(np.mean(times))})
+        reached, times = mujoco_dls(tree.model, frame, kind, targets, home, tol, rot_tol)
+        ep, er = pose_errors(reached, targets)
+        rows.append({"arm": name, "solver": "mujoco DLS loop", "success %": 100 * ((ep <= tol) & (er <= rot_tol)).mean(),
+                     "median ms": 1e3 * float(np.median(times)), "p95 ms": 1e3 * float(np.percentile(times, 95)),
+                     "solves/s": 1 / float(np.mean(times))})
+        base = float(np.median(times))
+        for r in rows[-3:]:
+            r["speed vs baseline"] = base / (float(r["median ms"]) / 1e3) if r["median ms"] != "-" else \
+                float(r["solves/s"]) * float(np.mean(times))  # type: ignore[arg-type]
+    try:
+        import mink  # noqa: F401
+    except ImportError:
+        rows.append({"arm": "-", "solver": "mink: not installed (pip install 'mjkin[bench]')"})
+    return {f"{n} random reachable 6-D poses from the home keyframe, success at {tol:g} m / {rot_tol:g} rad "
+            "(speed vs baseline > 1: mjkin faster)": rows}
+
+
+BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds}

@@ -73,9 +73,10 @@ def _rotation(value: ArrayLike, what: str) -> Array:
             raise GoalError(f"{what} is a zero quaternion")
         return spatial.quat_to_mat(q / n)
     R = _array(a, (3, 3), what)
-    if np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max() > 1e-6 or np.any(np.linalg.det(R) < 0):
+    drift = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max()
+    if drift > 1e-6 or np.any(np.linalg.det(R) < 0):
         raise GoalError(f"{what} is not a rotation matrix (orthonormal, det +1)")
-    return spatial.orthonormalize(R)
+    return R if drift < 1e-12 else spatial.orthonormalize(R)
 
 
 @dataclass(frozen=True)
@@ -125,8 +126,16 @@ class FrameGoal(Goal):
 
     _cores: ClassVar[tuple[int, ...]] = (1, 1)  # number of non-batch axes of each target
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         return []
+
+    def _targets(self) -> list[Array]:
+        """The validated targets (computed once per goal)."""
+        cached = self.__dict__.get("_checked")
+        if cached is None:
+            cached = self._validate()
+            object.__setattr__(self, "_checked", cached)
+        return cached
 
     def batch(self) -> tuple[int, ...]:
         """Leading batch shape shared by the targets."""
@@ -145,7 +154,7 @@ class Position(FrameGoal):
     code: ClassVar[int] = POSITION
     rows: ClassVar[int] = 3
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         return [_array(self.xyz, (3,), "Position xyz")]
 
     def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
@@ -173,7 +182,7 @@ class Orientation(FrameGoal):
         if not self.axes or set(self.axes) - set(_AXES) or len(set(self.axes)) != len(self.axes):
             raise GoalError(f"Orientation axes must be one or more of 'x', 'y', 'z', got {self.axes!r}")
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         return [_rotation(self.quat, "Orientation quat")]
 
     def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
@@ -195,7 +204,7 @@ class Pose(FrameGoal):
     rows: ClassVar[int] = 6
     _cores: ClassVar[tuple[int, ...]] = (2, 1)
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         T = _array(self.T, (4, 4), "Pose T")
         return [_rotation(T[..., :3, :3], "Pose T rotation"), T[..., :3, 3]]
 
@@ -215,7 +224,7 @@ class Aim(FrameGoal):
     code: ClassVar[int] = AIM
     rows: ClassVar[int] = 3
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         axis = _unit(self.axis, "Aim axis")
         if axis.ndim != 1:
             raise GoalError("Aim axis is fixed in the frame: give one (3,) vector")
@@ -237,7 +246,7 @@ class Line(FrameGoal):
     code: ClassVar[int] = LINE
     rows: ClassVar[int] = 3
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), "Line point"), _unit(self.direction, "Line direction")]
 
     def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
@@ -256,7 +265,7 @@ class Plane(FrameGoal):
     code: ClassVar[int] = PLANE
     rows: ClassVar[int] = 1
 
-    def _targets(self) -> list[Array]:
+    def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), f"{type(self).__name__} point"),
                 _unit(self.normal, f"{type(self).__name__} normal")]
 
@@ -415,10 +424,13 @@ def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
             aux[i] = len(coupling)
             coupling.append(g.row(tree))
         nrows.append(g.nrows(tree))
-    levels = np.unique([g.priority for g in goals], return_inverse=True)[1]
-    row = np.concatenate([[0], np.cumsum(nrows)]).astype(np.int64)
-    level_rows = np.array([row[np.flatnonzero(levels == lv)[0]] for lv in range(levels.max() + 1)] + [row[-1]],
-                          dtype=np.int64)
+    row_list = [0]
+    for n in nrows:
+        row_list.append(row_list[-1] + n)
+    priorities = [g.priority for g in goals]  # sorted: each level's rows are contiguous
+    level_rows = np.array([row_list[i] for i in range(G) if i == 0 or priorities[i] != priorities[i - 1]]
+                          + [row_list[-1]], dtype=np.int64)
+    row = np.array(row_list, dtype=np.int64)
     return Program(
         goals=goals, batch=batch, kind=kind, body=body, lrot=lrot, lpos=lpos, data=data, aux=aux,
         sqrt_w=np.sqrt([float(g.weight) for g in goals]), row=row, level_rows=level_rows,

@@ -143,11 +143,14 @@ class Tree:
         return kind, self.id(name, kind)
 
     def frame_body(self, name: str, kind: Kind | None = None) -> tuple[int, Array]:
-        """The body a frame is fixed to and the frame's pose in that body ``(4, 4)``."""
-        k, i = self.frame(name, kind)
-        if k == "body":
-            return i, np.eye(4)
-        return int(self.site_body[i]), spatial.make_transform(self.site_rot[i], self.site_pos[i])
+        """The body a frame is fixed to and the frame's pose in that body ``(4, 4)`` (read-only)."""
+        cache = self.__dict__.setdefault("_frame_body", {})
+        if (name, kind) not in cache:
+            k, i = self.frame(name, kind)
+            T = np.eye(4) if k == "body" else spatial.make_transform(self.site_rot[i], self.site_pos[i])
+            T.setflags(write=False)
+            cache[name, kind] = (i if k == "body" else int(self.site_body[i]), T)
+        return cache[name, kind]
 
     # ------------------------------------------------------------------ joints
     @cached_property

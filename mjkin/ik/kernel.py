@@ -275,15 +275,30 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
 
 # ------------------------------------------------------------------------ step
 @njit
-def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array) -> int:
+def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array,
+                 need_basis: bool) -> int:
     """``x = A^# e`` for the method.
 
-    Also writes an orthonormal basis of A's row space into the rows of
-    ``basis`` and returns its rank, for the null-space projector.
+    When ``need_basis`` (levels below this one), also writes an orthonormal
+    basis of A's row space into the rows of ``basis`` and returns its rank, for
+    the null-space projector. Without it, damped steps take one small linear
+    solve instead of an SVD.
     """
     m, n = A.shape
     x[:] = 0.0
     if m == 0:
+        return 0
+    if not need_basis and lam2 > 0.0 and (method == DLS or method == LM):
+        if m <= n:  # Aᵀ (AAᵀ + λ²I)⁻¹ e
+            x[:] = A.T @ np.linalg.solve(A @ A.T + lam2 * np.eye(m), e)
+        else:  # (AᵀA + λ²I)⁻¹ Aᵀ e, the same vector
+            x[:] = np.linalg.solve(A.T @ A + lam2 * np.eye(n), A.T @ e)
+        return 0
+    if not need_basis and method == TRANSPOSE:
+        Ae = A.T @ e
+        AAe = A @ Ae
+        den = AAe @ AAe
+        x[:] = (alpha if alpha > 0 else ((e @ AAe) / den if den > 1e-300 else 0.0)) * Ae
         return 0
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
     cutoff = max(1e-10, 1e-12 * s[0]) if s.shape[0] else 1e-10
@@ -296,8 +311,7 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
         Ae = A.T @ e
         AAe = A @ Ae
         den = AAe @ AAe
-        a = alpha if alpha > 0 else ((e @ AAe) / den if den > 1e-300 else 0.0)
-        x[:] = a * Ae
+        x[:] = (alpha if alpha > 0 else ((e @ AAe) / den if den > 1e-300 else 0.0)) * Ae
         return rank
     for i in range(s.shape[0]):
         if method == PINV:
@@ -332,7 +346,8 @@ def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam
         k = scale * (clamp / n if n > clamp else 1.0)
         e = -k * gl - Jl @ dq
         A = Jl @ P
-        rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis)
+        last = lv == level_rows.shape[0] - 2
+        rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis, not last)
         dq += P @ x
         for r in range(rank):
             P -= np.outer(basis[r], basis[r])

@@ -19,6 +19,7 @@ from .kernel import STATUS_NAMES
 Array = NDArray[np.float64]
 
 METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
+CORES = os.cpu_count() or 1
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 100, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
 
@@ -108,6 +109,8 @@ def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
                  joints: Sequence[str] | None) -> NDArray[np.bool_]:
     """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies."""
     active = np.ones(tree.nv, dtype=bool)
+    if joints is None and base is None:
+        return active
     if joints is not None:
         active[:] = False
         for name in joints:
@@ -213,9 +216,10 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
     # one seeded set of restarts shared by every target (a batch solves exactly as a loop of single
     # solves); joints that may not move keep their start values
-    starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts), (prog.B, n_restarts, tree.nq))
-    frozen = _frozen_q(tree, active)
-    if frozen.any():
+    starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts) if n_restarts
+                             else np.zeros((0, tree.nq)), (prog.B, n_restarts, tree.nq))
+    frozen = np.zeros(tree.nq, dtype=bool) if active.all() else _frozen_q(tree, active)
+    if n_restarts and frozen.any():
         starts = starts.copy()
         starts[:, :, frozen] = q[:, None, frozen]
     if name == "ccd":
@@ -243,7 +247,7 @@ def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, 
     iters, status, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
     err = np.zeros((B, len(prog.goals), 2))
     tk, pa = kernel.kinematic_arrays(tree), kernel.program_arrays(prog)
-    starts = np.ascontiguousarray(starts)
+    starts = np.array(starts)  # writable and contiguous: numba's dispatcher types it on its fast path
 
     def run(lo: int, hi: int) -> None:  # targets lo..hi-1; the compiled code releases the GIL
         kernel.solve_batch(tk, pa, q, code, params, max_iters, starts, active, iters, status, used, err,
@@ -259,7 +263,7 @@ def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, 
 
 def parallel_chunks(run: Callable[[int, int], None], n: int, min_chunk: int = 32) -> None:
     """Call ``run(lo, hi)`` over ``range(n)`` split across the machine's cores (threads)."""
-    workers = min(os.cpu_count() or 1, max(1, n // min_chunk))
+    workers = min(CORES, max(1, n // min_chunk))
     if workers <= 1:
         run(0, n)
         return
