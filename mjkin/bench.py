@@ -10,6 +10,7 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -156,7 +157,7 @@ def format_table(rows: list[Row]) -> str:
     return "\n".join([line, "-" * len(line), *body])
 
 
-IK_ARMS = (  # name, model (bundled name or path under shared/models), frame, frame kind
+IK_ARMS: tuple[tuple[str, str, str, Literal["site", "body"]], ...] = (  # name, model, frame, frame kind
     ("arm7", "arm7", "ee", "site"),
     ("panda", "franka_emika_panda/panda_nohand.xml", "attachment_site", "site"),
     ("ur5e", "universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
@@ -227,12 +228,13 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
 
     rows: list[Row] = []
     root = shared_models_dir()
-    arms = [(name, load(src) if src == "arm7" else (load(root / src) if root and (root / src).is_file() else None),
-             frame, kind) for name, src, frame, kind in IK_ARMS]
-    for name, tree, frame, kind in track([a for a in arms if a[1] is not None], "bench ik"):
-        assert tree is not None
+    for name, src, frame, kind in track(IK_ARMS, "bench ik"):
+        path = src if src == "arm7" else (root / src if root else None)
+        if path is None or (src != "arm7" and not Path(path).is_file()):
+            continue
+        tree = load(path)
         rng = np.random.default_rng(seed)
-        targets = tree.pose(tree.random_q(rng, n), frame, kind)  # type: ignore[arg-type]
+        targets = tree.pose(tree.random_q(rng, n), frame, kind)
         home = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
         solve(tree, G.Pose(frame, T=targets[:2], kind=kind), q0=home, tol=tol, rot_tol=rot_tol)  # warm up
         single = np.empty(n)
@@ -244,22 +246,17 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
         start = time.perf_counter()
         res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
         batched = time.perf_counter() - start
-        for label, q, times in (("mjkin", q_single, single), ("mjkin batched", res.q, None)):
-            ep, er = pose_errors(tree.pose(q, frame, kind), targets)  # type: ignore[arg-type]
-            ok = (ep <= tol) & (er <= rot_tol)
-            rows.append({"arm": name, "solver": label, "success %": 100 * ok.mean(),
-                         "median ms": 1e3 * float(np.median(times)) if times is not None else "-",
-                         "p95 ms": 1e3 * float(np.percentile(times, 95)) if times is not None else "-",
-                         "solves/s": n / batched if times is None else 1 / float(np.mean(times))})
-        reached, times = mujoco_dls(tree.model, frame, kind, targets, home, tol, rot_tol)
-        ep, er = pose_errors(reached, targets)
-        rows.append({"arm": name, "solver": "mujoco DLS loop", "success %": 100 * ((ep <= tol) & (er <= rot_tol)).mean(),
-                     "median ms": 1e3 * float(np.median(times)), "p95 ms": 1e3 * float(np.percentile(times, 95)),
-                     "solves/s": 1 / float(np.mean(times))})
-        base = float(np.median(times))
-        for r in rows[-3:]:
-            r["speed vs baseline"] = base / (float(r["median ms"]) / 1e3) if r["median ms"] != "-" else \
-                float(r["solves/s"]) * float(np.mean(times))  # type: ignore[arg-type]
+        reached, base = mujoco_dls(tree.model, frame, kind, targets, home, tol, rot_tol)
+        for label, T, times, rate in (("mjkin", tree.pose(q_single, frame, kind), single, n / single.sum()),
+                                      ("mjkin batched", tree.pose(res.q, frame, kind), None, n / batched),
+                                      ("mujoco DLS loop", reached, base, n / base.sum())):
+            ep, er = pose_errors(T, targets)
+            rows.append({"arm": name, "solver": label, "success %": 100 * ((ep <= tol) & (er <= rot_tol)).mean(),
+                         "median ms": "-" if times is None else 1e3 * float(np.median(times)),
+                         "p95 ms": "-" if times is None else 1e3 * float(np.percentile(times, 95)),
+                         "solves/s": rate,
+                         "median vs baseline": "-" if times is None else float(np.median(base) / np.median(times)),
+                         "solves/s vs baseline": rate / (n / base.sum())})
     try:
         import mink  # noqa: F401
     except ImportError:
