@@ -86,6 +86,111 @@ def cmd_fk(args: argparse.Namespace) -> int:
     return 0
 
 
+def _points(text: str) -> np.ndarray:
+    try:
+        pts = np.array([[float(v) for v in p.replace(",", " ").split()] for p in text.split(";") if p.strip()])
+    except ValueError:
+        raise InputError(f"points must look like 'x,y,z; x,y,z; ...', got {text!r}") from None
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InputError(f"points must be 3-D, 'x,y,z; x,y,z; ...', got {text!r}")
+    return pts
+
+
+def _vec(text: str, what: str) -> np.ndarray:
+    pts = _points(text)
+    if len(pts) != 1:
+        raise InputError(f"{what} must be one point 'x,y,z', got {text!r}")
+    return pts[0]
+
+
+def _video_or_image(path: str, images: np.ndarray, fps: float) -> None:
+    from . import render
+
+    if path.lower().endswith(render.VIDEO_SUFFIXES):
+        render.write_video(images, path, fps)
+    elif path.lower().endswith((".png", ".jpg", ".jpeg")):
+        render.write_image(images[-1], path)
+    else:
+        raise InputError(f"output must end in .mp4, .gif or .png, got {path!r}")
+    print(f"wrote {path} ({len(images)} frame{'s' * (len(images) > 1)}, {images.shape[2]}x{images.shape[1]})")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
+    from . import goals, motion, render
+
+    tree = load("arm7")
+    home = tree.model.key_qpos[0].copy()
+    start = tree.pose(home, "ee")[:3, 3]
+    stops = np.array([start, [0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
+                      [0.45, 0.3, 0.45], start])
+    path = motion.waypoints(stops, int(args.seconds * args.fps))
+    traj = motion.follow(tree, "ee", path, q0=home, fps=args.fps,
+                         extra=[goals.Rest(q_rest=home, weight=0.3, priority=1)])  # keep a natural posture
+    ok = traj.success if traj.success is not None else np.ones(len(path), bool)
+    print(f"IK: {ok.mean():.0%} of {len(path)} frames on target; largest joint step per frame "
+          f"{traj.jumps(tree).max():.3f} rad")
+    overlay = render.Overlay(points=stops[1:-1], trail="ee")
+    images = render.frames(tree, traj.q, args.width, args.height, overlay=overlay)
+    _video_or_image(args.output, images, args.fps)
+    return 0
+
+
+def cmd_trajectory(args: argparse.Namespace) -> int:
+    """Solve a Cartesian path for a site frame by frame and save it as a script."""
+    from . import motion
+
+    tree = load(args.model)
+    tree.frame(args.site)  # a clear error before any work
+    q0 = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
+    q0 = parse_q(args.q0, tree, args.deg) if args.q0 else q0
+    here = tree.pose(q0, args.site)[:3, 3]
+    if args.path == "circle":
+        center = _vec(args.center, "--center") if args.center else here
+        pts = motion.circle(center, args.radius, args.frames, _vec(args.normal, "--normal"))
+    elif args.path == "line":
+        end = _vec(args.end, "--end") if args.end else None
+        if end is None:
+            raise InputError("--path line needs --end x,y,z (it starts at the site)")
+        pts = motion.line(_vec(args.start, "--start") if args.start else here, end, args.frames)
+    else:
+        if not args.points:
+            raise InputError("--path waypoints needs --points 'x,y,z; x,y,z; ...'")
+        pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
+    traj = motion.follow(tree, args.site, pts, q0=q0, fps=args.fps)
+    traj.save(args.output)
+    ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
+    jumps = traj.discontinuities(tree)
+    print(f"wrote {args.output}: {len(pts)} frames, {ok.mean():.0%} on target, largest joint step "
+          f"{traj.jumps(tree).max():.3f}" + (f"; discontinuities at frames {jumps.tolist()}" if len(jumps) else ""))
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """Render a configuration or a script to an image or a video."""
+    from . import motion, render
+
+    tree = load(args.model)
+    if args.script:
+        traj = motion.Trajectory.load(args.script, tree)
+        qs, points, trail = traj.q, traj.targets, traj.site
+    else:
+        qs = (parse_q(args.q, tree, args.deg) if args.q else tree.qpos0.copy())[None]
+        points, trail = None, None
+    overlay = render.Overlay(points=np.zeros((0, 3)) if points is None else points, trail=trail)
+    _video_or_image(args.output, render.frames(tree, qs, args.width, args.height, overlay=overlay), args.fps)
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Replay a recorded script (no IK) to a video."""
+    from . import motion
+
+    model = args.model or motion.Trajectory.load(args.script).model
+    args.model, args.q = model, None
+    return cmd_render(args)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run benchmarks and print their tables."""
     names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
@@ -115,6 +220,49 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frame", help="print only this site or body")
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(run=cmd_fk)
+
+    def video_options(s: argparse.ArgumentParser, default: str | None) -> None:
+        s.add_argument("-o", "--output", default=default, required=default is None, help="file: .mp4, .gif or .png")
+        s.add_argument("--width", type=int, default=640)
+        s.add_argument("--height", type=int, default=480)
+        s.add_argument("--fps", type=float, default=30.0)
+
+    s = sub.add_parser("demo", help="render a scripted IK trajectory of the 7-DoF arm (the main job)")
+    video_options(s, "mjkin-demo.mp4")
+    s.add_argument("--seconds", type=float, default=6.0)
+    s.set_defaults(run=cmd_demo)
+
+    s = sub.add_parser("trajectory", help="solve a Cartesian path for a site and save the script (JSON)")
+    s.add_argument("model", help=model_help)
+    s.add_argument("--site", required=True, help="the site (or body) that follows the path")
+    s.add_argument("--path", choices=["circle", "line", "waypoints"], required=True)
+    s.add_argument("--center", help="circle centre x,y,z (default: the site at the start)")
+    s.add_argument("--radius", type=float, default=0.1)
+    s.add_argument("--normal", default="0,0,1", help="circle plane normal x,y,z")
+    s.add_argument("--start", help="line start x,y,z (default: the site at the start)")
+    s.add_argument("--end", help="line end x,y,z")
+    s.add_argument("--points", help="waypoints 'x,y,z; x,y,z; ...' (from the site at the start)")
+    s.add_argument("--frames", type=int, default=90)
+    s.add_argument("--fps", type=float, default=30.0)
+    s.add_argument("--q0", help="start configuration (default: the first keyframe, else qpos0)")
+    s.add_argument("--deg", action="store_true", help="hinge values in --q0 are degrees")
+    s.add_argument("-o", "--output", required=True, help="script file (.json)")
+    s.set_defaults(run=cmd_trajectory)
+
+    s = sub.add_parser("render", help="render a configuration or a script to .png/.mp4/.gif")
+    s.add_argument("model", help=model_help)
+    group = s.add_mutually_exclusive_group()
+    group.add_argument("--q", help="configuration (qpos); default qpos0")
+    group.add_argument("--script", help="trajectory script from 'mjkin trajectory'")
+    s.add_argument("--deg", action="store_true", help="hinge values in --q are degrees")
+    video_options(s, None)
+    s.set_defaults(run=cmd_render)
+
+    s = sub.add_parser("replay", help="replay a recorded script without IK")
+    s.add_argument("script", help="trajectory script (.json)")
+    s.add_argument("--model", help="model (default: the one named in the script)")
+    video_options(s, None)
+    s.set_defaults(run=cmd_replay, deg=False)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     s.add_argument("which", choices=[*bench.BENCHMARKS, "all"])

@@ -28,8 +28,11 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     except OSError as e:
         raise MjkinIOError(f"cannot write {str(target)!r}: {e.strerror}") from None
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the result should look like any new file
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):

@@ -1,0 +1,186 @@
+"""Motion: keyframes, Cartesian paths solved frame by frame, and trajectories as script files.
+
+Seeds 002/004: keyframes of pose vectors are interpolated (joint values
+linearly or smoothly, orientations by quaternion slerp); IK-driven animation
+moves the goal a little each frame and re-solves from the previous pose; the
+result is recorded as a script of joint values per frame and replayed without IK.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import goals as G
+from . import spatial
+from .errors import InputError, MjkinIOError
+from .files import write_text
+from .ik import solve
+from .progress import track
+from .tree import Tree
+
+Array = NDArray[np.float64]
+FORMAT = "mjkin-trajectory"
+
+
+def fingerprint(tree: Tree) -> str:
+    """A short hash of the kinematic structure (bodies, joints, limits, sites): same model, same print."""
+    h = hashlib.sha256()
+    for a in (tree.body_parent, tree.body_pos, tree.body_rot, tree.jnt_type, tree.jnt_body, tree.jnt_pos,
+              tree.jnt_axis, tree.jnt_range, tree.qpos0, tree.site_body, tree.site_pos):
+        h.update(np.ascontiguousarray(np.round(a, 12)).tobytes())
+    return h.hexdigest()[:16]
+
+
+# ------------------------------------------------------------------- keyframes
+def interpolate(tree: Tree, times: ArrayLike, keyframes: ArrayLike, t: ArrayLike, smooth: bool = False) -> Array:
+    """Configurations ``(T, nq)`` at times ``t`` between keyframes ``(K, nq)`` at increasing ``times (K,)``.
+
+    Hinge, slide and free-joint positions are interpolated linearly, or with a
+    C² cubic spline when ``smooth``; ball and free-joint rotations by slerp
+    between neighbouring keys. Keyframes are hit exactly; times outside are clamped.
+    """
+    times = np.asarray(times, dtype=np.float64)
+    keys = tree.check_q(keyframes, "keyframes")
+    if keys.ndim != 2 or len(keys) != len(times) or len(times) < 2 or np.any(np.diff(times) <= 0):
+        raise InputError("interpolate needs >= 2 keyframes (K, nq) with strictly increasing times (K,)")
+    t = np.clip(np.asarray(t, dtype=np.float64).ravel(), times[0], times[-1])
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    u = (t - times[i]) / (times[i + 1] - times[i])
+    lay = tree.layout
+    linear = np.concatenate([lay.scalar_q, lay.free_q[:, :3].ravel()]).astype(int)
+    out = keys[i] + u[:, None] * (keys[i + 1] - keys[i])  # linear everywhere first
+    if smooth and len(times) > 2:
+        from scipy.interpolate import CubicSpline
+
+        out[:, linear] = CubicSpline(times, keys[:, linear], bc_type="natural")(t)
+    for quat in np.concatenate([lay.ball_q, lay.free_q[:, 3:]]):
+        out[:, quat] = spatial.slerp(keys[i][:, quat], keys[i + 1][:, quat], u)
+    for at, key in ((u == 0.0, i), (u == 1.0, i + 1)):  # at a key: exactly the key
+        out[at] = keys[key[at]]
+    return out
+
+
+# ----------------------------------------------------------------------- paths
+def line(start: ArrayLike, end: ArrayLike, n: int) -> Array:
+    """``n`` points evenly spaced from ``start`` to ``end``, ``(n, 3)``."""
+    return np.linspace(np.asarray(start, float), np.asarray(end, float), _count(n))
+
+
+def circle(center: ArrayLike, radius: float, n: int, normal: ArrayLike = (0, 0, 1), turns: float = 1.0) -> Array:
+    """``n`` points on a circle around ``center`` in the plane normal to ``normal``, ``(n, 3)``."""
+    nrm = np.asarray(normal, float)
+    if not np.isfinite(radius) or radius <= 0 or np.linalg.norm(nrm) < 1e-12:
+        raise InputError("circle needs a positive radius and a non-zero normal")
+    nrm = nrm / np.linalg.norm(nrm)
+    a = np.cross(nrm, [1.0, 0, 0] if abs(nrm[0]) < 0.9 else [0, 1.0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(nrm, a)
+    phi = np.linspace(0, 2 * np.pi * turns, _count(n))
+    return np.asarray(center, float) + radius * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b)
+
+
+def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None) -> Array:
+    """``n`` points through ``points (K, 3)`` piecewise linearly, at ``times`` (default: by distance)."""
+    p = np.asarray(points, float)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or not np.isfinite(p).all():
+        raise InputError(f"waypoints need at least two finite 3-D points, got shape {p.shape}")
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]) if times is None \
+        else np.asarray(times, float)
+    if len(s) != len(p) or np.any(np.diff(s) <= 0):
+        raise InputError("waypoint times must increase strictly, one per point")
+    q = np.linspace(s[0], s[-1], _count(n))
+    return np.stack([np.interp(q, s, p[:, k]) for k in range(3)], -1)
+
+
+def _count(n: int) -> int:
+    if int(n) < 2:
+        raise InputError(f"a path needs at least 2 frames, got {n}")
+    return int(n)
+
+
+# ----------------------------------------------------------------- trajectories
+@dataclass
+class Trajectory:
+    """Configurations over time: ``q (T, nq)`` at ``times (T,)`` (seconds), with what made them."""
+
+    times: Array
+    q: Array
+    fingerprint: str
+    model: str = ""
+    site: str | None = None
+    targets: Array | None = None  # (T, n, 3) goal points per frame, for overlays
+    success: NDArray[np.bool_] | None = None
+    meta: dict = field(default_factory=dict)
+
+    def jumps(self, tree: Tree) -> Array:
+        """Largest joint change between consecutive frames ``(T-1,)`` (rad or m)."""
+        return np.abs(tree.difference(self.q[1:], self.q[:-1])).max(axis=-1)
+
+    def discontinuities(self, tree: Tree, threshold: float = 0.5) -> NDArray[np.int64]:
+        """Frames whose step from the previous one exceeds ``threshold`` (a flip to another IK branch)."""
+        return np.flatnonzero(self.jumps(tree) > threshold) + 1
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the script as JSON (atomically)."""
+        doc = {"format": FORMAT, "version": 1, "model": self.model, "fingerprint": self.fingerprint,
+               "site": self.site, "times": self.times.tolist(), "qpos": self.q.tolist(),
+               "targets": None if self.targets is None else self.targets.tolist(),
+               "success": None if self.success is None else self.success.tolist(), "meta": self.meta}
+        return write_text(path, json.dumps(doc))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], tree: Tree | None = None) -> Trajectory:
+        """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch)."""
+        try:
+            doc = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise MjkinIOError(f"trajectory file not found: {str(path)!r}") from None
+        except (OSError, ValueError) as e:
+            raise MjkinIOError(f"cannot read trajectory {str(path)!r}: {e}") from None
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+            raise MjkinIOError(f"{str(path)!r} is not an mjkin trajectory (no \"format\": \"{FORMAT}\")")
+        traj = cls(times=np.asarray(doc["times"], float), q=np.asarray(doc["qpos"], float),
+                   fingerprint=str(doc["fingerprint"]), model=str(doc.get("model", "")), site=doc.get("site"),
+                   targets=None if doc.get("targets") is None else np.asarray(doc["targets"], float),
+                   success=None if doc.get("success") is None else np.asarray(doc["success"], bool),
+                   meta=dict(doc.get("meta") or {}))
+        if tree is not None:
+            if traj.fingerprint != fingerprint(tree):
+                raise InputError(f"trajectory {str(path)!r} was recorded on model {traj.model!r} "
+                                 f"(fingerprint {traj.fingerprint}), not on {tree.name!r} ({fingerprint(tree)})")
+            tree.check_q(traj.q, "trajectory qpos")
+        return traj
+
+
+def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,
+           extra: Sequence[G.Goal] = (), tol: float = 1e-4, **solve_options: object) -> Trajectory:
+    """IK-driven animation: put ``site`` on ``targets (T, 3)`` frame by frame, warm-starting from the last pose.
+
+    ``extra`` goals (e.g. an orientation, a rest pose at low priority) hold on every
+    frame. Warm starts and minimum-norm steps keep consecutive poses close. A
+    frame that fails from the warm start is retried with random restarts;
+    failures are recorded in ``success``.
+    """
+    pts = np.asarray(targets, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")
+    q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
+    out, ok = np.empty((len(pts), tree.nq)), np.empty(len(pts), bool)
+    for k in track(range(len(pts)), "solve path", total=len(pts)):
+        goals = [G.Position(site, pts[k]), *extra]
+        res = solve(tree, goals, q0=q, tol=tol, restarts=0, **solve_options)  # type: ignore[arg-type]
+        if not res.success:
+            retry = solve(tree, goals, q0=q, tol=tol, **solve_options)  # type: ignore[arg-type]
+            res = retry if retry.success or retry.error[0] < res.error[0] else res
+        q = res.q
+        out[k], ok[k] = q, bool(res.success)
+    return Trajectory(times=np.arange(len(pts)) / fps, q=out, fingerprint=fingerprint(tree), model=tree.name,
+                      site=site, targets=pts[:, None, :], success=ok)

@@ -1,0 +1,152 @@
+"""Scene (contacts), offscreen frames, videos, motion and the CLI commands that use them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mjkin
+from conftest import tree_of
+from mjkin import motion, render
+from mjkin.cli import main
+from mjkin.scene import Scene
+
+SMALL = {"width": 160, "height": 120}
+TWO_BALLS = """<mujoco><worldbody><geom name="fixed" type="sphere" size="0.1"/>
+<body name="mover" pos="1 0 0"><joint name="x" type="slide" axis="1 0 0" range="-1 0"/>
+<geom name="ball" type="sphere" size="0.1"/></body></worldbody></mujoco>"""
+
+
+def test_contacts_where_geoms_overlap_and_none_when_clear():
+    scene = Scene(mjkin.load(TWO_BALLS))
+    assert scene.contacts([0.0]) == [] and not scene.in_collision([0.0])
+    (c,) = scene.contacts([-0.95])  # centres 0.05 apart: 0.15 overlap
+    assert {c.geom1, c.geom2} == {"fixed", "ball"} and c.distance == pytest.approx(-0.15, abs=1e-9)
+    assert scene.in_collision([-0.95])
+
+
+def test_primate_self_contact(rng):
+    tree = tree_of("primate")
+    scene = Scene(tree)
+    assert not scene.in_collision(tree.qpos0)
+    q = tree.qpos0.copy()
+    q[tree.jnt_qadr[tree.id("left_shoulder", "joint")]:][:4] = mjkin.spatial.quat_from_axis_angle([1, 0, 0], 1.2)
+    contacts = scene.contacts(q)  # the arm swung into the head/torso region
+    assert all(c.body1 != c.body2 for c in contacts)
+
+
+def test_frames_are_not_blank_and_follow_q():
+    tree = tree_of("arm7")
+    q = np.stack([tree.qpos0, tree.model.key_qpos[0]])
+    img = render.frames(tree, q, **SMALL)
+    assert img.shape == (2, 120, 160, 3) and img.dtype == np.uint8
+    assert img.std() > 10  # something is drawn
+    assert np.abs(img[0].astype(int) - img[1].astype(int)).mean() > 1  # a different pose looks different
+
+
+def test_overlay_markers_and_trail_are_drawn():
+    tree = tree_of("arm7")
+    q = tree.random_q(0, 5)
+    plain = render.frames(tree, q, **SMALL)
+    marked = render.frames(tree, q, camera=render.default_camera(tree, q), overlay=render.Overlay(
+        points=tree.pose(q, "ee")[:, :3, 3], trail="ee"), **SMALL)
+    assert (plain != marked).any(axis=-1).sum() > 50
+
+
+def test_video_round_trip_and_atomic_writes(tmp_path):
+    import imageio.v2 as imageio
+
+    tree = tree_of("planar_2link")
+    qs = motion.interpolate(tree, [0, 1], [[0, 0], [1.5, -1.0]], np.linspace(0, 1, 12))
+    img = render.frames(tree, qs, **SMALL)
+    for name in ("a.mp4", "a.gif"):
+        render.write_video(img, tmp_path / name, fps=12)
+        back = imageio.mimread(tmp_path / name)
+        assert len(back) == 12 and back[0].shape[:2] == (120, 160)
+    with pytest.raises(mjkin.MjkinIOError, match="does not exist"):
+        render.write_video(img, tmp_path / "missing" / "v.mp4")
+    with pytest.raises(mjkin.InputError, match=r"\.mp4 or \.gif"):
+        render.write_video(img, tmp_path / "v.avi")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4"]  # no temporary left behind
+
+
+def test_interpolation_hits_keys_and_keeps_quaternions_unit(rng):
+    tree = tree_of("primate")
+    keys = tree.random_q(rng, 4)
+    times = [0.0, 0.5, 1.5, 2.0]
+    for smooth in (False, True):
+        q = motion.interpolate(tree, times, keys, np.linspace(0, 2, 41), smooth=smooth)
+        np.testing.assert_array_equal(motion.interpolate(tree, times, keys, times, smooth=smooth), keys)
+        np.testing.assert_allclose(np.linalg.norm(q[:, tree.layout.quats], axis=-1), 1.0, atol=1e-12)
+        assert np.isfinite(q).all()
+    mid = motion.interpolate(tree, times, keys, [0.25])[0]  # halfway in time: halfway in angle
+    a = mjkin.spatial.quat_distance(keys[0, 3:7], mid[3:7])
+    assert a == pytest.approx(0.5 * mjkin.spatial.quat_distance(keys[0, 3:7], keys[1, 3:7]), abs=1e-9)
+
+
+def test_follow_a_circle_and_replay_the_script(tmp_path):
+    tree = tree_of("arm7")
+    home = tree.model.key_qpos[0]
+    c = tree.pose(home, "ee")[:3, 3] + [0.1, 0, -0.2]
+    path = motion.circle(c, 0.1, 40, normal=[1, 0, 0])
+    traj = motion.follow(tree, "ee", path, q0=home)
+    assert traj.success.all() and len(traj.discontinuities(tree, threshold=0.5)) == 0
+    np.testing.assert_allclose(tree.pose(traj.q, "ee")[:, :3, 3], path, atol=1e-4)
+    traj.save(tmp_path / "t.json")
+    back = motion.Trajectory.load(tmp_path / "t.json", tree)
+    np.testing.assert_array_equal(back.q, traj.q)
+    with pytest.raises(mjkin.InputError, match="recorded on model 'arm7'"):
+        motion.Trajectory.load(tmp_path / "t.json", tree_of("ball_chain"))
+    with pytest.raises(mjkin.MjkinIOError, match="not found"):
+        motion.Trajectory.load(tmp_path / "nope.json")
+
+
+@pytest.mark.parametrize("call, text", [
+    (lambda: motion.line([0, 0, 0], [1, 1, 1], 1), "at least 2 frames"),
+    (lambda: motion.circle([0, 0, 0], -1, 10), "positive radius"),
+    (lambda: motion.waypoints([[0, 0, 0]], 10), "at least two"),
+    (lambda: motion.interpolate(tree_of("arm7"), [0, 0], np.zeros((2, 7)), [0]), "increasing"),
+])
+def test_motion_input_errors(call, text):
+    with pytest.raises(mjkin.MjkinError, match=text):
+        call()
+
+
+def test_cli_demo_trajectory_render_replay(tmp_path, capsys):
+    demo = tmp_path / "demo.mp4"
+    assert main(["demo", "-o", str(demo), "--seconds", "0.5", "--width", "160", "--height", "120"]) == 0
+    assert demo.stat().st_size > 1000 and "wrote" in capsys.readouterr().out
+    script = tmp_path / "t.json"
+    assert main(["trajectory", "arm7", "--site", "ee", "--path", "line", "--end", "0.4,0.2,0.6", "--frames", "10",
+                 "-o", str(script)]) == 0
+    out = tmp_path / "r.gif"
+    assert main(["replay", str(script), "-o", str(out), "--width", "160", "--height", "120"]) == 0
+    assert out.exists()
+    png = tmp_path / "still.png"
+    assert main(["render", "primate", "-o", str(png), "--width", "160", "--height", "120"]) == 0
+    assert png.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["trajectory", "arm7", "--site", "hand", "--path", "circle", "-o", "{tmp}/t.json"], "unknown site or body 'hand'"),
+    (["trajectory", "arm7", "--site", "ee", "--path", "line", "--end", "1,1,1", "--frames", "1", "-o", "{tmp}/t.json"],
+     "at least 2 frames"),
+    (["trajectory", "arm7", "--site", "ee", "--path", "waypoints", "-o", "{tmp}/t.json"], "needs --points"),
+    (["render", "arm7", "-o", "{tmp}/no/such/dir/x.png"], "does not exist"),
+    (["replay", "{tmp}/t.json", "--model", "arm7", "-o", "{tmp}/x.mp4"], "not found"),
+])
+def test_cli_mistakes_exit_2_and_write_nothing(argv, text, tmp_path, capsys):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert text in err and err.count("\n") == 1
+    assert list(tmp_path.rglob("*")) == []
+
+
+def test_replay_refuses_a_script_from_another_model(tmp_path, capsys):
+    tree = tree_of("arm7")
+    traj = motion.Trajectory(times=np.zeros(1), q=tree.qpos0[None], fingerprint=motion.fingerprint(tree), model="arm7")
+    traj.save(tmp_path / "t.json")
+    assert main(["replay", str(tmp_path / "t.json"), "--model", "ball_chain", "-o", str(tmp_path / "x.mp4")]) == 2
+    assert "recorded on model 'arm7'" in capsys.readouterr().err
+    assert not (tmp_path / "x.mp4").exists()
