@@ -144,11 +144,16 @@ def _left_jacobian_inverse(phi: Array, theta: float, out: Array) -> None:
     else:
         c = 1.0 / (theta * theta) - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(max(theta, 1e-9)))
     x, y, z = phi[0], phi[1], phi[2]
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    K2 = K @ K
-    for i in range(3):
+    t2 = x * x + y * y + z * z
+    for i in range(3):  # [φ]x² = φφᵀ - |φ|² I
         for k in range(3):
-            out[i, k] = (1.0 if i == k else 0.0) - 0.5 * K[i, k] + c * K2[i, k]
+            out[i, k] = (1.0 - c * t2 if i == k else 0.0) + c * phi[i] * phi[k]
+    out[0, 1] += 0.5 * z
+    out[0, 2] -= 0.5 * y
+    out[1, 0] -= 0.5 * z
+    out[1, 2] += 0.5 * x
+    out[2, 0] += 0.5 * y
+    out[2, 1] -= 0.5 * x
 
 
 @njit
@@ -275,6 +280,62 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
 
 # ------------------------------------------------------------------------ step
 @njit
+def _damped_solve(A: Array, e: Array, lam2: float, x: Array) -> None:
+    """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky."""
+    m, n = A.shape
+    tall = m > n
+    k = n if tall else m
+    M = np.empty((k, k))
+    b = np.empty(k)
+    for i in range(k):
+        if tall:
+            acc = 0.0
+            for r in range(m):
+                acc += A[r, i] * e[r]
+            b[i] = acc
+        else:
+            b[i] = e[i]
+    for i in range(k):
+        for j in range(i + 1):
+            acc = 0.0
+            if tall:
+                for r in range(m):
+                    acc += A[r, i] * A[r, j]
+            else:
+                for c in range(n):
+                    acc += A[i, c] * A[j, c]
+            M[i, j] = acc
+        M[i, i] += lam2
+    for i in range(k):  # in-place Cholesky, lower triangle: M = L Lᵀ
+        for j in range(i + 1):
+            acc = M[i, j]
+            for r in range(j):
+                acc -= M[i, r] * M[j, r]
+            if i == j:
+                M[i, i] = np.sqrt(max(acc, 1e-300))
+            else:
+                M[i, j] = acc / M[j, j]
+    for i in range(k):  # L y = b
+        acc = b[i]
+        for r in range(i):
+            acc -= M[i, r] * b[r]
+        b[i] = acc / M[i, i]
+    for i in range(k - 1, -1, -1):  # Lᵀ z = y
+        acc = b[i]
+        for r in range(i + 1, k):
+            acc -= M[r, i] * b[r]
+        b[i] = acc / M[i, i]
+    if tall:
+        x[:] = b
+    else:
+        for c in range(n):
+            acc = 0.0
+            for r in range(m):
+                acc += A[r, c] * b[r]
+            x[c] = acc
+
+
+@njit
 def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array,
                  need_basis: bool) -> int:
     """``x = A^# e`` for the method.
@@ -289,10 +350,7 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
     if m == 0:
         return 0
     if not need_basis and lam2 > 0.0 and (method == DLS or method == LM):
-        if m <= n:  # Aᵀ (AAᵀ + λ²I)⁻¹ e
-            x[:] = A.T @ np.linalg.solve(A @ A.T + lam2 * np.eye(m), e)
-        else:  # (AᵀA + λ²I)⁻¹ Aᵀ e, the same vector
-            x[:] = np.linalg.solve(A.T @ A + lam2 * np.eye(n), A.T @ e)
+        _damped_solve(A, e, lam2, x)
         return 0
     if not need_basis and method == TRANSPOSE:
         Ae = A.T @ e
@@ -333,9 +391,11 @@ def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam
     """
     nv = J.shape[1]
     P = np.eye(nv)
+    free = True
     for j in range(nv):
         if locked[j]:
             P[j, j] = 0.0
+            free = False
     dq[:] = 0.0
     x = np.empty(nv)
     basis = np.empty((nv, nv))
@@ -344,11 +404,20 @@ def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam
         gl = g[level_rows[lv]:level_rows[lv + 1]]
         n = np.sqrt(gl @ gl)
         k = scale * (clamp / n if n > clamp else 1.0)
-        e = -k * gl - Jl @ dq
-        A = Jl @ P
+        e = np.empty(gl.shape[0])
+        for r in range(gl.shape[0]):
+            acc = -k * gl[r]
+            for c in range(nv):
+                acc -= Jl[r, c] * dq[c]
+            e[r] = acc
+        plain = free and lv == 0  # P is still the identity
+        A = Jl if plain else Jl @ P
         last = lv == level_rows.shape[0] - 2
         rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis, not last)
-        dq += P @ x
+        if plain:
+            dq += x
+        else:
+            dq += P @ x
         for r in range(rank):
             P -= np.outer(basis[r], basis[r])
 
