@@ -136,6 +136,8 @@ def test_singular_values_detect_a_stretched_arm():
     s_straight = mjkin.singular_values(tree, goal, [0.3, 0.0, 0.0])
     assert s_bent.shape == (3,) and s_bent[2] < 1e-12  # a planar arm never moves along z
     assert s_straight[1] < 1e-9 < s_bent[1]  # stretched: the in-plane rank drops to 1
+    res = mjkin.solve(tree, G.Position("tip", [-35.0, 5.0, 0.0]), q0=[0.3, 0.8, 0.5])  # out of reach: stretches
+    assert res.singular_values()[1] < 0.05 * s_bent[1]
 
 
 @pytest.mark.parametrize("goal, text", [

@@ -11,4 +11,4 @@ def test_ci_runs_the_readme_test_command():
     command = ci[ci.index("# README test command (tests/test_readme.py keeps the two identical):") + 1]
     assert command in readme
     head = readme.split("\n## ", 1)[0]  # the two commands open the README
-    assert command in head and ".venv/bin/mjkin " in head
+    assert command in head and ".venv/bin/mjkin demo" in head

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -65,6 +65,17 @@ class Result:
     method: str
     restarts: Array
     history: History | None = None
+    tree: Tree | None = field(default=None, repr=False, compare=False)
+
+    def singular_values(self) -> NDArray:
+        """Singular values ``(..., k)`` of the top-priority goals' Jacobian at :attr:`q`.
+
+        The smallest tends to zero at a singularity (a stretched arm); their
+        product is Yoshikawa's manipulability.
+        """
+        if self.tree is None:
+            raise InputError("this result was built without its tree; use mjkin.singular_values(tree, goals, q)")
+        return singular_values(self.tree, self.goals, self.q)
 
     @property
     def position_error(self) -> Array:
@@ -206,14 +217,14 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     if name == "analytic2":
         from .analytic import solve_analytic2
 
-        return solve_analytic2(tree, prog, q, tol)
+        return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
     n_restarts = (8 if method == "auto" else 0) if restarts is None else int(restarts)
     if n_restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
     if name == "optimize":
         from .optimize import solve_optimize
 
-        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
+        return replace(solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed), tree=tree)
     # one seeded set of restarts shared by every target (a batch solves exactly as a loop of single
     # solves); joints that may not move keep their start values
     starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts) if n_restarts
@@ -225,7 +236,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     if name == "ccd":
         from .ccd import solve_ccd
 
-        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience)
+        return replace(solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience),
+                       tree=tree)
     extent = float(tree.model.stat.extent) or 1.0
     default_damping = (1e-5 if name == "lm" else 0.05) * extent
     params = np.array([tol, rot_tol, default_damping if damping is None else damping,
@@ -234,7 +246,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
                        float(halving), float(patience), np.inf if goal_step is None else goal_step])
     if not params[8] > 0:
         raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
-    return run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method)
+    return replace(run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method), tree=tree)
 
 
 def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, max_iters: int, starts: Array,
