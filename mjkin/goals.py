@@ -137,6 +137,13 @@ class FrameGoal(Goal):
             object.__setattr__(self, "_checked", cached)
         return cached
 
+    def encode(self, tree: Tree, data: Array) -> int:
+        """Write a point and a direction (the layout of Aim, Line, Plane, HalfSpace) into ``data``."""
+        point, direction = self._targets()
+        data[:, 0:3] = point
+        data[:, 3:6] = direction
+        return 0
+
     def batch(self) -> tuple[int, ...]:
         """Leading batch shape shared by the targets."""
         shapes = [t.shape[: t.ndim - core] for t, core in zip(self._targets(), self._cores, strict=False)]
@@ -230,12 +237,6 @@ class Aim(FrameGoal):
             raise GoalError("Aim axis is fixed in the frame: give one (3,) vector")
         return [_array(self.point, (3,), "Aim point"), axis]
 
-    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
-        point, axis = self._targets()
-        data[:, 0:3] = point
-        data[:, 3:6] = axis
-        return 0
-
 
 @dataclass(frozen=True)
 class Line(FrameGoal):
@@ -248,12 +249,6 @@ class Line(FrameGoal):
 
     def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), "Line point"), _unit(self.direction, "Line direction")]
-
-    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
-        point, u = self._targets()
-        data[:, 0:3] = point
-        data[:, 3:6] = u
-        return 0
 
 
 @dataclass(frozen=True)
@@ -268,12 +263,6 @@ class Plane(FrameGoal):
     def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), f"{type(self).__name__} point"),
                 _unit(self.normal, f"{type(self).__name__} normal")]
-
-    def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
-        point, n = self._targets()
-        data[:, 0:3] = point
-        data[:, 3:6] = n
-        return 0
 
 
 @dataclass(frozen=True)
