@@ -265,4 +265,36 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
             "(speed vs baseline > 1: mjkin faster)": rows}
 
 
-BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds}
+def bench_env(steps: int = 2000, seed: int = 0) -> Tables:
+    """Environment steps per second (random actions) beside gymnasium's MuJoCo ``Reacher-v5``."""
+    import gymnasium as gym
+
+    import mjkin.envs  # noqa: F401  (registers the ids)
+
+    def rate(env: gym.Env) -> float:
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        start = time.perf_counter()
+        for _ in range(steps):
+            _, _, term, trunc, _ = env.step(env.action_space.sample())
+            if term or trunc:
+                env.reset()
+        elapsed = time.perf_counter() - start
+        env.close()
+        return steps / elapsed
+
+    try:
+        reacher = rate(gym.make("Reacher-v5"))
+    except Exception as e:  # gymnasium's MuJoCo envs missing: report, do not fail
+        reacher = float("nan")
+        print(f"Reacher-v5 unavailable: {e}")
+    rows: list[Row] = [{"env": "Reacher-v5 (gymnasium)", "action": "torque", "steps/s": reacher, "ratio": 1.0}]
+    for env_id in ("mjkin/Reach-v0", "mjkin/PlanarReach-v0"):
+        for action in ("joint", "cartesian"):
+            r = rate(gym.make(env_id, action_type=action))
+            rows.append({"env": env_id, "action": action, "steps/s": r, "ratio": r / reacher})
+    return {f"environment steps per second, {steps} random steps (ratio vs Reacher-v5)": rows}
+
+
+BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds,
+                                               "env": bench_env}

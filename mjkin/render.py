@@ -65,52 +65,84 @@ def default_camera(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float6
     return cam
 
 
+class Painter:
+    """A reusable offscreen renderer for one tree: draws a configuration with overlays.
+
+    Keep one for many frames (an environment, a video); call :meth:`close` (or use
+    ``with``) to free the GL context.
+    """
+
+    def __init__(self, tree: Tree, width: int = 640, height: int = 480) -> None:
+        if width <= 0 or height <= 0:
+            raise InputError(f"frame size must be positive, got {width}x{height}")
+        model = tree.model
+        model.vis.global_.offwidth = max(width, model.vis.global_.offwidth)
+        model.vis.global_.offheight = max(height, model.vis.global_.offheight)
+        self.tree, self.scene = tree, Scene(tree)
+        try:
+            self.renderer = mujoco.Renderer(model, height, width)
+        except Exception as e:  # no GL context: say how to get one
+            raise MjkinIOError(f"cannot start offscreen rendering ({' '.join(str(e).split())}); on a machine "
+                               f"without a display set MUJOCO_GL=egl (now {os.environ.get('MUJOCO_GL')!r})") from None
+
+    def camera(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
+               points: NDArray[np.float64] | None = None) -> mujoco.MjvCamera | int:
+        """A camera: as given, a model camera by name, or :func:`default_camera` for ``qs`` and ``points``."""
+        if isinstance(camera, str):
+            model = self.tree.model
+            cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+            if cam_id < 0:
+                names = [model.camera(i).name for i in range(model.ncam)]
+                raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
+            return cam_id
+        return camera if camera is not None else default_camera(self.tree, qs, points)
+
+    def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
+             trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None) -> NDArray[np.uint8]:
+        """One RGB frame ``(height, width, 3)`` of ``q`` with target ``points (n, 3)`` and a ``trail (k, 3)``."""
+        ov = overlay or Overlay()
+        r = self.renderer
+        r.update_scene(self.scene.set(q), camera)
+        for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
+            _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
+        if trail is not None:
+            for a, b in zip(trail[:-1], trail[1:], strict=True):
+                g = _add(r.scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0, 0, 0], a, ov.trail_rgba)
+                if g is not None:
+                    mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, ov.trail_width, a, b)
+        return r.render()
+
+    def close(self) -> None:
+        """Free the GL context."""
+        self.renderer.close()
+
+    def __enter__(self) -> Painter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camera: mujoco.MjvCamera | str | None = None,
            overlay: Overlay | None = None, desc: str = "render") -> NDArray[np.uint8]:
     """RGB frames ``(T, height, width, 3)`` of configurations ``qs (T, nq)``.
 
     ``camera``: a :class:`mujoco.MjvCamera`, the name of a model camera, or None
-    for :func:`default_camera`.
+    for :func:`default_camera`. ``overlay.points`` are ``(n, 3)`` for every frame
+    or ``(T, n, 3)`` per frame; the trail grows frame by frame.
     """
     qs = tree.check_q(qs)
     if qs.ndim == 1:
         qs = qs[None]
-    if width <= 0 or height <= 0:
-        raise InputError(f"frame size must be positive, got {width}x{height}")
-    model = tree.model
-    if model.vis.global_.offwidth < width or model.vis.global_.offheight < height:
-        model.vis.global_.offwidth = max(width, model.vis.global_.offwidth)
-        model.vis.global_.offheight = max(height, model.vis.global_.offheight)
     ov = overlay or Overlay()
     points = np.asarray(ov.points, dtype=np.float64)
-    if isinstance(camera, str):
-        cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-        if cam_id < 0:
-            names = [model.camera(i).name for i in range(model.ncam)]
-            raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
-        cam: mujoco.MjvCamera | int = cam_id
-    else:
-        cam = camera if camera is not None else default_camera(tree, qs, points)
     trail = tree.pose(qs, ov.trail)[:, :3, 3] if ov.trail else None
-    scene = Scene(tree)
     out = np.empty((len(qs), height, width, 3), dtype=np.uint8)
-    try:
-        renderer = mujoco.Renderer(model, height, width)
-    except Exception as e:  # no GL context: say how to get one
-        raise MjkinIOError(f"cannot start offscreen rendering ({' '.join(str(e).split())}); on a machine without "
-                           f"a display set MUJOCO_GL=egl (now {os.environ.get('MUJOCO_GL')!r})") from None
-    with renderer:
+    with Painter(tree, width, height) as painter:
+        cam = painter.camera(camera, qs, points)
         for t in track(range(len(qs)), desc, total=len(qs)):
-            renderer.update_scene(scene.set(qs[t]), cam)
-            pts = points[t] if points.ndim == 3 else points
-            for p in pts.reshape(-1, 3):
-                _add(renderer.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
-            if trail is not None:
-                for a, b in zip(trail[:t], trail[1:t + 1], strict=True):
-                    g = _add(renderer.scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0, 0, 0], a, ov.trail_rgba)
-                    if g is not None:
-                        mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, ov.trail_width, a, b)
-            out[t] = renderer.render()
+            out[t] = painter.draw(qs[t], cam, points[t] if points.ndim == 3 else points,
+                                  None if trail is None else trail[:t + 1], ov)
     return out
 
 

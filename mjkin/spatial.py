@@ -232,12 +232,12 @@ def mat_to_euler(R: ArrayLike, seq: str = "xyz") -> Array:
         b = np.arctan2(np.hypot(R[..., i, j], R[..., i, m]), R[..., i, i])
         a = np.arctan2(R[..., j, i], -s * R[..., m, i])
         c = np.arctan2(R[..., i, j], s * R[..., i, m])
-        lock = np.sin(b) < 1e-9
+        lock = np.sin(b) < 1e-12  # below this, dropping the direction of b costs < 1e-12
     else:
         b = np.arctan2(s * R[..., i, k], np.hypot(R[..., i, i], R[..., i, j]))
         a = np.arctan2(-s * R[..., j, k], R[..., k, k])
         c = np.arctan2(-s * R[..., i, j], R[..., i, i])
-        lock = np.cos(b) < 1e-9
+        lock = np.cos(b) < 1e-12
     if np.any(lock):  # only a ± c is defined: set c = 0, then R = R_i(a) R_j(b)
         M = R @ np.swapaxes(_basic(j, b), -1, -2)
         p, q = (i + 1) % 3, (i + 2) % 3
