@@ -265,6 +265,33 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
             "(speed vs baseline > 1: mjkin faster)": rows}
 
 
+def bench_render(n: int = 60, width: int = 640, height: int = 480, seed: int = 0) -> Tables:
+    """Frames/s of mjkin's render pipeline (markers, trail) beside a bare ``mujoco.Renderer`` loop."""
+    from .render import Overlay, default_camera, frames
+
+    rows: list[Row] = []
+    for name in ("arm7", "primate"):
+        tree = load(name)
+        qs = tree.random_q(np.random.default_rng(seed), n)
+        site = tree.names("site")[0]
+        cam = default_camera(tree, qs)
+        start = time.perf_counter()
+        frames(tree, qs, width, height, camera=cam, overlay=Overlay(points=qs[:3, :3] * 0 + 0.2, trail=site))
+        ours = n / (time.perf_counter() - start)
+        model, data = tree.model, mujoco.MjData(tree.model)
+        start = time.perf_counter()
+        with mujoco.Renderer(model, height, width) as r:
+            for q in qs:
+                data.qpos[:] = q
+                mujoco.mj_forward(model, data)
+                r.update_scene(data, cam)
+                r.render()
+        bare = n / (time.perf_counter() - start)
+        rows.append({"model": name, "size": f"{width}x{height}", "mjkin frames/s": ours, "bare Renderer frames/s": bare,
+                     "overhead %": 100 * (bare / ours - 1)})
+    return {"offscreen rendering: full pipeline vs a bare mujoco.Renderer loop (same frames, same camera)": rows}
+
+
 def bench_env(steps: int = 2000, seed: int = 0) -> Tables:
     """Environment steps per second (random actions) beside gymnasium's MuJoCo ``Reacher-v5``."""
     import gymnasium as gym
@@ -297,4 +324,4 @@ def bench_env(steps: int = 2000, seed: int = 0) -> Tables:
 
 
 BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds,
-                                               "env": bench_env}
+                                               "render": bench_render, "env": bench_env}

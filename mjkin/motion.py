@@ -184,3 +184,49 @@ def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = Non
         out[k], ok[k] = q, bool(res.success)
     return Trajectory(times=np.arange(len(pts)) / fps, q=out, fingerprint=fingerprint(tree), model=tree.name,
                       site=site, targets=pts[:, None, :], success=ok)
+
+
+def walk_cycle(tree: Tree, steps: int = 4, stride: float = 0.3, step_height: float = 0.06, frames_per_step: int = 24,
+               fps: float = 30.0, feet: tuple[str, str] = ("left_foot", "right_foot"), pelvis: str = "lower_torso",
+               knees: tuple[str, str] = ("left_knee", "right_knee"), knee_bend: float = 0.7,
+               crouch: float = 0.06, tol: float = 1e-4) -> Trajectory:
+    """A walk (seeds 002/004): feet placed by IK, the planted foot switching every step.
+
+    In each step one foot is planted — it is the IK root (``root=``), held where
+    it stands while the free pelvis joint and the legs move — and the other
+    swings forward by ``stride`` along an arc ``step_height`` high. The pelvis
+    follows the midpoint of the feet, upright and ``crouch`` lower than standing; the swinging knee follows the
+    curve ``θ(s) = knee_bend · sin(π s)`` (a low-priority rest goal), the rest of
+    the body stays near its rest pose. Returns the frames, solved warm-started.
+    """
+    if steps < 1 or frames_per_step < 2:
+        raise InputError("walk_cycle needs steps >= 1 and frames_per_step >= 2")
+    q = tree.qpos0.copy()
+    foot_T = {f: tree.pose(q, f, "body") for f in feet}
+    T_pelvis = tree.pose(q, pelvis, "body")
+    T_pelvis[2, 3] -= crouch
+    knee_q = [tree.jnt_qadr[tree.id(k, "joint")] for k in knees]
+    out, ok = [], []
+    for k in range(steps):
+        planted, swing = feet[k % 2], feet[1 - k % 2]
+        start = foot_T[swing].copy()
+        end = start.copy()
+        end[0, 3] = foot_T[planted][0, 3] + 0.5 * stride if k else start[0, 3] + 0.5 * stride
+        for f in range(1, frames_per_step + 1):
+            s = f / frames_per_step
+            T = start.copy()
+            T[:3, 3] = (1 - s) * start[:3, 3] + s * end[:3, 3] + [0.0, 0.0, step_height * np.sin(np.pi * s)]
+            P = T_pelvis.copy()
+            P[0, 3] = 0.5 * (T[0, 3] + foot_T[planted][0, 3])
+            rest = tree.qpos0.copy()
+            rest[knee_q[1 - k % 2]] = knee_bend * np.sin(np.pi * s)
+            goals = [G.Pose(swing, kind="body", T=T), G.Position(pelvis, P[:3, 3], kind="body", priority=1),
+                     G.Orientation(pelvis, P[:3, :3], kind="body", priority=1), G.Rest(q_rest=rest, priority=2)]
+            res = solve(tree, goals, q0=q, root=planted, tol=tol, restarts=0)
+            q = res.q
+            out.append(q)
+            ok.append(bool(res.goal_errors[0, 0] <= tol and res.goal_errors[1, 0] <= tol))  # feet on target
+        foot_T[swing] = end
+    return Trajectory(times=np.arange(len(out)) / fps, q=np.array(out), fingerprint=fingerprint(tree),
+                      model=tree.name, site=None, success=np.array(ok), meta={"walk": {"steps": steps,
+                                                                                  "stride": stride}})

@@ -150,3 +150,39 @@ def test_replay_refuses_a_script_from_another_model(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "t.json"), "--model", "ball_chain", "-o", str(tmp_path / "x.mp4")]) == 2
     assert "recorded on model 'arm7'" in capsys.readouterr().err
     assert not (tmp_path / "x.mp4").exists()
+
+
+def test_ik_can_avoid_collisions():
+    """Two elbow solutions reach the target; an obstacle sits on one elbow; avoid_collisions picks the other."""
+    from mjkin import build
+    from mjkin.ik.analytic import solutions
+
+    xml = build.planar_chain([1.0, 0.7])
+    free = mjkin.load(xml)
+    (qa, qb), ok = solutions(free, np.array([1.2, 0.5, 0.0]), "ee")
+    elbow = free.pose(qa, "link1_tip")[:3, 3]
+    tree = mjkin.load(xml.replace("<worldbody>", f'<worldbody><geom name="post" type="sphere" size="0.08" '
+                                                  f'pos="{elbow[0]} {elbow[1]} 0"/>', 1))
+    goal = mjkin.goals.Position("ee", [1.2, 0.5, 0.0])
+    scene = Scene(tree)
+    plain = mjkin.solve(tree, goal, q0=qa, restarts=0)
+    assert plain.success and scene.in_collision(plain.q)
+    safe = mjkin.solve(tree, goal, q0=qa, avoid_collisions=True)
+    assert safe.success and not scene.in_collision(safe.q)
+    blocked = mjkin.solve(tree, mjkin.goals.Position("ee", elbow), q0=qa, avoid_collisions=True)
+    assert not blocked.success and blocked.status == "collision"
+
+
+def test_walk_cycle_keeps_the_planted_foot_fixed():
+    tree = tree_of("primate")
+    n = 24
+    walk = motion.walk_cycle(tree, steps=3, stride=0.3, frames_per_step=n)
+    assert walk.success.all() and len(walk.q) == 3 * n
+    for k in range(3):
+        planted, swing = ("left_foot", "right_foot")[k % 2], ("left_foot", "right_foot")[1 - k % 2]
+        P = tree.pose(walk.q[k * n:(k + 1) * n], planted, "body")
+        np.testing.assert_allclose(P, np.broadcast_to(P[0], P.shape), atol=1e-5)  # this step's root stays put
+        S = tree.pose(walk.q[k * n:(k + 1) * n], swing, "body")[:, :3, 3]
+        assert S[-1, 0] > S[0, 0] + 0.1 and S[n // 2, 2] > S[0, 2] + 0.03  # forward, lifted mid-step
+    pelvis = tree.pose(walk.q, "lower_torso", "body")[:, 0, 3]
+    assert pelvis[-1] > 0.3 and np.all(np.diff(pelvis[::n // 2]) > 0)  # the body walks forward

@@ -154,7 +154,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
           halving: bool = False, goal_step: float | None = None, restarts: int | None = None,
           seed: int | None = 0, patience: int = 10,
           base: str | None = None, joints: Sequence[str] | None = None, root: str | None = None,
-          history: bool = False, sweep: str = "backward") -> Result:
+          history: bool = False, sweep: str = "backward", avoid_collisions: bool = False) -> Result:
     """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
 
     Args:
@@ -191,10 +191,66 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             pose goal holds it while the free root joint moves the rest.
         history: keep every iterate (``Result.history``).
         sweep: CCD joint order, ``"backward"`` (tip to base) or ``"forward"``.
+        avoid_collisions: reject solutions where MuJoCo finds contacts (between
+            non-adjacent bodies, or with the world): re-solve from seeded random
+            starts (``restarts`` of them, at least 8); if none is free of contact,
+            ``success`` is False and ``status`` is ``"collision"``.
 
     Raises:
         GoalError, UnknownNameError, InputError: malformed goals, names or options.
     """
+    options = {"method": method, "tol": tol, "rot_tol": rot_tol, "max_iters": max_iters, "damping": damping,
+               "alpha": alpha, "max_step": max_step, "halving": halving, "goal_step": goal_step,
+               "restarts": restarts, "seed": seed, "patience": patience, "base": base, "joints": joints,
+               "root": root, "history": history, "sweep": sweep}
+    result = _solve(tree, goals, q0, **options)  # type: ignore[arg-type]
+    return _collision_free(tree, goals, result, options) if avoid_collisions else result
+
+
+def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result, options: dict) -> Result:
+    """Re-solve the targets whose solution is in contact, from random starts, until one is free."""
+    from ..scene import Scene
+
+    scene = Scene(tree)
+    q = np.array(result.q).reshape(-1, tree.nq)
+    error = np.array(result.error).reshape(-1, 2)
+    success = np.array(result.success).reshape(-1).copy()
+    status = np.array(result.status).reshape(-1).astype("<U14")
+    rng = np.random.default_rng(options["seed"])
+    goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
+    tries = max(8, options["restarts"] or 0)
+    for b in range(len(q)):
+        if not scene.in_collision(q[b]):
+            continue
+        one = [_target(g, b, len(q)) for g in goal_list]
+        for start in tree.random_q(rng, tries):
+            retry = _solve(tree, one, start, **{**options, "restarts": 0})  # type: ignore[arg-type]
+            if retry.success and not scene.in_collision(retry.q):
+                q[b], error[b], success[b], status[b] = retry.q, retry.error, True, "converged"
+                break
+        else:
+            success[b], status[b] = False, "collision"
+    shape = np.shape(result.success)
+    return replace(result, q=q.reshape(np.shape(result.q)), error=error.reshape(np.shape(result.error)),
+                   success=success.reshape(shape),
+                   status=status.reshape(shape) if shape else status[0])
+
+
+def _target(goal: G.Goal, b: int, B: int) -> G.Goal:
+    """The ``b``-th target of a batched goal (unbatched goals as they are)."""
+    if goal.batch() == ():
+        return goal
+    fields = {name: np.asarray(getattr(goal, name))[b]
+              for name in ("xyz", "quat", "T", "point", "direction", "normal", "q_rest")
+              if hasattr(goal, name) and np.ndim(getattr(goal, name)) > {"T": 2, "quat": 1}.get(name, 1)}
+    return replace(goal, **fields)
+
+
+def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, method: str, tol: float,
+           rot_tol: float, max_iters: int | None, damping: float | None, alpha: float | None,
+           max_step: float | None, halving: bool, goal_step: float | None, restarts: int | None, seed: int | None,
+           patience: int, base: str | None, joints: Sequence[str] | None, root: str | None, history: bool,
+           sweep: str) -> Result:
     if method not in METHODS:
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
     if not (np.isfinite(tol) and tol > 0 and np.isfinite(rot_tol) and rot_tol > 0):
