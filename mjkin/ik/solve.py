@@ -20,8 +20,9 @@ Array = NDArray[np.float64]
 
 METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
 CORES = os.cpu_count() or 1
+AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
-_MAX_ITERS = {"lm": 100, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
+_MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
 
 
 @dataclass(frozen=True)
@@ -152,7 +153,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
           tol: float = 1e-6, rot_tol: float = 1e-5, max_iters: int | None = None, *,
           damping: float | None = None, alpha: float | None = None, max_step: float | None = None,
           halving: bool = False, goal_step: float | None = None, restarts: int | None = None,
-          seed: int | None = 0, patience: int = 10,
+          seed: int | None = 0, patience: int | None = None,
           base: str | None = None, joints: Sequence[str] | None = None, root: str | None = None,
           history: bool = False, sweep: str = "backward", avoid_collisions: bool = False) -> Result:
     """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
@@ -163,7 +164,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             leading batch axis ``B``, solved together.
         q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits.
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
-            error-dependent λ, step acceptance and seeded random restarts when it
+            error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
             ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar), or
             ``"optimize"`` (SciPy, box and coupling constraints).
@@ -181,10 +182,11 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         goal_step: the most residual (m, or rad for orientation rows) a step aims to
             remove, so the effector walks toward a far goal (error clamping); default
             unlimited.
-        restarts: random restarts (within limits) when a solve stalls; default 8
+        restarts: random restarts (within limits) when a solve stalls; default 24
             for ``auto``, 0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
-        patience: iterations without progress before a solve counts as stalled.
+        patience: iterations without progress before a run counts as stalled; default
+            6 for ``lm``/``auto`` (then it restarts), 10 for the others.
         base: only joints between this body and the goal frames move.
         joints: only these joints move.
         root: a body that stays where it is (e.g. a planted foot): a top-priority
@@ -249,7 +251,7 @@ def _target(goal: G.Goal, b: int, B: int) -> G.Goal:
 def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, method: str, tol: float,
            rot_tol: float, max_iters: int | None, damping: float | None, alpha: float | None,
            max_step: float | None, halving: bool, goal_step: float | None, restarts: int | None, seed: int | None,
-           patience: int, base: str | None, joints: Sequence[str] | None, root: str | None, history: bool,
+           patience: int | None, base: str | None, joints: Sequence[str] | None, root: str | None, history: bool,
            sweep: str) -> Result:
     if method not in METHODS:
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
@@ -265,6 +267,7 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
                                                          if isinstance(g, G.Goal) else g for g in goal_list]
     prog = G.compile_goals(tree, goal_list)
     name = "lm" if method == "auto" else method
+    patience = (6 if name == "lm" else 10) if patience is None else int(patience)
     iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
     if iters < 0:
         raise InputError(f"max_iters must be >= 0, got {max_iters}")
@@ -274,7 +277,7 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
         from .analytic import solve_analytic2
 
         return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
-    n_restarts = (8 if method == "auto" else 0) if restarts is None else int(restarts)
+    n_restarts = (AUTO_RESTARTS if method == "auto" else 0) if restarts is None else int(restarts)
     if n_restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
     if name == "optimize":
