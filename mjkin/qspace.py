@@ -46,6 +46,8 @@ class Layout:
     ball_max: Array  # (nb,) largest rotation angle, inf when unlimited
     free_q: Index  # (nf, 7)
     quats: Index  # (nb + nf, 4) every quaternion in q
+    jnt_lo: Array  # (njnt,) per joint: hinge/slide lower limit, -inf when unlimited
+    jnt_hi: Array  # (njnt,) upper limit, or a ball joint's largest angle; inf when unlimited
 
     @classmethod
     def of(cls, tree: Tree) -> Layout:
@@ -54,16 +56,13 @@ class Layout:
         s = np.flatnonzero((t == HINGE) | (t == SLIDE))
         b = np.flatnonzero(t == BALL)
         f = np.flatnonzero(t == FREE)
-        lim = tree.jnt_limited
-        return cls(
-            scalar_q=tree.jnt_qadr[s], scalar_hinge=t[s] == HINGE,
-            scalar_lo=np.where(lim[s], tree.jnt_range[s, 0], -np.inf),
-            scalar_hi=np.where(lim[s], tree.jnt_range[s, 1], np.inf),
-            ball_q=tree.jnt_qadr[b, None] + np.arange(4),
-            ball_max=np.where(lim[b], tree.jnt_range[b, 1], np.inf),
-            free_q=tree.jnt_qadr[f, None] + np.arange(7),
-            quats=np.concatenate([tree.jnt_qadr[b, None] + np.arange(4), tree.jnt_qadr[f, None] + np.arange(3, 7)]),
-        )
+        lo = np.where(tree.jnt_limited, tree.jnt_range[:, 0], -np.inf)
+        hi = np.where(tree.jnt_limited, tree.jnt_range[:, 1], np.inf)
+        ball_q = tree.jnt_qadr[b, None] + np.arange(4)
+        free_q = tree.jnt_qadr[f, None] + np.arange(7)
+        return cls(scalar_q=tree.jnt_qadr[s], scalar_hinge=t[s] == HINGE, scalar_lo=lo[s], scalar_hi=hi[s],
+                   ball_q=ball_q, ball_max=hi[b], free_q=free_q, quats=np.concatenate([ball_q, free_q[:, 3:]]),
+                   jnt_lo=lo, jnt_hi=hi)
 
 
 def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
@@ -226,15 +225,8 @@ def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
 def clip(tree: Tree, q: Array) -> Array:
     """Project into the joint limits; ball joints past their cone are pulled back onto it."""
     out = _rows(q, tree.nq, q.shape[:-1]).copy()
-    clip_kernel(out, tree.jnt_type, tree.jnt_qadr, *limits(tree))
+    clip_kernel(out, tree.jnt_type, tree.jnt_qadr, tree.layout.jnt_lo, tree.layout.jnt_hi)
     return out.reshape(q.shape)
-
-
-def limits(tree: Tree) -> tuple[Array, Array]:
-    """Per joint ``(lo, hi)``: hinge/slide range (±inf when unlimited), ball max angle in ``hi``."""
-    lo = np.where(tree.jnt_limited, tree.jnt_range[:, 0], -np.inf)
-    hi = np.where(tree.jnt_limited, tree.jnt_range[:, 1], np.inf)
-    return lo, hi
 
 
 def integrate(tree: Tree, q: Array, v: Array) -> Array:

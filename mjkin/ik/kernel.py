@@ -39,7 +39,7 @@ from ..fk import fk_kernel
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
 from ..jacobian import jacobian_kernel
 from ..jit import matmul3, matvec3, njit
-from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel, limits
+from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel
 
 if TYPE_CHECKING:
     from ..goals import Program
@@ -60,7 +60,7 @@ def kinematic_arrays(tree: Tree) -> tuple:
         dofs = tree.body_dofs
         ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
         idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
-        lo, hi = limits(tree)
+        lo, hi = tree.layout.jnt_lo, tree.layout.jnt_hi
         cached = (p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
                   p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos,
                   tree.qpos0, tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt],

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
 from ..errors import InputError
+from ..qspace import NQ, NV
 from ..tree import Tree
 from . import kernel
 from .kernel import STATUS_NAMES
@@ -127,8 +128,7 @@ def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
         active[:] = False
         for name in joints:
             j = tree.id(name, "joint")
-            n = {0: 6, 1: 3}.get(int(tree.jnt_type[j]), 1)
-            active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + n] = True
+            active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + NV[int(tree.jnt_type[j])]] = True
     if base is not None:
         b = tree.id(base, "body")
         below = np.zeros(tree.nv, dtype=bool)
@@ -143,9 +143,9 @@ def _frozen_q(tree: Tree, active: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Mask over q of the joints none of whose dofs are active."""
     frozen = np.zeros(tree.nq, dtype=bool)
     for j in range(tree.njnt):
-        nv_j, nq_j = {0: (6, 7), 1: (3, 4)}.get(int(tree.jnt_type[j]), (1, 1))
-        if not active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + nv_j].any():
-            frozen[tree.jnt_qadr[j]:tree.jnt_qadr[j] + nq_j] = True
+        kind = int(tree.jnt_type[j])
+        if not active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + NV[kind]].any():
+            frozen[tree.jnt_qadr[j]:tree.jnt_qadr[j] + NQ[kind]] = True
     return frozen
 
 
@@ -205,7 +205,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
                "alpha": alpha, "max_step": max_step, "halving": halving, "goal_step": goal_step,
                "restarts": restarts, "seed": seed, "patience": patience, "base": base, "joints": joints,
                "root": root, "history": history, "sweep": sweep}
-    result = _solve(tree, goals, q0, **options)  # type: ignore[arg-type]
+    result = replace(_solve(tree, goals, q0, **options), tree=tree)  # type: ignore[arg-type]
     return _collision_free(tree, goals, result, options) if avoid_collisions else result
 
 
@@ -216,6 +216,7 @@ def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result
     scene = Scene(tree)
     q = np.array(result.q).reshape(-1, tree.nq)
     error = np.array(result.error).reshape(-1, 2)
+    goal_errors = np.array(result.goal_errors).reshape(len(q), -1, 2)
     success = np.array(result.success).reshape(-1).copy()
     status = np.array(result.status).reshape(-1).astype("<U14")
     rng = np.random.default_rng(options["seed"])
@@ -228,13 +229,14 @@ def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result
         for start in tree.random_q(rng, tries):
             retry = _solve(tree, one, start, **{**options, "restarts": 0})  # type: ignore[arg-type]
             if retry.success and not scene.in_collision(retry.q):
-                q[b], error[b], success[b], status[b] = retry.q, retry.error, True, "converged"
+                q[b], error[b], goal_errors[b] = retry.q, retry.error, retry.goal_errors
+                success[b], status[b] = True, "converged"
                 break
         else:
             success[b], status[b] = False, "collision"
     shape = np.shape(result.success)
     return replace(result, q=q.reshape(np.shape(result.q)), error=error.reshape(np.shape(result.error)),
-                   success=success.reshape(shape),
+                   goal_errors=goal_errors.reshape(np.shape(result.goal_errors)), success=success.reshape(shape),
                    status=status.reshape(shape) if shape else status[0])
 
 
@@ -276,14 +278,14 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
     if name == "analytic2":
         from .analytic import solve_analytic2
 
-        return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
+        return solve_analytic2(tree, prog, q, tol)
     n_restarts = (AUTO_RESTARTS if method == "auto" else 0) if restarts is None else int(restarts)
     if n_restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
     if name == "optimize":
         from .optimize import solve_optimize
 
-        return replace(solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed), tree=tree)
+        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
     # one seeded set of restarts shared by every target (a batch solves exactly as a loop of single
     # solves); joints that may not move keep their start values
     starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts) if n_restarts
@@ -295,8 +297,7 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
     if name == "ccd":
         from .ccd import solve_ccd
 
-        return replace(solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience),
-                       tree=tree)
+        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience)
     extent = float(tree.model.stat.extent) or 1.0
     default_damping = (1e-5 if name == "lm" else 0.05) * extent
     params = np.array([tol, rot_tol, default_damping if damping is None else damping,
@@ -305,7 +306,7 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
                        float(halving), float(patience), np.inf if goal_step is None else goal_step])
     if not params[8] > 0:
         raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
-    return replace(run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method), tree=tree)
+    return run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method)
 
 
 def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, max_iters: int, starts: Array,
