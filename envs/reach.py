@@ -131,8 +131,7 @@ class ReachEnv(gym.Env):
         q[self._wrap] = np.angle(np.exp(1j * q[self._wrap]))
         self.q = q
 
-    def _obs(self) -> Array:
-        ee = self.effector()
+    def _obs(self, ee: Array) -> Array:
         return np.concatenate([self.q, ee, self.target, self.target - ee])
 
     def _sample_target(self) -> Array:
@@ -159,7 +158,8 @@ class ReachEnv(gym.Env):
         self._set(self.tree.integrate(self.home, noise))
         self.target = self._sample_target()
         self._camera = None
-        return self._obs(), self._info()
+        ee = self.effector()
+        return self._obs(ee), self._info(ee)
 
     def step(self, action: Any) -> tuple[Array, float, bool, bool, dict]:
         """Apply an action (see the class docstring); bad actions raise and change nothing."""
@@ -174,15 +174,16 @@ class ReachEnv(gym.Env):
         else:
             goal = G.Position(self.site, self.effector() + a)
             self._set(mjkin.solve(self.tree, goal, q0=self.q, max_iters=30, restarts=0).q)
-        info = self._info()
+        ee = self.effector()
+        info = self._info(ee)
         reward = (self.success_bonus if info["is_success"] else -1.0) if self.sparse else \
             -info["distance"] + self.success_bonus * info["is_success"]
         reward -= self.collision_penalty * info["in_collision"]
         info["reward_distance"] = -info["distance"]
-        return self._obs(), float(reward), bool(info["is_success"]), False, info
+        return self._obs(ee), float(reward), bool(info["is_success"]), False, info
 
-    def _info(self) -> dict:
-        distance = float(np.linalg.norm(self.target - self.effector()))
+    def _info(self, ee: Array) -> dict:
+        distance = float(np.linalg.norm(self.target - ee))
         contacts = self.scene.contacts(self.q)
         return {"distance": distance, "is_success": distance < self.success_tol, "contacts": len(contacts),
                 "in_collision": bool(contacts) or self._touching_obstacle()}
