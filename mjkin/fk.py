@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .jit import axis_angle, matmul3, matvec3, njit, quat_to_mat
+from .jit import axis_angle, njit, njit_inline, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE
 
 if TYPE_CHECKING:
@@ -81,7 +81,7 @@ class Plan:
                    dof_anchor=np.where((dof_t == FREE)[:, None], 0.0, tree.jnt_pos[dof_jnt]))
 
 
-@njit
+@njit_inline
 def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_start: Index, jnt_count: Index,
               jnt_inner: Index, fixed_plain: NDArray[np.bool_], hinge_coord: Index, anchor_zero: NDArray[np.bool_],
               jnt_type: Index, jnt_qadr: Index, jnt_axis: Array, jnt_pos: Array, qpos0: Array,
@@ -94,6 +94,8 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
     frame after a body's last joint is the body frame itself. Common cases
     take short cuts: a placement without rotation, a hinge about a coordinate
     axis (only two columns change), a joint anchored at the body origin.
+    Arrays are indexed element by element, never sliced: every array view costs
+    two atomic reference-count updates in numba, more than the arithmetic here.
     """
     A = np.empty((3, 3))  # a joint's articulation: rotation A, translation t
     t = np.empty(3)
@@ -104,17 +106,15 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
             for k in range(3):
                 rot[b, 0, i, k] = 1.0 if i == k else 0.0
         for body in range(1, parent.shape[0]):
-            Rp, xp = rot[b, parent[body]], pos[b, parent[body]]
-            Rb, xb = rot[b, body], pos[b, body]
-            if fixed_plain[body]:
-                for i in range(3):
-                    for k in range(3):
-                        Rb[i, k] = Rp[i, k]
-            else:
-                matmul3(Rp, fixed_rot[body], Rb)
-            matvec3(Rp, fixed_pos[body], xb)
-            for i in range(3):
-                xb[i] += xp[i]
+            pb = parent[body]
+            for i in range(3):  # body frame = parent frame · fixed placement
+                for k in range(3):
+                    rot[b, body, i, k] = rot[b, pb, i, k] if fixed_plain[body] else (
+                        rot[b, pb, i, 0] * fixed_rot[body, 0, k] + rot[b, pb, i, 1] * fixed_rot[body, 1, k]
+                        + rot[b, pb, i, 2] * fixed_rot[body, 2, k])
+                pos[b, body, i] = pos[b, pb, i] + (rot[b, pb, i, 0] * fixed_pos[body, 0]
+                                                   + rot[b, pb, i, 1] * fixed_pos[body, 1]
+                                                   + rot[b, pb, i, 2] * fixed_pos[body, 2])
             for j in range(jnt_start[body], jnt_start[body] + jnt_count[body]):
                 a = jnt_qadr[j]
                 kind = jnt_type[j]
@@ -124,12 +124,12 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
                     sn, cs = np.sin(angle), np.cos(angle)
                     c1, c2 = (c + 1) % 3, (c + 2) % 3
                     for i in range(3):
-                        r1, r2 = Rb[i, c1], Rb[i, c2]
-                        Rb[i, c1] = cs * r1 + sn * r2
-                        Rb[i, c2] = cs * r2 - sn * r1
+                        r1, r2 = rot[b, body, i, c1], rot[b, body, i, c2]
+                        rot[b, body, i, c1] = cs * r1 + sn * r2
+                        rot[b, body, i, c2] = cs * r2 - sn * r1
                 else:
                     if kind == HINGE:
-                        axis_angle(jnt_axis[j], q[b, a] - qpos0[a], A)
+                        axis_angle(jnt_axis[j, 0], jnt_axis[j, 1], jnt_axis[j, 2], q[b, a] - qpos0[a], A)
                     elif kind == BALL:
                         quat_to_mat(q[b, a], q[b, a + 1], q[b, a + 2], q[b, a + 3], A)
                     elif kind == FREE:
@@ -144,13 +144,22 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
                                 t[i] = jnt_pos[j, i] - (A[i, 0] * jnt_pos[j, 0] + A[i, 1] * jnt_pos[j, 1]
                                                         + A[i, 2] * jnt_pos[j, 2])
                         for i in range(3):
-                            xb[i] += Rb[i, 0] * t[0] + Rb[i, 1] * t[1] + Rb[i, 2] * t[2]
+                            pos[b, body, i] += (rot[b, body, i, 0] * t[0] + rot[b, body, i, 1] * t[1]
+                                                + rot[b, body, i, 2] * t[2])
                     if kind != SLIDE:
-                        matmul3(Rb, A, R)
-                        Rb[:] = R
-                if jnt_inner[j] >= 0:
-                    inner_rot[b, jnt_inner[j]] = Rb
-                    inner_pos[b, jnt_inner[j]] = xb
+                        for i in range(3):
+                            for k in range(3):
+                                R[i, k] = (rot[b, body, i, 0] * A[0, k] + rot[b, body, i, 1] * A[1, k]
+                                           + rot[b, body, i, 2] * A[2, k])
+                        for i in range(3):
+                            for k in range(3):
+                                rot[b, body, i, k] = R[i, k]
+                s = jnt_inner[j]
+                if s >= 0:
+                    for i in range(3):
+                        inner_pos[b, s, i] = pos[b, body, i]
+                        for k in range(3):
+                            inner_rot[b, s, i, k] = rot[b, body, i, k]
 
 
 def forward(tree: Tree, q: Array) -> Frames:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
-from .jit import matvec3, njit
+from .jit import njit_inline
 
 if TYPE_CHECKING:
     from .fk import Frames
@@ -26,7 +26,7 @@ Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
 
-@njit
+@njit_inline
 def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, dofs: Index, dof_body: Index,
                     dof_inner: Index, dof_axis: Array, dof_world: NDArray[np.bool_], dof_rot: NDArray[np.bool_],
                     dof_anchor: Array, point: Array, J: Array) -> None:
@@ -37,30 +37,33 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
     ``dof_inner >= 0``. ``dofs`` are the dofs that move the point's body; other
     columns are left untouched.
     """
-    u = np.empty(3)
-    a = np.empty(3)
+    F = np.empty((3, 3))  # the dof's joint frame: rotation F, origin x
+    x = np.empty(3)
+    u = np.empty(3)  # world axis
+    r = np.empty(3)  # from the world anchor to the point
     for b in range(point.shape[0]):
-        for d in dofs:
-            if dof_inner[d] >= 0:
-                R, x = inner_rot[b, dof_inner[d]], inner_pos[b, dof_inner[d]]
-            else:
-                R, x = rot[b, dof_body[d]], pos[b, dof_body[d]]
-            if dof_world[d]:
-                u[:] = dof_axis[d]
-            else:
-                matvec3(R, dof_axis[d], u)
+        for d in dofs:  # element-wise indexing only: an array view costs two atomic refcount updates
+            s, body = dof_inner[d], dof_body[d]
+            for i in range(3):
+                x[i] = inner_pos[b, s, i] if s >= 0 else pos[b, body, i]
+                for k in range(3):
+                    F[i, k] = inner_rot[b, s, i, k] if s >= 0 else rot[b, body, i, k]
+            for i in range(3):
+                u[i] = dof_axis[d, i] if dof_world[d] else (
+                    F[i, 0] * dof_axis[d, 0] + F[i, 1] * dof_axis[d, 1] + F[i, 2] * dof_axis[d, 2])
             if dof_rot[d]:
-                matvec3(R, dof_anchor[d], a)
-                r0 = point[b, 0] - x[0] - a[0]
-                r1 = point[b, 1] - x[1] - a[1]
-                r2 = point[b, 2] - x[2] - a[2]
-                J[b, 0, d] = u[1] * r2 - u[2] * r1
-                J[b, 1, d] = u[2] * r0 - u[0] * r2
-                J[b, 2, d] = u[0] * r1 - u[1] * r0
-                J[b, 3:, d] = u
+                for i in range(3):
+                    r[i] = point[b, i] - x[i] - (F[i, 0] * dof_anchor[d, 0] + F[i, 1] * dof_anchor[d, 1]
+                                                 + F[i, 2] * dof_anchor[d, 2])
+                J[b, 0, d] = u[1] * r[2] - u[2] * r[1]
+                J[b, 1, d] = u[2] * r[0] - u[0] * r[2]
+                J[b, 2, d] = u[0] * r[1] - u[1] * r[0]
+                for i in range(3):
+                    J[b, 3 + i, d] = u[i]
             else:
-                J[b, :3, d] = u
-                J[b, 3:, d] = 0.0
+                for i in range(3):
+                    J[b, i, d] = u[i]
+                    J[b, 3 + i, d] = 0.0
 
 
 def point_jacobian(frames: Frames, body: int, point: Array) -> Array:

@@ -13,6 +13,10 @@ import numba
 import numpy as np
 
 njit = numba.njit(cache=True, nogil=True, fastmath=False)
+# Kernels called from other kernels in hot loops are inlined at numba's IR level: a call boundary costs
+# two atomic reference-count updates per array argument (~25 ns together on a 2-core VM), and an FK of a
+# 7-DoF arm passes 18 arrays for ~0.5 µs of arithmetic. Called from Python they behave like ``njit``.
+njit_inline = numba.njit(cache=True, nogil=True, fastmath=False, inline="always")
 
 
 @njit
@@ -32,11 +36,10 @@ def quat_to_mat(w: float, x: float, y: float, z: float, out: np.ndarray) -> None
 
 
 @njit
-def axis_angle(u: np.ndarray, angle: float, out: np.ndarray) -> None:
-    """Write Rodrigues' rotation by ``angle`` about the unit axis ``u (3,)`` into ``out (3, 3)``."""
+def axis_angle(x: float, y: float, z: float, angle: float, out: np.ndarray) -> None:
+    """Write Rodrigues' rotation by ``angle`` about the unit axis ``(x, y, z)`` into ``out (3, 3)``."""
     s, c = np.sin(angle), np.cos(angle)
     t = 1.0 - c
-    x, y, z = u[0], u[1], u[2]
     out[0, 0] = c + t * x * x
     out[0, 1] = t * x * y - s * z
     out[0, 2] = t * x * z + s * y
@@ -46,14 +49,6 @@ def axis_angle(u: np.ndarray, angle: float, out: np.ndarray) -> None:
     out[2, 0] = t * x * z - s * y
     out[2, 1] = t * y * z + s * x
     out[2, 2] = c + t * z * z
-
-
-@njit
-def matmul3(A: np.ndarray, C: np.ndarray, out: np.ndarray) -> None:
-    """``out = A @ C`` for 3x3 matrices (``out`` must not alias ``A`` or ``C``)."""
-    for i in range(3):
-        for k in range(3):
-            out[i, k] = A[i, 0] * C[0, k] + A[i, 1] * C[1, k] + A[i, 2] * C[2, k]
 
 
 @njit

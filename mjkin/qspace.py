@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import spatial
 from .errors import InputError
-from .jit import njit
+from .jit import njit, njit_inline
 
 if TYPE_CHECKING:
     from .tree import Tree
@@ -136,7 +136,7 @@ def _quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
     q[a], q[a + 1], q[a + 2], q[a + 3] = w, x, y, z
 
 
-@njit
+@njit_inline
 def clip_kernel(q: Array, jnt_type: Index, jnt_qadr: Index, lo: Array, hi: Array) -> None:
     """Project ``q (B, nq)`` into the joint limits, in place.
 
@@ -170,7 +170,7 @@ def _turn(q: Array, a: int, wx: float, wy: float, wz: float) -> None:
     q[a], q[a + 1], q[a + 2], q[a + 3] = w / n, x / n, y / n, z / n
 
 
-@njit
+@njit_inline
 def integrate_kernel(q: Array, v: Array, jnt_type: Index, jnt_qadr: Index, jnt_dofadr: Index) -> None:
     """In place ``q <- q ⊕ v`` for ``q (B, nq)``, ``v (B, nv)``."""
     for b in range(q.shape[0]):
@@ -202,7 +202,7 @@ def _log_rel(p: Array, a: int, r: Array, c: int, out: Array, d: int) -> None:
     out[d], out[d + 1], out[d + 2] = k * x, k * y, k * z
 
 
-@njit
+@njit_inline
 def difference_kernel(q1: Array, q0: Array, jnt_type: Index, jnt_qadr: Index, jnt_dofadr: Index, v: Array) -> None:
     """``v = q1 ⊖ q0`` (the velocity taking ``q0`` to ``q1`` in unit time), rows of ``(B, ·)``."""
     for b in range(v.shape[0]):

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from ..fk import fk_kernel
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
 from ..jacobian import jacobian_kernel
-from ..jit import matmul3, matvec3, njit
+from ..jit import matvec3, njit, njit_inline
 from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel
 
 if TYPE_CHECKING:
@@ -77,7 +77,7 @@ def program_arrays(prog: Program) -> tuple:
 
 
 # ------------------------------------------------------------------ kinematics
-@njit
+@njit_inline
 def _fk(tk: tuple, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
     fk_kernel(q, tk[0], tk[1], tk[2], tk[3], tk[4], tk[5], tk[6], tk[7], tk[8], tk[9], tk[10], tk[11], tk[12],
               tk[13], rot, pos, irot, ipos)
@@ -94,7 +94,7 @@ def _frames_scratch(tk: tuple) -> tuple[Array, Array, Array, Array]:
     return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
 
 
-@njit
+@njit_inline
 def _jac(tk: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, body: int, point: Array, J6: Array) -> None:
     J6[:] = 0.0
     jacobian_kernel(rot, pos, irot, ipos, tk[16][tk[15][body]:tk[15][body + 1]], tk[17], tk[18], tk[19], tk[20],
@@ -157,35 +157,35 @@ def _left_jacobian_inverse(phi: Array, theta: float, out: Array) -> None:
 
 
 @njit
-def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array,
-                   g: Array, J: Array, err: Array) -> None:
+def goal_scratch(nv: int) -> tuple:
+    """Work arrays for :func:`evaluate_goals`, made once per solve."""
+    return (np.empty((1, 6, nv)), np.empty((1, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
+            np.empty(3), np.empty(3), np.empty((1, nv)))
+
+
+@njit_inline
+def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array, pos: Array, irot: Array,
+                   ipos: Array, g: Array, J: Array, err: Array) -> None:
     """Weighted residuals ``g (m,)``, Jacobians ``J (m, nv)``, errors ``err (G, 2)`` at ``q (1, nq)``.
 
-    ``rot``/``pos``/``irot``/``ipos`` must hold FK at ``q``. ``b`` selects the target.
+    ``rot``/``pos``/``irot``/``ipos`` must hold FK at ``q``. ``b`` selects the target;
+    ``ws`` comes from :func:`goal_scratch`.
     """
     kind, body, lrot, lpos, data, aux, sqrt_w, row = pa[0], pa[1], pa[2], pa[3], pa[4], pa[5], pa[6], pa[7]
     rest_q, rest_k, coupling = pa[8], pa[9], pa[10]
+    J6, pt, R, E, Li, v, f, dv = ws
     nv = J.shape[1]
-    J6 = np.empty((1, 6, nv))
-    pt = np.empty((1, 3))
-    R = np.empty((3, 3))
-    E = np.empty((3, 3))
-    Li = np.empty((3, 3))
-    v = np.empty(3)
-    f = np.empty(3)
     for i in range(kind.shape[0]):
         r0, k = row[i], kind[i]
-        d = data[b, i]
         w = sqrt_w[i]
         err[i, 0] = 0.0
         err[i, 1] = 0.0
         if k == REST:
-            dv = np.empty((1, nv))
             difference_kernel(q, rest_q[aux[i], b:b + 1], tk[9], tk[10], tk[14], dv)
             for j in range(nv):
                 g[r0 + j] = w * rest_k[aux[i], j] * dv[0, j]
-                J[r0 + j] = 0.0
-                J[r0 + j, j] = 1.0
+                for c in range(nv):
+                    J[r0 + j, c] = 1.0 if c == j else 0.0
             for jt in range(tk[9].shape[0]):  # rotations: d log(q_rest⁻¹ q) = J_r⁻¹(φ) ω (local ω)
                 if tk[9][jt] == BALL or tk[9][jt] == FREE:
                     d0 = tk[14][jt] + (3 if tk[9][jt] == FREE else 0)
@@ -196,10 +196,11 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
                         for c in range(3):
                             J[r0 + d0 + a, d0 + c] = Li[a, c]
             for j in range(nv):
-                J[r0 + j] *= w * rest_k[aux[i], j]
+                for c in range(nv):
+                    J[r0 + j, c] *= w * rest_k[aux[i], j]
             continue
         if k == COUPLING:
-            s = -d[0]
+            s = -data[b, i, 0]
             for j in range(nv):
                 s += coupling[aux[i], j] * q[0, tk[25][j]]
                 J[r0, j] = w * coupling[aux[i], j]
@@ -208,32 +209,37 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
             continue
         # a frame goal: world frame (R, p) of the goal point and its Jacobian
         bd = body[i]
-        matmul3(rot[0, bd], lrot[i], R)
-        matvec3(rot[0, bd], lpos[i], v)
-        for a in range(3):
-            pt[0, a] = pos[0, bd, a] + v[a]
+        for a in range(3):  # the common goals below index arrays element-wise (see jit.njit_inline)
+            for c in range(3):
+                R[a, c] = rot[0, bd, a, 0] * lrot[i, 0, c] + rot[0, bd, a, 1] * lrot[i, 1, c] + (
+                    rot[0, bd, a, 2] * lrot[i, 2, c])
+            pt[0, a] = pos[0, bd, a] + (rot[0, bd, a, 0] * lpos[i, 0] + rot[0, bd, a, 1] * lpos[i, 1]
+                                        + rot[0, bd, a, 2] * lpos[i, 2])
         _jac(tk, rot, pos, irot, ipos, bd, pt, J6)
-        Jp, Jr = J6[0, :3], J6[0, 3:]
-        p = pt[0]
         if k == POSITION or k == POSE:
             for a in range(3):
-                g[r0 + a] = w * (p[a] - d[a])
-                J[r0 + a] = w * Jp[a]
-            err[i, 0] = np.sqrt((p[0] - d[0]) ** 2 + (p[1] - d[1]) ** 2 + (p[2] - d[2]) ** 2)
+                g[r0 + a] = w * (pt[0, a] - data[b, i, a])
+                for j in range(nv):
+                    J[r0 + a, j] = w * J6[0, a, j]
+            err[i, 0] = np.sqrt((pt[0, 0] - data[b, i, 0]) ** 2 + (pt[0, 1] - data[b, i, 1]) ** 2
+                                + (pt[0, 2] - data[b, i, 2]) ** 2)
         if k == ORIENTATION or k == POSE:
             o = r0 + (3 if k == POSE else 0)
-            Rt = d[3:12].reshape(3, 3)
-            for a in range(3):  # E = R Rtᵀ: the rotation from the target to the frame, world axes
+            for a in range(3):  # E = R Rtᵀ: the rotation from the target Rt to the frame, world axes
                 for c in range(3):
-                    E[a, c] = R[a, 0] * Rt[c, 0] + R[a, 1] * Rt[c, 1] + R[a, 2] * Rt[c, 2]
+                    E[a, c] = (R[a, 0] * data[b, i, 3 + 3 * c] + R[a, 1] * data[b, i, 4 + 3 * c]
+                               + R[a, 2] * data[b, i, 5 + 3 * c])
             theta = _log_rotation(E, v)
             _left_jacobian_inverse(v, theta, Li)
             for a in range(3):
                 g[o + a] = w * v[a]
                 for j in range(nv):
-                    J[o + a, j] = w * (Li[a, 0] * Jr[0, j] + Li[a, 1] * Jr[1, j] + Li[a, 2] * Jr[2, j])
+                    J[o + a, j] = w * (Li[a, 0] * J6[0, 3, j] + Li[a, 1] * J6[0, 4, j] + Li[a, 2] * J6[0, 5, j])
             err[i, 1] = theta
-        elif k == AXIS or k == AIM:
+        if k == POSITION or k == ORIENTATION or k == POSE:
+            continue
+        Jp, Jr, p, d = J6[0, :3], J6[0, 3:], pt[0], data[b, i]
+        if k == AXIS or k == AIM:
             if k == AXIS:  # frame axis e_aux must match the target's
                 for a in range(3):
                     f[a] = R[a, aux[i]]
@@ -279,7 +285,7 @@ def evaluate_goals(tk: tuple, pa: tuple, b: int, q: Array, rot: Array, pos: Arra
 
 
 # ------------------------------------------------------------------------ step
-@njit
+@njit_inline
 def _damped_solve(A: Array, e: Array, lam2: float, x: Array) -> None:
     """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky."""
     m, n = A.shape
@@ -335,7 +341,7 @@ def _damped_solve(A: Array, e: Array, lam2: float, x: Array) -> None:
             x[c] = acc
 
 
-@njit
+@njit_inline
 def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array,
                  need_basis: bool) -> int:
     """``x = A^# e`` for the method.
@@ -383,28 +389,33 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
 
 
 @njit
+def step_scratch(m: int, nv: int) -> tuple:
+    """Work arrays for :func:`_step`: projector, level step, row-space basis, level residual."""
+    return np.empty((nv, nv)), np.empty(nv), np.empty((nv, nv)), np.empty(m)
+
+
+@njit_inline
 def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam2: Array, alpha: float,
-          scale: float, clamp: float, dq: Array) -> None:
+          scale: float, clamp: float, ws: tuple, dq: Array) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
 
     Each level aims to remove ``scale`` times its residual, at most ``clamp`` of it in norm.
+    ``ws`` comes from :func:`step_scratch`.
     """
     nv = J.shape[1]
-    P = np.eye(nv)
+    P, x, basis, e_all = ws
     free = True
     for j in range(nv):
-        if locked[j]:
-            P[j, j] = 0.0
-            free = False
+        for c in range(nv):
+            P[j, c] = 0.0 if (c != j or locked[j]) else 1.0
+        free = free and not locked[j]
     dq[:] = 0.0
-    x = np.empty(nv)
-    basis = np.empty((nv, nv))
     for lv in range(level_rows.shape[0] - 1):
         Jl = J[level_rows[lv]:level_rows[lv + 1]]
         gl = g[level_rows[lv]:level_rows[lv + 1]]
         n = np.sqrt(gl @ gl)
         k = scale * (clamp / n if n > clamp else 1.0)
-        e = np.empty(gl.shape[0])
+        e = e_all[:gl.shape[0]]
         for r in range(gl.shape[0]):
             acc = -k * gl[r]
             for c in range(nv):
@@ -479,122 +490,111 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     halving (0/1), patience, goal step (largest residual norm one step aims to remove).
     ``restarts (K, nq)``: starts tried when a run stalls or uses up ``max_iters``.
     ``active (nv,)``: dofs allowed to move. Returns (iterations, status, restarts used).
+
+    The loop evaluates one configuration per pass (a start, or a trial step
+    from the current one) at a single place, so the inlined kinematics and
+    goal code are compiled once.
     """
     tol, rot_tol, lam, lm_c, alpha, max_step = params[0], params[1], params[2], params[3], params[4], params[5]
     halving, patience, goal_step = params[6] > 0, int(params[7]), params[8]
-    nq, nv = q.shape[1], tk[17].shape[0]
+    nv = tk[17].shape[0]
     level_rows, counted = pa[11], pa[12]
     m, G, L = pa[7][-1], pa[0].shape[0], level_rows.shape[0] - 1
     rot, pos, irot, ipos = _frames_scratch(tk)
+    ws, sws = goal_scratch(nv), step_scratch(m, nv)
     g, gt = np.empty(m), np.empty(m)
     J, Jt = np.empty((m, nv)), np.empty((m, nv))
     err, errt = np.empty((G, 2)), np.empty((G, 2))
     cost, costt = np.empty(L), np.empty(L)
     lam2 = np.empty(L)
     dq = np.empty((1, nv))
-    qt = np.empty((1, nq))
+    qt = q.copy()  # the configuration evaluated next: a start, or a trial step from q
     best_q = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
     lo, hi, dof_q, dof_j = tk[23], tk[24], tk[25], tk[26]
-    _fk(tk, q, rot, pos, irot, ipos)
-    evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
-    _costs(g, level_rows, cost)
-    best = run_best = _merit(cost)  # best overall (returned) and of this run (for stall detection)
-    best_met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
-    err_out[:] = err
-    status, it, run_it, used, since_best = MAX_ITERATIONS, 0, 0, 0, 0
+    best, best_met, run_best = np.inf, -1, np.inf  # best overall (returned) and of this run (for stalls)
+    status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
-    any_locked = False
+    scale, fresh, any_locked = 1.0, True, False
     while True:
-        if it < hist_q.shape[0]:
-            hist_q[it] = q[0]
-            for i in range(G):
-                if counted[i]:
-                    hist_err[it, 0] = max(hist_err[it, 0], err[i, 0])
-                    hist_err[it, 1] = max(hist_err[it, 1], err[i, 1])
-        if _converged(err, counted, tol, rot_tol):
-            status = CONVERGED
-            best_q[:] = q
-            err_out[:] = err
-            break
-        stalled = since_best >= patience
-        if stalled or run_it >= max_iters:
+        _fk(tk, qt, rot, pos, irot, ipos)
+        evaluate_goals(tk, pa, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
+        _costs(gt, level_rows, costt)
+        if (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
+                or np.max(np.abs(dq[0])) < 1e-15):  # accept qt
+            q[:] = qt
+            g, gt = gt, g
+            J, Jt = Jt, J
+            err, errt = errt, err
+            cost[:] = costt
+            merit = _merit(cost)
+            if not fresh:
+                mu = max(mu / 3.0, 1e-9)
+            since_best = 0 if fresh or merit < run_best * (1 - 1e-9) else since_best + 1
+            run_best = merit if fresh else min(run_best, merit)
+            fresh, attempts, scale = False, 0, 1.0
+            met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
+            if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit
+                best, best_met = merit, met
+                best_q[:] = q
+                err_out[:] = err
+            if it < hist_q.shape[0]:
+                hist_q[it] = q[0]
+                for i in range(G):
+                    if counted[i]:
+                        hist_err[it, 0] = max(hist_err[it, 0], err[i, 0])
+                        hist_err[it, 1] = max(hist_err[it, 1], err[i, 1])
+            if _converged(err, counted, tol, rot_tol):
+                status = CONVERGED
+                break
+        else:  # rejected: damp harder (LM) or halve the step
+            attempts += 1
+            if method == LM:
+                mu *= 10.0
+                for lv in range(L):
+                    lam2[lv] = lam * lam + mu * cost[lv]
+            else:
+                scale *= 0.5
+            if attempts >= 12:  # no attempt helped: count as a stall
+                since_best = patience
+        if since_best >= patience or run_it >= max_iters:  # this run ended: restart, or stop
             if used < restarts.shape[0]:
-                q[0] = restarts[used]
+                qt[0] = restarts[used]
                 used += 1
-                run_best = np.inf
-                since_best = run_it = 0
-                mu = lm_c
-                _fk(tk, q, rot, pos, irot, ipos)
-                evaluate_goals(tk, pa, b, q, rot, pos, irot, ipos, g, J, err)
-                _costs(g, level_rows, cost)
+                run_it, mu, fresh = 0, lm_c, True
+                dq[:] = 0.0
                 continue
-            if stalled:
+            if since_best >= patience:
                 status = LIMITS if any_locked else UNREACHABLE
             break
-        it += 1
-        run_it += 1
-        for lv in range(L):
-            lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
-        scale = 1.0
-        accepted = False
-        for _attempt in range(12):
+        if attempts == 0:  # a new iteration from the accepted q
+            it += 1
+            run_it += 1
+            for lv in range(L):
+                lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
+        for d in range(nv):
+            locked[d] = not active[d]
+        for _ in range(3):  # lock joints the step would push through a limit, then re-solve
+            _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
+            big = np.max(np.abs(dq[0]))
+            if big > max_step:
+                dq[0] *= max_step / big
+            changed = False
             for d in range(nv):
-                locked[d] = not active[d]
-            for _ in range(3):  # lock joints the step would push through a limit, then re-solve
-                _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, dq[0])
-                big = np.max(np.abs(dq[0]))
-                if big > max_step:
-                    dq[0] *= max_step / big
-                changed = False
-                for d in range(nv):
-                    jj, qd = dof_j[d], q[0, dof_q[d]]
-                    if locked[d] or not (tk[9][jj] == HINGE or tk[9][jj] == SLIDE):
-                        continue
-                    if (dq[0, d] < 0 and qd <= lo[jj] + 1e-12) or (dq[0, d] > 0 and qd >= hi[jj] - 1e-12):
-                        locked[d] = True  # at the limit and pushing outwards
-                        changed = True
-                if not changed:
-                    break
-            qt[:] = q
-            integrate_kernel(qt, dq, tk[9], tk[10], tk[14])
-            clip_kernel(qt, tk[9], tk[10], lo, hi)
-            _fk(tk, qt, rot, pos, irot, ipos)
-            evaluate_goals(tk, pa, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
-            _costs(gt, level_rows, costt)
-            if method == LM or halving:
-                if _merit(costt) <= _merit(cost) or np.max(np.abs(dq[0])) < 1e-15:
-                    accepted = True
-                elif method == LM:
-                    mu *= 10.0
-                    for lv in range(L):
-                        lam2[lv] = lam * lam + mu * cost[lv]
-                else:
-                    scale *= 0.5
-            else:
-                accepted = True
-            if accepted:
+                jj, qd = dof_j[d], q[0, dof_q[d]]
+                if locked[d] or not (tk[9][jj] == HINGE or tk[9][jj] == SLIDE):
+                    continue
+                if (dq[0, d] < 0 and qd <= lo[jj] + 1e-12) or (dq[0, d] > 0 and qd >= hi[jj] - 1e-12):
+                    locked[d] = True  # at the limit and pushing outwards
+                    changed = True
+            if not changed:
                 break
         any_locked = False
         for d in range(nv):
             any_locked = any_locked or (locked[d] and active[d])
-        if not accepted:  # no attempt helped: stay, count as no progress
-            since_best = patience
-            continue
-        mu = max(mu / 3.0, 1e-9)
-        q[:] = qt
-        g, gt = gt, g
-        J, Jt = Jt, J
-        err, errt = errt, err
-        cost[:] = costt
-        merit = _merit(cost)
-        since_best = 0 if merit < run_best * (1 - 1e-9) else since_best + 1
-        run_best = min(run_best, merit)
-        met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
-        if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit
-            best, best_met = merit, met
-            best_q[:] = q
-            err_out[:] = err
+        qt[:] = q
+        integrate_kernel(qt, dq, tk[9], tk[10], tk[14])
+        clip_kernel(qt, tk[9], tk[10], lo, hi)
     q[:] = best_q
     return it, status, used
 
@@ -616,9 +616,10 @@ def solve_batch(tk: tuple, pa: tuple, q: Array, method: int, params: Array, max_
 @njit
 def _evaluate_batch(tk: tuple, pa: tuple, q: Array, g: Array, J: Array, err: Array) -> None:
     rot, pos, irot, ipos = _frames_scratch(tk)
+    ws = goal_scratch(J.shape[2])
     for b in range(q.shape[0]):
         _fk(tk, q[b:b + 1], rot, pos, irot, ipos)
-        evaluate_goals(tk, pa, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
+        evaluate_goals(tk, pa, ws, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
 
 
 def evaluate_program(tree: Tree, prog: Program, q: Array) -> tuple[Array, Array, Array]:
