@@ -9,9 +9,41 @@ disk next to the modules, so only the first run pays for compilation.
 
 from __future__ import annotations
 
+import hashlib
+import os
+from pathlib import Path
+
 import numba
 import numpy as np
 
+PACKAGE = Path(__file__).resolve().parent
+
+
+def drop_stale_caches(package: Path = PACKAGE) -> bool:
+    """Delete the package's numba caches when any of its sources changed; True if it did.
+
+    numba keys a cached kernel to its own file, but a kernel carries the code of
+    the kernels it calls (inlined or linked) from other files: after an update of
+    ``fk.py`` alone, the IK kernel's cache would still hold the old FK. A digest
+    of every source, kept beside the caches, catches that.
+    """
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(package.rglob("*.py")))).hexdigest()
+    stamp = package / "__pycache__" / "mjkin-sources.sha256"
+    if stamp.is_file() and stamp.read_text() == digest:
+        return False
+    try:
+        for cache in (*package.rglob("*.nbi"), *package.rglob("*.nbc")):
+            cache.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        tmp = stamp.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(digest)
+        tmp.replace(stamp)
+    except OSError:  # a read-only install: numba then caches elsewhere, per user
+        return False
+    return True
+
+
+drop_stale_caches()
 njit = numba.njit(cache=True, nogil=True, fastmath=False)
 # Kernels called from other kernels in hot loops are inlined at numba's IR level: a call boundary costs
 # two atomic reference-count updates per array argument (~25 ns together on a 2-core VM), and an FK of a
