@@ -236,7 +236,8 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
         rng = np.random.default_rng(seed)
         targets = tree.pose(tree.random_q(rng, n), frame, kind)
         home = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
-        solve(tree, G.Pose(frame, T=targets[:2], kind=kind), q0=home, tol=tol, rot_tol=rot_tol)  # warm up
+        for warm in (targets[:2], targets[0]):  # compile both the batched and the single-target signatures
+            solve(tree, G.Pose(frame, T=warm, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
         single = np.empty(n)
         q_single = np.empty((n, tree.nq))
         for k in range(n):

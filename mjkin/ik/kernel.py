@@ -461,6 +461,15 @@ def _merit(cost: Array) -> float:
 
 
 @njit
+def _max_abs(x: Array) -> float:
+    """``max |x|`` over a ``(1, n)`` row, without the temporary ``np.abs`` would allocate."""
+    m = 0.0
+    for j in range(x.shape[1]):
+        m = max(m, abs(x[0, j]))
+    return m
+
+
+@njit
 def _levels_met(err: Array, counted: Array, row: Array, level_rows: Array, tol: float, rot_tol: float) -> int:
     """How many levels, from the top, have every counted goal within tolerance."""
     met = level_rows.shape[0] - 1
@@ -521,7 +530,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
         evaluate_goals(tk, pa, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
         _costs(gt, level_rows, costt)
         if (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
-                or np.max(np.abs(dq[0])) < 1e-15):  # accept qt
+                or _max_abs(dq) < 1e-15):  # accept qt
             q[:] = qt
             g, gt = gt, g
             J, Jt = Jt, J
@@ -576,7 +585,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
             locked[d] = not active[d]
         for _ in range(3):  # lock joints the step would push through a limit, then re-solve
             _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
-            big = np.max(np.abs(dq[0]))
+            big = _max_abs(dq)
             if big > max_step:
                 dq[0] *= max_step / big
             changed = False
