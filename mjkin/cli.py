@@ -12,8 +12,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from . import bench, progress, spatial
+from . import bench, motion, progress, spatial
 from .errors import InputError, MjkinError
+from .goals import Rest
 from .qspace import HINGE, JOINT_NAMES
 from .tree import Tree, bundled_models, load
 
@@ -103,43 +104,53 @@ def _vec(text: str, what: str) -> np.ndarray:
     return pts[0]
 
 
-def _video_or_image(path: str, images: np.ndarray, fps: float) -> None:
+def _video_or_image(args: argparse.Namespace, images: np.ndarray) -> None:
+    """Write ``images (T, H, W, 3)`` to ``args.output``: a video, or frame ``args.frame`` as an image."""
     from . import render
 
+    path = args.output
     if path.lower().endswith(render.VIDEO_SUFFIXES):
-        render.write_video(images, path, fps)
+        render.write_video(images, path, args.fps)
+        what = f"{len(images)} frame{'s' * (len(images) > 1)}"
     elif path.lower().endswith((".png", ".jpg", ".jpeg")):
-        render.write_image(images[-1], path)
+        if not -len(images) <= args.frame < len(images):
+            raise InputError(f"--frame must be in [{-len(images)}, {len(images) - 1}] (-1 = last), got {args.frame}")
+        render.write_image(images[args.frame], path)
+        what = f"frame {args.frame % len(images)} of {len(images)}"
     else:
         raise InputError(f"output must end in .mp4, .gif or .png, got {path!r}")
-    print(f"wrote {path} ({len(images)} frame{'s' * (len(images) > 1)}, {images.shape[2]}x{images.shape[1]})")
+    print(f"wrote {path} ({what}, {images.shape[2]}x{images.shape[1]})")
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
-    from . import goals, motion, render
-
-    tree = load("arm7")
+def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
+                    smooth: float = 0.3) -> tuple[motion.Trajectory, np.ndarray]:
+    """The demo on the bundled 7-DoF arm: its effector through five waypoints and home; returns it and the stops."""
     home = tree.model.key_qpos[0].copy()
     start = tree.pose(home, "ee")[:3, 3]
     stops = np.array([start, [0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
                       [0.45, 0.3, 0.45], start])
-    path = motion.waypoints(stops, int(args.seconds * args.fps))
-    traj = motion.follow(tree, "ee", path, q0=home, fps=args.fps,
-                         extra=[goals.Rest(q_rest=home, weight=0.3, priority=1)])  # keep a natural posture
-    ok = traj.success if traj.success is not None else np.ones(len(path), bool)
-    print(f"IK: {ok.mean():.0%} of {len(path)} frames on target; largest joint step per frame "
+    traj = motion.follow(tree, "ee", motion.waypoints(stops, frames), q0=home, fps=fps, smooth=smooth,
+                         extra=[Rest(q_rest=home, weight=0.3, priority=1)])  # keep a natural posture
+    return traj, stops
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
+    from . import render
+
+    tree = load("arm7")
+    traj, stops = demo_trajectory(tree, int(args.seconds * args.fps), args.fps)
+    ok = traj.success if traj.success is not None else np.ones(len(traj.q), bool)
+    print(f"IK: {ok.mean():.0%} of {len(traj.q)} frames on target; largest joint step per frame "
           f"{traj.jumps(tree).max():.3f} rad")
     overlay = render.Overlay(points=stops[1:-1], trail="ee")
     images = render.frames(tree, traj.q, args.width, args.height, overlay=overlay)
-    _video_or_image(args.output, images, args.fps)
+    _video_or_image(args, images)
     return 0
 
 
 def cmd_trajectory(args: argparse.Namespace) -> int:
     """Solve a Cartesian path for a site frame by frame and save it as a script."""
-    from . import motion
-
     tree = load(args.model)
     tree.frame(args.site)  # a clear error before any work
     q0 = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
@@ -168,7 +179,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """Render a configuration or a script to an image or a video."""
-    from . import motion, render
+    from . import render
 
     tree = load(args.model)
     if args.script:
@@ -178,14 +189,12 @@ def cmd_render(args: argparse.Namespace) -> int:
         qs = (parse_q(args.q, tree, args.deg) if args.q else tree.qpos0.copy())[None]
         points, trail = None, None
     overlay = render.Overlay(points=np.zeros((0, 3)) if points is None else points, trail=trail)
-    _video_or_image(args.output, render.frames(tree, qs, args.width, args.height, overlay=overlay), args.fps)
+    _video_or_image(args, render.frames(tree, qs, args.width, args.height, overlay=overlay))
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Replay a recorded script (no IK) to a video."""
-    from . import motion
-
     model = args.model or motion.Trajectory.load(args.script).model
     args.model, args.q = model, None
     return cmd_render(args)
@@ -226,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--width", type=int, default=640)
         s.add_argument("--height", type=int, default=480)
         s.add_argument("--fps", type=float, default=30.0)
+        s.add_argument("--frame", type=int, default=-1, help="for an image output: which frame (default -1, the last)")
 
     s = sub.add_parser("demo", help="render a scripted IK trajectory of the 7-DoF arm (the main job)")
     video_options(s, "mjkin-demo.mp4")

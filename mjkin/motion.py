@@ -161,21 +161,27 @@ class Trajectory:
 
 
 def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,
-           extra: Sequence[G.Goal] = (), tol: float = 1e-4, **solve_options: object) -> Trajectory:
+           extra: Sequence[G.Goal] = (), tol: float = 1e-4, smooth: float = 0.3,
+           **solve_options: object) -> Trajectory:
     """IK-driven animation: put ``site`` on ``targets (T, 3)`` frame by frame, warm-starting from the last pose.
 
     ``extra`` goals (e.g. an orientation, a rest pose at low priority) hold on every
-    frame. Warm starts and minimum-norm steps keep consecutive poses close. A
-    frame that fails from the warm start is retried with random restarts;
-    failures are recorded in ``success``.
+    frame. Warm starts, minimum-norm steps and, with ``smooth > 0``, a rest goal
+    of that weight at the previous frame's pose (priority 1: only in the freedom
+    the path leaves) keep consecutive poses close, so redundant joints do not
+    swing when another low-priority goal (a comfort pose) pulls them. A frame
+    that fails from the warm start is retried with random restarts; failures are
+    recorded in ``success``.
     """
     pts = np.asarray(targets, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")
+    if not smooth >= 0:
+        raise InputError(f"smooth must be a weight >= 0, got {smooth!r}")
     q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
     out, ok = np.empty((len(pts), tree.nq)), np.empty(len(pts), bool)
     for k in track(range(len(pts)), "solve path", total=len(pts)):
-        goals = [G.Position(site, pts[k]), *extra]
+        goals = [G.Position(site, pts[k]), *extra, *([G.Rest(q_rest=q, weight=smooth, priority=1)] if smooth else [])]
         res = solve(tree, goals, q0=q, tol=tol, restarts=0, **solve_options)  # type: ignore[arg-type]
         if not res.success:
             retry = solve(tree, goals, q0=q, tol=tol, **solve_options)  # type: ignore[arg-type]

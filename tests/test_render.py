@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import imageio.v3 as imageio
 import numpy as np
 import pytest
 
 import mjkin
 from conftest import tree_of
 from mjkin import motion, render
-from mjkin.cli import main
+from mjkin.cli import demo_trajectory, main
 from mjkin.scene import Scene
 
 SMALL = {"width": 160, "height": 120}
@@ -101,6 +102,19 @@ def test_follow_a_circle_and_replay_the_script(tmp_path):
         motion.Trajectory.load(tmp_path / "nope.json")
 
 
+def test_follow_smoothing_keeps_a_comfort_pose_from_swinging_the_arm():
+    tree = tree_of("arm7")
+    rough, _ = demo_trajectory(tree, 180, smooth=0.0)  # a comfort pose at priority 1 only
+    smooth, stops = demo_trajectory(tree, 180)
+    assert rough.success.all() and smooth.success.all()
+    np.testing.assert_allclose(tree.pose(smooth.q, "ee")[:, :3, 3], smooth.targets[:, 0], atol=1e-4)
+    assert smooth.jumps(tree).max() < 0.5 * rough.jumps(tree).max()
+    np.testing.assert_allclose(smooth.targets[-1, 0], stops[-1])  # back home, and in a posture near home
+    assert np.abs(smooth.q[-1] - tree.model.key_qpos[0]).max() < 0.05
+    with pytest.raises(mjkin.InputError, match="smooth must be a weight"):
+        motion.follow(tree, "ee", stops, smooth=-1.0)
+
+
 @pytest.mark.parametrize("call, text", [
     (lambda: motion.line([0, 0, 0], [1, 1, 1], 1), "at least 2 frames"),
     (lambda: motion.circle([0, 0, 0], -1, 10), "positive radius"),
@@ -122,6 +136,12 @@ def test_cli_demo_trajectory_render_replay(tmp_path, capsys):
     out = tmp_path / "r.gif"
     assert main(["replay", str(script), "-o", str(out), "--width", "160", "--height", "120"]) == 0
     assert out.exists()
+    stills = [tmp_path / f"frame{k}.png" for k in (0, 9, -1)]
+    for k, path in zip((0, 9, -1), stills, strict=True):  # a still of one frame of the script
+        small = ["--width", "160", "--height", "120"]
+        assert main(["replay", str(script), "-o", str(path), "--frame", str(k), *small]) == 0
+    first, ninth, last = (imageio.imread(p) for p in stills)
+    assert np.array_equal(ninth, last) and not np.array_equal(first, last)
     png = tmp_path / "still.png"
     assert main(["render", "primate", "-o", str(png), "--width", "160", "--height", "120"]) == 0
     assert png.stat().st_size > 1000
@@ -134,6 +154,7 @@ def test_cli_demo_trajectory_render_replay(tmp_path, capsys):
     (["trajectory", "arm7", "--site", "ee", "--path", "waypoints", "-o", "{tmp}/t.json"], "needs --points"),
     (["render", "arm7", "-o", "{tmp}/no/such/dir/x.png"], "does not exist"),
     (["replay", "{tmp}/t.json", "--model", "arm7", "-o", "{tmp}/x.mp4"], "not found"),
+    (["render", "arm7", "-o", "{tmp}/x.png", "--frame", "1"], "--frame must be in [-1, 0]"),
 ])
 def test_cli_mistakes_exit_2_and_write_nothing(argv, text, tmp_path, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
