@@ -244,9 +244,11 @@ def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1
             start = time.perf_counter()
             q_single[k] = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=home, tol=tol, rot_tol=rot_tol).q
             single[k] = time.perf_counter() - start
-        start = time.perf_counter()
-        res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
-        batched = time.perf_counter() - start
+        batched = np.inf
+        for _ in range(3):  # best of three, as seconds_per_call: the machine is shared
+            start = time.perf_counter()
+            res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
+            batched = min(batched, time.perf_counter() - start)
         reached, base = mujoco_dls(tree.model, frame, kind, targets, home, tol, rot_tol)
         for label, T, times, rate in (("mjkin", tree.pose(q_single, frame, kind), single, n / single.sum()),
                                       ("mjkin batched", tree.pose(res.q, frame, kind), None, n / batched),

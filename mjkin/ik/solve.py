@@ -333,13 +333,18 @@ def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, 
                    History(hist_q, hist_err) if history else None)
 
 
-def parallel_chunks(run: Callable[[int, int], None], n: int, min_chunk: int = 32) -> None:
-    """Call ``run(lo, hi)`` over ``range(n)`` split across the machine's cores (threads)."""
+def parallel_chunks(run: Callable[[int, int], None], n: int, min_chunk: int = 32, per_worker: int = 8) -> None:
+    """Call ``run(lo, hi)`` over ``range(n)`` split across the machine's cores (threads).
+
+    Each thread takes the next chunk when it is done with one: hard targets (restarts)
+    come in clusters, and equal halves would leave one core idle while the other works.
+    """
     workers = min(CORES, max(1, n // min_chunk))
     if workers <= 1:
         run(0, n)
         return
-    edges = np.linspace(0, n, workers + 1).astype(int)
+    chunks = min(workers * per_worker, max(workers, n // min_chunk))
+    edges = np.linspace(0, n, chunks + 1).astype(int)
     with ThreadPoolExecutor(workers) as pool:
         for f in [pool.submit(run, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]:
             f.result()
