@@ -94,8 +94,7 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
     frame after a body's last joint is the body frame itself. Common cases
     take short cuts: a placement without rotation, a hinge about a coordinate
     axis (only two columns change), a joint anchored at the body origin.
-    Arrays are indexed element by element, never sliced: every array view costs
-    two atomic reference-count updates in numba, more than the arithmetic here.
+    Arrays are indexed element by element, never sliced (see :mod:`mjkin.jit`).
     """
     A = np.empty((3, 3))  # a joint's articulation: rotation A, translation t
     t = np.empty(3)

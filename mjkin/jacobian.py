@@ -42,7 +42,7 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
     u = np.empty(3)  # world axis
     r = np.empty(3)  # from the world anchor to the point
     for b in range(point.shape[0]):
-        for d in dofs:  # element-wise indexing only: an array view costs two atomic refcount updates
+        for d in dofs:  # element-wise indexing, no views (see mjkin.jit)
             s, body = dof_inner[d], dof_body[d]
             for i in range(3):
                 x[i] = inner_pos[b, s, i] if s >= 0 else pos[b, body, i]

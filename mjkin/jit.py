@@ -5,6 +5,12 @@ batch axis compiled by numba: numpy's per-call overhead (~1 µs a call, dozens
 of calls per FK) would otherwise dominate single configurations, and its
 stacked 3x3 products are slow for large batches. Compiled code is cached on
 disk next to the modules, so only the first run pays for compilation.
+
+One rule for the hot kernels: in numba every array bound to a variable, sliced,
+or passed across a call costs two atomic reference-count updates (~25 ns
+together on a 2-core VM), more than a 3x3 product. So they index arrays element
+by element instead of taking views, and the kernels other kernels call in their
+loops are inlined at numba's IR level (:data:`njit_inline`).
 """
 
 from __future__ import annotations
@@ -45,9 +51,8 @@ def drop_stale_caches(package: Path = PACKAGE) -> bool:
 
 drop_stale_caches()
 njit = numba.njit(cache=True, nogil=True, fastmath=False)
-# Kernels called from other kernels in hot loops are inlined at numba's IR level: a call boundary costs
-# two atomic reference-count updates per array argument (~25 ns together on a 2-core VM), and an FK of a
-# 7-DoF arm passes 18 arrays for ~0.5 µs of arithmetic. Called from Python they behave like ``njit``.
+# Inlined where another kernel calls it (an FK of a 7-DoF arm passes 18 arrays for ~0.5 µs of arithmetic);
+# called from Python it behaves like ``njit``.
 njit_inline = numba.njit(cache=True, nogil=True, fastmath=False, inline="always")
 
 

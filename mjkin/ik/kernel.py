@@ -209,7 +209,7 @@ def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array
             continue
         # a frame goal: world frame (R, p) of the goal point and its Jacobian
         bd = body[i]
-        for a in range(3):  # the common goals below index arrays element-wise (see jit.njit_inline)
+        for a in range(3):  # the common goals below index arrays element-wise (see mjkin.jit)
             for c in range(3):
                 R[a, c] = rot[0, bd, a, 0] * lrot[i, 0, c] + rot[0, bd, a, 1] * lrot[i, 1, c] + (
                     rot[0, bd, a, 2] * lrot[i, 2, c])
