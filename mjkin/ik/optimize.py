@@ -97,10 +97,12 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
 
 
 def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
-                   active: NDArray[np.bool_],
-                   restarts: int, seed: int | None) -> Result:
-    """Solve every target with SLSQP (see :func:`mjkin.solve`); restarts from seeded random starts."""
-    rng = np.random.default_rng(seed)
+                   active: NDArray[np.bool_], restarts: Array, restart_q: NDArray[np.bool_]) -> Result:
+    """Solve every target with SLSQP (see :func:`mjkin.solve`).
+
+    A target that is not met restarts from ``restarts (K, nq)``, taken where
+    ``restart_q`` is True and from the target's start elsewhere.
+    """
     B = prog.B
     out = np.empty_like(q)
     err = np.zeros((B, len(prog.goals), 2))
@@ -110,7 +112,7 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     for b in range(B):
         one = _target(prog, b)
         best, best_cost = None, np.inf
-        starts = [q[b]] + list(tree.random_q(rng, restarts)) if restarts else [q[b]]
+        starts = [q[b], *np.where(restart_q, restarts, q[b])]
         for k, start in enumerate(starts):
             qb, hit = _solve_one(tree, one, start, max_iters, active)
             g, _, e = evaluate_program(tree, one, qb[None])
@@ -125,4 +127,4 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
                 if ok:
                     break
         out[b] = best
-    return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize")
+    return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize", tree=tree)
