@@ -31,6 +31,17 @@ PACKAGE = Path(__file__).resolve().parent
 CLOCK_MONOTONIC = 1  # Linux
 
 
+def cache_dir(package: Path = PACKAGE) -> Path:
+    """Where numba keeps this package's compiled kernels.
+
+    Next to the sources by default; under ``$NUMBA_CACHE_DIR`` (numba's own
+    setting, mirroring the source path) when set — the choice for read-only
+    installs, containers and CI caches.
+    """
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(root) / package.relative_to(package.anchor) if root else package
+
+
 def drop_stale_caches(package: Path = PACKAGE) -> bool:
     """Delete the package's numba caches when any of its sources changed; True if it did.
 
@@ -40,13 +51,14 @@ def drop_stale_caches(package: Path = PACKAGE) -> bool:
     of every source, kept beside the caches, catches that.
     """
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(package.rglob("*.py")))).hexdigest()
-    stamp = package / "__pycache__" / "mjkin-sources.sha256"
+    caches = cache_dir(package)
+    stamp = caches / "__pycache__" / "mjkin-sources.sha256" if caches == package else caches / "mjkin-sources.sha256"
     if stamp.is_file() and stamp.read_text() == digest:
         return False
     try:
-        for cache in (*package.rglob("*.nbi"), *package.rglob("*.nbc")):
+        for cache in (*caches.rglob("*.nbi"), *caches.rglob("*.nbc")):
             cache.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
+        stamp.parent.mkdir(parents=True, exist_ok=True)
         tmp = stamp.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_text(digest)
         tmp.replace(stamp)

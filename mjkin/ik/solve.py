@@ -20,6 +20,7 @@ Array = NDArray[np.float64]
 
 METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
+TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
 _STATUS = np.array(STATUS_NAMES)
@@ -237,7 +238,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             remove, so the effector walks toward a far goal (error clamping); default
             unlimited.
         restarts: random restarts (within limits) when a solve stalls; default 24
-            for ``auto``, 0 otherwise.
+            for ``auto`` (1000 with a ``timeout``: restart until the time runs out),
+            0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
         patience: iterations without progress before a run counts as stalled; default
             6 for ``lm``/``auto`` (then it restarts), 10 for the others.
@@ -305,7 +307,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
     if iters < 0:
         raise InputError(f"max_iters must be >= 0, got {max_iters}")
-    n_restarts = (AUTO_RESTARTS if method == "auto" else 0) if restarts is None else int(restarts)
+    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
+        if restarts is None else int(restarts)
     if n_restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
     if goal_step is not None and not goal_step > 0:
