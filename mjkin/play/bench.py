@@ -1,0 +1,107 @@
+"""``mjkin bench play``: the playground's frame rate and drag-to-new-frame latency, over real HTTP.
+
+A server runs in this process on a free loopback port. Frame rate: a client reads
+the MJPEG stream while another drags the target along a circle as fast as the
+server answers; frames received per second. Latency: ``POST /drag`` (the solve
+runs) then ``GET /frame.jpg`` (which waits for a frame of the new state), timed
+from sending the drag to holding the JPEG. The baseline is the bare
+``mujoco.Renderer`` with the same flags plus the JPEG encoding: the most any
+server on this machine could stream.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import threading
+import time
+
+import numpy as np
+
+from ..tree import load
+from .server import PART, start_server, stop_server
+from .session import Playground, encode_jpeg, live_painter
+
+Row = dict[str, object]
+
+
+def _post(conn: http.client.HTTPConnection, path: str, doc: dict) -> dict:
+    conn.request("POST", path, json.dumps(doc), {"Content-Type": "application/json"})
+    return json.loads(conn.getresponse().read())
+
+
+def _stream_frames(host: str, port: int, stop: threading.Event, stamps: list[float]) -> None:
+    conn = http.client.HTTPConnection(host, port, timeout=10)
+    conn.request("GET", "/stream.mjpg")
+    resp = conn.getresponse()
+    buffer = b""
+    while not stop.is_set():
+        chunk = resp.read1(1 << 16)
+        if not chunk:
+            break
+        buffer += chunk
+        parts = buffer.split(PART)
+        stamps.extend([time.perf_counter()] * (len(parts) - 1))  # one image ends at each PART
+        buffer = parts[-1]
+    conn.close()
+
+
+def _circle(view_uv: np.ndarray, k: int, n: int, radius: float = 0.06) -> list[float]:
+    phi = 2 * np.pi * k / n
+    return [float(view_uv[0] + radius * np.cos(phi)), float(view_uv[1] + radius * np.sin(phi))]
+
+
+def measure(model: str = "arm7", width: int = 640, height: int = 480, seconds: float = 3.0,
+            drags: int = 40) -> dict[str, list[Row]]:
+    """Frames/s while dragging, drag→frame latency (median, p95), and the bare renderer's frames/s."""
+    tree = load(model)
+    pg = Playground(tree, width, height).start()
+    server, thread = start_server(pg)
+    host, port = "127.0.0.1", server.server_address[1]
+    try:
+        conn = http.client.HTTPConnection(host, port, timeout=30)
+        frame = next(iter(pg.state.targets))
+        start_uv = pg.view.project(np.asarray(pg.state.targets[frame])[:3])
+        # frame rate: a viewer on the stream, a drag on every answer
+        stamps: list[float] = []
+        stop = threading.Event()
+        viewer = threading.Thread(target=_stream_frames, args=(host, port, stop, stamps))
+        viewer.start()
+        k, end = 0, time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            _post(conn, "/drag", {"frame": frame, "uv": _circle(start_uv, k, 60)})
+            k += 1
+        time.sleep(0.2)
+        stop.set()
+        viewer.join()
+        window = [t for t in stamps if t <= end]
+        fps = (len(window) - 1) / (window[-1] - window[0]) if len(window) > 1 else 0.0
+        # latency: drag, then the first frame of the new state
+        lat = []
+        for i in range(drags):
+            t0 = time.perf_counter()
+            _post(conn, "/drag", {"frame": frame, "uv": _circle(start_uv, i, drags)})
+            conn.request("GET", "/frame.jpg")
+            conn.getresponse().read()
+            lat.append(time.perf_counter() - t0)
+        conn.close()
+        # baseline: the renderer alone with JPEG encoding, same size and camera
+        qs = tree.random_q(np.random.default_rng(0), 30)
+        with live_painter(tree, width, height) as painter:
+            painter.draw(qs[0], pg.camera)
+            t0 = time.perf_counter()
+            for q in qs:
+                encode_jpeg(painter.draw(q, pg.camera))
+            bare = len(qs) / (time.perf_counter() - t0)
+    finally:
+        stop_server(server, thread)
+    ms = 1e3 * np.array(lat)
+    rows: list[Row] = [
+        {"measure": "frames/s on the stream while dragging", "value": fps, "goal": ">= 15",
+         "bare renderer + JPEG frames/s": bare, "ratio": fps / bare},
+        {"measure": "drag → new frame latency, median ms", "value": float(np.median(ms)), "goal": "<= 100"},
+        {"measure": "drag → new frame latency, p95 ms", "value": float(np.percentile(ms, 95)), "goal": "<= 100"},
+        {"measure": "drags answered (solve + state) in the frame-rate run", "value": k},
+    ]
+    return {f"mjkin play on {model}, {width}x{height}, offscreen GL ({seconds:g} s dragging, {drags} timed drags)":
+            rows}
