@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import socket
 import threading
 import time
 
@@ -31,19 +32,26 @@ def _post(conn: http.client.HTTPConnection, path: str, doc: dict) -> dict:
 
 
 def _stream_frames(host: str, port: int, stop: threading.Event, stamps: list[float]) -> None:
-    conn = http.client.HTTPConnection(host, port, timeout=10)
-    conn.request("GET", "/stream.mjpg")
-    resp = conn.getresponse()
-    buffer = b""
-    while not stop.is_set():
-        chunk = resp.read1(1 << 16)
-        if not chunk:
-            break
-        buffer += chunk
-        parts = buffer.split(PART)
-        stamps.extend([time.perf_counter()] * (len(parts) - 1))  # one image ends at each PART
-        buffer = parts[-1]
-    conn.close()
+    """Read the MJPEG stream as a browser would; stamp the time each image is complete."""
+    with socket.create_connection((host, port), timeout=10) as sock:
+        sock.sendall(b"GET /stream.mjpg HTTP/1.1\r\nHost: bench\r\n\r\n")
+        sock.settimeout(0.2)  # to see ``stop`` when no frame comes
+        buffer, body = b"", False
+        while not stop.is_set():
+            try:
+                chunk = sock.recv(1 << 16)
+            except TimeoutError:
+                continue
+            if not chunk:
+                break
+            buffer += chunk
+            if not body:  # skip the response headers: their blank line would look like a part's start
+                if b"\r\n\r\n" not in buffer:
+                    continue
+                buffer, body = buffer.split(b"\r\n\r\n", 1)[1], True
+            parts = buffer.split(PART)
+            stamps.extend([time.perf_counter()] * (len(parts) - 1))  # one image ends at each PART
+            buffer = parts[-1]
 
 
 def _circle(view_uv: np.ndarray, k: int, n: int, radius: float = 0.06) -> list[float]:

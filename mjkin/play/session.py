@@ -28,8 +28,10 @@ from ..errors import InputError, MjkinError
 from ..tree import Tree
 from . import core
 
-TRAIL = 120  # effector positions kept for the trail
-MARKERS = render.Overlay(point_size=0.03)  # target markers a little larger than the render default: they are grabbed
+TRAIL, TRAIL_STEP = 40, 0.005  # trail points kept, and the least effector move (m) that adds one
+# opaque, and a short trail: in software GL each transparent capsule costs about as much as a frame's worth of
+# pixels, 120 of them cost five frames (mjkin bench play)
+MARKERS = render.Overlay(point_size=0.03, point_rgba=(0.95, 0.2, 0.2, 1.0), trail_rgba=(0.1, 0.5, 0.95, 1.0))
 
 
 class Busy(MjkinError):
@@ -44,8 +46,18 @@ def encode_jpeg(image: np.ndarray, quality: int = 80) -> bytes:
 
 
 def live_painter(tree: Tree, width: int, height: int) -> render.Painter:
-    """A painter for the live view: no shadows or reflections (they cost more than half a frame in software GL)."""
-    painter = render.Painter(tree, width, height)
+    """A painter for the live view: no multisampling, shadows or reflections.
+
+    In software GL (llvmpipe) 4x multisampling makes a 640x480 frame about three
+    times slower, shadows and reflections each cost as much again; exported videos
+    keep all three (the model's own settings are restored once the context exists).
+    """
+    quality = tree.model.vis.quality
+    samples, quality.offsamples = quality.offsamples, 0
+    try:
+        painter = render.Painter(tree, width, height)
+    finally:
+        quality.offsamples = samples
     flags = painter.renderer.scene.flags
     flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
     flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
@@ -285,8 +297,9 @@ class Playground:
                         self._recording.append((tick - self._record_start, state.q.copy(), self._points(state)))
                     busy = core.needs_step(state) or self._recording is not None
                 if version != shown:
-                    first = next(iter(state.targets))
-                    trail.append(self.tree.pose(state.q, first)[:3, 3])
+                    tip = self.tree.pose(state.q, next(iter(state.targets)))[:3, 3]
+                    if not trail or np.linalg.norm(tip - trail[-1]) >= TRAIL_STEP:
+                        trail.append(tip)
                     image = painter.draw(state.q, self.camera, self._points(state), np.array(trail), MARKERS)
                     jpeg = encode_jpeg(image)
                     number += 1
