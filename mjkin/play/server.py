@@ -307,6 +307,8 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     finally:
         if playground.recording:
             print("mjkin play: a recording was on; nothing was written (POST /stop writes it)", file=sys.stderr)
+        if playground.exporting:
+            print("mjkin play: finishing the recording being written...", file=sys.stderr)
         playground.close()
         server.server_close()
     return 0

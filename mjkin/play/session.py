@@ -102,6 +102,7 @@ class Playground:
         self._recording: list[tuple[float, np.ndarray, np.ndarray]] | None = None
         self._record_start = 0.0
         self._error: BaseException | None = None
+        self._export = threading.Lock()  # held while a recording is written; close() waits for it
         self._thread = threading.Thread(target=self._render_loop, name="mjkin-play-render")
 
     # ----------------------------------------------------------- life cycle
@@ -111,13 +112,20 @@ class Playground:
         return self
 
     def close(self) -> None:
-        """Stop the render thread and wake every waiting stream (idempotent)."""
+        """Stop the render thread, wake every waiting stream, let a recording being written finish (idempotent)."""
         self._closed.set()
         self._wake.set()
         with self._frame_ready:
             self._frame_ready.notify_all()
         if self._thread.is_alive():
             self._thread.join()
+        with self._export:  # a video half-encoded when the process ends would leave its temporary file
+            pass
+
+    @property
+    def exporting(self) -> bool:
+        """A recording is being written."""
+        return self._export.locked()
 
     @property
     def closed(self) -> bool:
@@ -191,11 +199,17 @@ class Playground:
 
         Returns ``{"path": script, "video": mp4, "frames": n}``.
         """
-        with self._lock:
-            self._claim(client)
-            samples, self._recording = self._recording, None
-        if samples is None:
-            raise InputError("not recording; POST /record first")
+        with self._export:
+            with self._lock:
+                self._claim(client)
+                samples, self._recording = self._recording, None
+            if samples is None:
+                raise InputError("not recording; POST /record first")
+            if self.closed:
+                raise InputError("the playground is shutting down; the recording is not written")
+            return self._write(samples)
+
+    def _write(self, samples: list[tuple[float, np.ndarray, np.ndarray]]) -> dict:
         if len(samples) < 2:
             samples = samples + [samples[-1]] if samples else [(0.0, self.state.q, self._points(self.state))] * 2
         times = np.array([s[0] for s in samples])
