@@ -319,6 +319,16 @@ def test_bad_target_is_a_400_with_one_line(api, body, needle):
     assert needle in doc["error"]
 
 
+def test_info_lists_what_the_panel_offers(api):
+    status, info = api.get("/info")
+    assert status == 200 and info["methods"] == list(core.PANEL_METHODS)
+    assert info["goals"] == ["position", "pose", "aim"]
+    assert info["sites"] == ["ee"] and "link7" in info["bodies"] and (info["width"], info["height"]) == (W, H)
+    assert [j["name"] for j in info["joints"]] == [f"j{k}" for k in range(1, 8)]
+    status, page = api.get("/")
+    assert status == 200 and b"/stream.mjpg" in page and b"/drag" in page
+
+
 def test_bad_json_unknown_route_and_bad_method(api):
     status, doc = api.post("/target", raw=b"{not json")
     assert status == 400 and "must be JSON" in doc["error"]

@@ -47,7 +47,7 @@ def launch(playwright: Any) -> Any:
 
 def open_page(browser: Any, url: str) -> Any:
     """The playground page, loaded: the panel built and the first frame shown."""
-    page = browser.new_page(viewport={"width": 1000, "height": 700})
+    page = browser.new_page(viewport={"width": 1040, "height": 700})
     page.goto(url, wait_until="domcontentloaded")
     page.wait_for_function("document.querySelectorAll('#method option').length > 0 && "
                            "document.getElementById('view').naturalWidth > 0", timeout=30_000)
