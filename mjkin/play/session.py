@@ -264,17 +264,17 @@ class Playground:
                 "lease": self.lease, "fps": self.fps}
 
     def frame(self, after: int = -1, timeout: float = 5.0) -> tuple[int, bytes]:
-        """The next frame numbered above ``after`` that shows the current state: ``(number, jpeg)``.
+        """The first frame numbered above ``after`` that shows the state as of this call: ``(number, jpeg)``.
 
         Waits for the render thread; raises :class:`MjkinError` when it stops or times out.
         """
-        deadline = time.monotonic() + timeout
+        deadline, want = time.monotonic() + timeout, self._version  # the state as of this request
         with self._frame_ready:
             while True:
                 if self._error is not None:
                     raise MjkinError(f"rendering failed: {self._error}")
                 version, number, jpeg = self._frame
-                if number > after and version >= self._version:
+                if number > after and version >= want:
                     return number, jpeg
                 left = deadline - time.monotonic()
                 if self.closed or left <= 0:
