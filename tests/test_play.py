@@ -274,6 +274,7 @@ def api(served):
     deadline = time.monotonic() + 10
     while client.post("/reset")[0] == 409 and time.monotonic() < deadline:
         time.sleep(0.1)  # another test's client holds control until its lease (0.5 s here) runs out
+    client.post("/frames", {"frames": ["ee"]})
     client.post("/method", {"method": "auto"})
     client.post("/goal", {"goal": "position"})
     return client
@@ -407,6 +408,8 @@ def test_frames_and_step_routes(api):
     status, doc = api.post("/frames", {"frames": ["ee", "link4"]})
     assert status == 200 and list(doc["targets"]) == ["ee", "link4"]
     assert api.post("/frames", {"frames": "ee"})[0] == 400
+    status, doc = api.post("/target", {"frame": "link7", "pos": [0.3, 0.2, 0.6]})  # a body becomes an effector
+    assert status == 200 and list(doc["targets"]) == ["ee", "link4", "link7"]
     api.post("/frames", {"frames": ["ee"]})
     status, doc = api.post("/step", {"on": True})
     assert doc["step"]
