@@ -171,6 +171,22 @@ def test_every_panel_method_follows_a_small_drag(method):
     assert out.error[0] < 1e-3, (method, out.status)
 
 
+@settings(deadline=None)
+@given(angle=st.floats(-3.0, 3.0))
+def test_turn_rotates_the_target_about_the_line_of_sight(angle):
+    tree, view = arm(), arm_view()
+    state = core.initial_state(tree)
+    out = core.move(tree, view, state, core.Turn("ee", angle))
+    np.testing.assert_array_equal(out.targets["ee"][:3], state.targets["ee"][:3])
+    R0 = mjkin.spatial.quat_to_mat(state.targets["ee"][3:])
+    R1 = mjkin.spatial.quat_to_mat(out.targets["ee"][3:])
+    np.testing.assert_allclose(R1 @ R0.T @ view.forward, view.forward, atol=1e-9)  # the view axis is the axis
+    np.testing.assert_allclose(mjkin.spatial.quat_distance(out.targets["ee"][3:], state.targets["ee"][3:]),
+                               abs(angle), atol=1e-9)
+    turned_right = (R1 @ R0.T @ view.right) @ view.up
+    assert np.sign(turned_right) == np.sign(angle) or abs(angle) < 1e-9  # counter-clockwise as seen
+
+
 def test_pose_and_aim_goals():
     tree, view = arm(), arm_view()
     state = core.with_goal(core.initial_state(tree), "pose")
@@ -303,6 +319,10 @@ def test_drag_route_moves_the_effector_under_the_pointer(api):
     np.testing.assert_allclose(moved["screen"]["ee"], [u + 0.05, v - 0.03], atol=1e-6)
     _, pushed = api.post("/drag", {"frame": "ee", "depth": 0.05})
     np.testing.assert_allclose(pushed["screen"]["ee"], moved["screen"]["ee"], atol=1e-6)
+    _, turned = api.post("/drag", {"frame": "ee", "turn": 0.3})
+    assert turned["targets"]["ee"][:3] == pushed["targets"]["ee"][:3]
+    assert turned["targets"]["ee"][3:] != pushed["targets"]["ee"][3:]
+    assert "\"turn\": radians" in api.post("/drag", {"frame": "ee"})[1]["error"]
 
 
 @pytest.mark.parametrize(("body", "needle"), [

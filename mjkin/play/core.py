@@ -142,6 +142,14 @@ class Push:
 
 
 @dataclass(frozen=True)
+class Turn:
+    """Turn ``frame``'s target ``angle`` radians about the line of sight (counter-clockwise as seen; pose goals)."""
+
+    frame: str
+    angle: float
+
+
+@dataclass(frozen=True)
 class Place:
     """Put ``frame``'s target at ``pos (3,)``, turned to ``quat (4,)`` when given."""
 
@@ -150,7 +158,7 @@ class Place:
     quat: tuple[float, float, float, float] | None = None
 
 
-Event = Drag | Push | Place
+Event = Drag | Push | Turn | Place
 
 
 def default_frames(tree: Tree) -> list[str]:
@@ -215,7 +223,7 @@ def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
 
 
 def move(tree: Tree, view: View, state: State, event: Event) -> State:
-    """New targets after a drag, a push or a placement (``q`` unchanged)."""
+    """New targets after a drag, a push, a turn or a placement (``q`` unchanged)."""
     if event.frame not in state.targets:
         tree.frame(event.frame)  # an unknown name: the error lists the names that exist
         state = with_frames(tree, state, [*state.targets, event.frame])
@@ -230,6 +238,10 @@ def move(tree: Tree, view: View, state: State, event: Event) -> State:
         if not np.isfinite(event.amount):
             raise InputError(f"a push needs a finite distance in metres, got {event.amount!r}")
         new[:3] = push(view, old[:3], event.amount)
+    elif isinstance(event, Turn):
+        if not np.isfinite(event.angle):
+            raise InputError(f"a turn needs a finite angle in radians, got {event.angle!r}")
+        new[3:] = spatial.quat_mul(spatial.quat_from_axis_angle(-view.forward, event.angle), old[3:])
     else:
         pos = np.asarray(event.pos, float)
         if pos.shape != (3,) or not np.isfinite(pos).all():
@@ -286,7 +298,7 @@ def solve_state(tree: Tree, state: State, max_iters: int | None = None) -> State
 
 
 def apply(tree: Tree, view: View, state: State, event: Event) -> State:
-    """The whole step: the event moves a target, IK follows from the current pose (in step mode, later)."""
+    """The whole step: the event moves a target, IK follows from the current pose (in step mode, frame by frame)."""
     moved = move(tree, view, state, event)
     return moved if moved.step else solve_state(tree, moved)
 

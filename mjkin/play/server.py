@@ -7,7 +7,8 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
   ``manipulability``, ``step``, ``recording``, ``screen``: each target's image point ``[u, v]``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
-- ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin) or ``{"frame", "depth": m}``.
+- ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
+  (along the line of sight) or ``{"frame", "turn": rad}`` (about it, for pose goals).
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
 - ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
@@ -168,8 +169,11 @@ class Handler(BaseHTTPRequestHandler):
                     self._json(pg.apply(who, core.Drag(frame, _numbers(doc["uv"], 2, "uv"))))  # type: ignore[arg-type]
                 elif "depth" in doc:
                     self._json(pg.apply(who, core.Push(frame, _number(doc["depth"], "depth"))))
+                elif "turn" in doc:
+                    self._json(pg.apply(who, core.Turn(frame, _number(doc["turn"], "turn"))))
                 else:
-                    raise InputError("a drag needs \"uv\": [u, v] (image fractions) or \"depth\": metres")
+                    raise InputError("a drag needs \"uv\": [u, v] (image fractions), \"depth\": metres "
+                                     "or \"turn\": radians")
             elif path == "/method":
                 self._json(pg.set_method(who, _text(doc, "method")))
             elif path == "/goal":
