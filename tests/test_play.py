@@ -302,6 +302,9 @@ def test_state_has_the_documented_shape(api):
     assert {"model", "q", "targets", "error", "iterations", "method"} <= set(state)
     assert state["model"] == "arm7" and len(state["q"]) == 7 and len(state["error"]) == 2
     assert list(state["targets"]) == ["ee"] and len(state["targets"]["ee"]) == 7
+    target = np.array(state["targets"]["ee"])
+    x_tip = target[:3] + 0.08 * mjkin.spatial.quat_to_mat(target[3:])[:, 0]  # the drawn x axis ends there
+    np.testing.assert_allclose(state["screen_axes"]["ee"][0], arm_view().project(x_tip), atol=1e-9)
 
 
 def test_post_target_solves_and_returns_the_new_state(api):

@@ -23,11 +23,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .. import motion, render
+from .. import motion, render, spatial
 from ..errors import InputError, MjkinError
 from ..tree import Tree
 from . import core
 
+AXIS_LENGTH = 0.08  # metres: the target's frame axes drawn on the page for pose goals
 TRAIL, TRAIL_STEP = 40, 0.005  # trail points kept, and the least effector move (m) that adds one
 # opaque, and a short trail: in software GL each transparent capsule costs about as much as a frame's worth of
 # pixels, 120 of them cost five frames (mjkin bench play)
@@ -247,13 +248,16 @@ class Playground:
             controller = self._controller if time.monotonic() < self._lease_until else None
         points = self._points(s)
         screen = self.view.project(points)
+        rotations = spatial.quat_to_mat(np.array([np.asarray(t, float)[3:] for t in s.targets.values()]))
+        tips = self.view.project(points[:, None, :] + AXIS_LENGTH * np.swapaxes(rotations, -1, -2))  # (n, 3, 2)
         return {"model": self.tree.name, "q": s.q.tolist(),
                 "targets": {f: np.asarray(t, float).tolist() for f, t in s.targets.items()},
                 "error": list(s.error), "iterations": s.iterations, "method": s.method, "goal": s.goal,
                 "status": s.status, "success": s.success, "stepping": core.needs_step(s),
                 "singular_values": list(s.singular), "manipulability": s.manipulability, "step": s.step,
                 "recording": recording, "controlled": controller is not None, "version": version,
-                "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)}}
+                "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
+                "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)}}
 
     def info(self) -> dict:
         """What the page needs once: methods, goal kinds, frames, sliders, image size."""
