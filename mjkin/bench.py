@@ -365,3 +365,13 @@ def bench_env(steps: int = 2000, seed: int = 0) -> Tables:
 
 BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds,
                                                "render": bench_render, "env": bench_env}
+
+
+def bench_play() -> Tables:
+    """Frame rate and drag-to-new-frame latency of ``mjkin play`` (see :mod:`mjkin.play.bench`)."""
+    from .play.bench import measure
+
+    return measure()
+
+
+BENCHMARKS["play"] = bench_play

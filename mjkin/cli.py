@@ -211,6 +211,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_play(args: argparse.Namespace) -> int:
+    """Serve the playground page: drag targets, switch IK methods, watch the figure follow."""
+    from .play import serve
+
+    return serve(args.model, host=args.host, port=args.port, browser=not args.no_browser, out_dir=args.out)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``mjkin`` command."""
     models = ", ".join(bundled_models())
@@ -277,6 +284,15 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     s.add_argument("which", choices=[*bench.BENCHMARKS, "all"])
     s.set_defaults(run=cmd_bench)
+
+    s = sub.add_parser("play", help="the playground in a browser: drag a target, watch each IK method work")
+    s.add_argument("model", nargs="?", default="arm7", help=f"{model_help}; default arm7")
+    s.add_argument("--port", type=int, default=8765, help="port to serve on (default 8765; 0 = any free one)")
+    s.add_argument("--host", default="127.0.0.1", help="address to serve on (default loopback; another one "
+                   "lets anyone who can reach it control the page)")
+    s.add_argument("--no-browser", action="store_true", help="only print the URL")
+    s.add_argument("--out", default=".", help="folder for recordings (default: here)")
+    s.set_defaults(run=cmd_play)
     return p
 
 
