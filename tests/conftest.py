@@ -8,9 +8,18 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 import mjkin
 from mjkin.bench import shared_models_dir
+
+# Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
+# depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not
+# committed). Neither profile has a deadline: wall-clock time is never a test criterion here (numba compiles).
+settings.register_profile("ci", derandomize=True, database=None, deadline=None, print_blob=True,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("dev", deadline=None)
+settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
 FD_TOL = 1e-6  # finite-difference checks (central differences, step 1e-6)
