@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import mujoco
@@ -46,6 +47,29 @@ def model_id(p: Path) -> str:
 
 
 ALL_MODELS = bundled() + gym_assets() + shared()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def mujoco_log(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """Where MuJoCo writes its warnings during the tests: a temporary file, not ``MUJOCO_LOG.TXT`` in the cwd.
+
+    Compiling some models warns (gymnasium's half_cheetah.xml uses the deprecated ``settotalmass``), and MuJoCo
+    appends every warning to ``MjLogConfig.logfile``, by default ``MUJOCO_LOG.TXT`` in the working folder. MuJoCo
+    before 4.0 has no ``MjLogConfig``: there a log the tests created in the working folder is removed at the end.
+    """
+    log = tmp_path_factory.mktemp("mujoco") / "MUJOCO_LOG.TXT"
+    config = mujoco.MjLogConfig.get() if hasattr(mujoco, "MjLogConfig") else None
+    left = Path("MUJOCO_LOG.TXT").resolve()
+    there = left.exists()
+    if config is not None:
+        default, config.logfile = config.logfile, str(log)
+        config.set()
+    yield log
+    if config is not None:
+        config.logfile = default
+        config.set()
+    elif not there:
+        left.unlink(missing_ok=True)
 
 
 @pytest.fixture
