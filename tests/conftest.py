@@ -16,10 +16,11 @@ from mjkin.bench import shared_models_dir
 
 # Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
 # depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not
-# committed). Neither profile has a deadline: wall-clock time is never a test criterion here (numba compiles).
-settings.register_profile("ci", derandomize=True, database=None, deadline=None, print_blob=True,
-                          suppress_health_check=[HealthCheck.too_slow])
-settings.register_profile("dev", deadline=None)
+# committed). Wall-clock time is never a test criterion here (numba compiles on first use): no deadline, no
+# too-slow health check.
+_TIMELESS = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow]}
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True, **_TIMELESS)
+settings.register_profile("dev", **_TIMELESS)
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
