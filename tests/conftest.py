@@ -20,7 +20,8 @@ from mjkin.bench import shared_models_dir
 # too-slow health check.
 _TIMELESS = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow]}
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True, **_TIMELESS)
-settings.register_profile("dev", **_TIMELESS)
+# parent "default": Hypothesis itself may already have loaded its own "ci" profile when it detects CI
+settings.register_profile("dev", parent=settings.get_profile("default"), **_TIMELESS)
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
