@@ -221,7 +221,7 @@ def euler_to_mat(angles: ArrayLike, seq: str = "xyz") -> Array:
     return quat_to_mat(euler_to_quat(angles, seq))
 
 
-_LOCK = 1e-12  # half-angle pair norm below which gimbal lock is declared (costs < 1e-11 rad)
+_LOCK = 1e-14  # half-angle pair norm (relative) below which gimbal lock is declared: costs < 1e-13 rad
 
 
 def quat_to_euler(q: ArrayLike, seq: str = "xyz") -> Array:
