@@ -100,13 +100,16 @@ def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
-def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | None = None) -> Array:
+def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | None = None,
+           spread: bool = False) -> Array:
     """Configurations inside the joint limits: ``(n, nq)``, or ``(nq,)`` when ``n`` is None.
 
     Limited hinges and slides are uniform in their range; unlimited hinges
     uniform in ``qpos0 ± π``; unlimited slides and free positions within
     ``±1 m`` of ``qpos0``; ball and free rotations uniform (within the cone of a
-    limited ball joint).
+    limited ball joint). ``spread`` draws the hinges and slides from a scrambled
+    Sobol sequence instead: as uniform, but with no clusters or gaps, so a few
+    IK restarts cover the joint space better.
     """
     g, lay = _rng(rng), tree.layout
     shape = (1 if n is None else int(n),)
@@ -116,7 +119,13 @@ def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | No
     base = tree.qpos0[lay.scalar_q]
     lo = np.where(np.isfinite(lo), lo, base - half)
     hi = np.where(np.isfinite(hi), hi, base + half)
-    q[:, lay.scalar_q] = g.uniform(lo, hi, shape + lo.shape)
+    if spread and len(lo) and shape[0]:
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(d=len(lo), scramble=True, seed=g).random_base2(int(np.ceil(np.log2(shape[0]))))
+        q[:, lay.scalar_q] = lo + u[:shape[0]] * (hi - lo)
+    else:
+        q[:, lay.scalar_q] = g.uniform(lo, hi, shape + lo.shape)
     nb = len(lay.ball_q)
     if nb:
         quat = random_quat(g, shape + (nb,))
