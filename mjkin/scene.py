@@ -3,6 +3,14 @@
 mjkin's own FK answers every kinematic question; MuJoCo is asked only for
 what it is best at — collision detection and drawing — after ``q`` is written
 into ``qpos``.
+
+A collision query costs what ``mj_kinematics`` + ``mj_collision`` cost plus a
+few array reads: which geom pairs count is decided once, when the
+:class:`Scene` is made. MuJoCo's own filters (``contype``/``conaffinity``,
+``<exclude>``, welded bodies and, unless the model disables it, parent–child
+pairs) already drop adjacent bodies, so the precomputed pair mask is consulted
+only when the model can report pairs it would reject (explicit ``<pair>``
+elements, or ``filterparent`` disabled).
 """
 
 from __future__ import annotations
@@ -10,7 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import mujoco
-from numpy.typing import ArrayLike
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .tree import Tree
 
@@ -41,7 +50,19 @@ class Scene:
         self.model = tree.model
         self.data = mujoco.MjData(self.model)
         self.exclude_adjacent = exclude_adjacent
-        self._geom = tree.names("body")  # body names, for contact reports
+        m = self.model
+        body = np.asarray(m.geom_bodyid)
+        weld = np.asarray(m.body_weldid)[body]  # (ngeom,) weld body of each geom
+        parent_weld = np.asarray(m.body_weldid)[np.asarray(m.body_parentid)[weld]]
+        both = (weld[:, None] != 0) & (weld[None, :] != 0)
+        adjacent = (weld[:, None] == weld[None, :]) | (both & ((weld[:, None] == parent_weld[None, :])
+                                                              | (parent_weld[:, None] == weld[None, :])))
+        self._keep: NDArray[np.bool_] = ~adjacent if exclude_adjacent else np.ones_like(adjacent)
+        filterparent = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+        # MuJoCo drops every adjacent pair itself unless a <pair> or a disabled filter lets one through
+        self._masked = exclude_adjacent and (m.npair > 0 or not filterparent)
+        self._geom_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}" for g in range(m.ngeom)]
+        self._body_names = [tree.names("body")[b] for b in body]  # body of each geom
 
     def set(self, q: ArrayLike) -> mujoco.MjData:
         """Write ``q (nq,)`` into ``qpos`` and update what drawing and collision need."""
@@ -51,28 +72,38 @@ class Scene:
         mujoco.mj_camlight(self.model, self.data)
         return self.data
 
+    def _collide(self, q: NDArray[np.float64]) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+        """Geom pairs ``(n, 2)`` and distances ``(n,)`` of the counted contacts at one valid ``q (nq,)``."""
+        m, d = self.model, self.data
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        if d.ncon == 0:
+            return np.empty((0, 2), np.int32), np.empty(0)
+        geom, dist = d.contact.geom, d.contact.dist
+        if self._masked:
+            keep = self._keep[geom[:, 0], geom[:, 1]]
+            return geom[keep], dist[keep]
+        return geom, dist
+
     def contacts(self, q: ArrayLike) -> list[Contact]:
-        """Contacts at ``q`` (overlaps have negative distance), adjacent bodies excluded if asked."""
-        self.set(q)
-        mujoco.mj_collision(self.model, self.data)
-        m, out = self.model, []
-        for c in self.data.contact[: self.data.ncon]:
-            b1, b2 = int(m.geom_bodyid[c.geom1]), int(m.geom_bodyid[c.geom2])
-            if self.exclude_adjacent and self._adjacent(b1, b2):
-                continue
-            out.append(Contact(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, c.geom1) or f"#{c.geom1}",
-                               mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, c.geom2) or f"#{c.geom2}",
-                               self._geom[b1], self._geom[b2], float(c.dist)))
-        return out
+        """Contacts at ``q (nq,)`` (overlaps have negative distance), adjacent bodies excluded if asked."""
+        geom, dist = self._collide(self.tree.check_q(q))
+        names, bodies = self._geom_names, self._body_names
+        return [Contact(names[g1], names[g2], bodies[g1], bodies[g2], x)
+                for (g1, g2), x in zip(geom.tolist(), dist.tolist(), strict=True)]
 
-    def in_collision(self, q: ArrayLike, margin: float = 0.0) -> bool:
-        """Whether any (non-adjacent) pair of geoms is closer than ``margin`` at ``q``."""
-        return any(c.distance < margin for c in self.contacts(q))
+    def count(self, q: ArrayLike, margin: float | None = None) -> NDArray[np.int64] | int:
+        """Number of counted contacts at ``q (nq,)`` or ``(B, nq)`` (``(B,)``); ``margin``: only those closer."""
+        qs = self.tree.check_q(q)
+        flat = qs.reshape(-1, qs.shape[-1])
+        out = np.empty(len(flat), dtype=np.int64)
+        for b in range(len(flat)):
+            _, dist = self._collide(flat[b])
+            out[b] = len(dist) if margin is None else int(np.count_nonzero(dist < margin))
+        return int(out[0]) if qs.ndim == 1 else out.reshape(qs.shape[:-1])
 
-    def _adjacent(self, b1: int, b2: int) -> bool:
-        m = self.model
-        w1, w2 = int(m.body_weldid[b1]), int(m.body_weldid[b2])
-        if w1 == 0 or w2 == 0:  # as MuJoCo's own filter: contacts with the world always count
-            return w1 == w2
-        parent1, parent2 = int(m.body_weldid[m.body_parentid[w1]]), int(m.body_weldid[m.body_parentid[w2]])
-        return w1 == w2 or parent1 == w2 or parent2 == w1
+    def in_collision(self, q: ArrayLike, margin: float = 0.0) -> bool | NDArray[np.bool_]:
+        """Whether any counted geom pair is closer than ``margin``: a bool for ``(nq,)``, ``(B,)`` for ``(B, nq)``."""
+        n = self.count(q, margin)
+        return bool(n) if isinstance(n, int) else n > 0
