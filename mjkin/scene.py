@@ -23,6 +23,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .tree import Tree
 
+_NO_GEOMS = np.empty((0, 2), np.int32)
+_NO_DISTANCES = np.empty(0)
+_NO_GEOMS.setflags(write=False)
+_NO_DISTANCES.setflags(write=False)
+
 
 @dataclass(frozen=True)
 class Contact:
@@ -79,7 +84,7 @@ class Scene:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         if d.ncon == 0:
-            return np.empty((0, 2), np.int32), np.empty(0)
+            return _NO_GEOMS, _NO_DISTANCES
         geom, dist = d.contact.geom, d.contact.dist
         if self._masked:
             keep = self._keep[geom[:, 0], geom[:, 1]]
