@@ -15,7 +15,8 @@ from .reach import ReachEnv, ik_expert
 __all__ = ["ReachEnv", "ik_expert"]
 
 IDS = {"mjkin/Reach-v0": {"model": "arm7", "site": "ee"},
-       "mjkin/PlanarReach-v0": {"model": "planar_3link", "site": "tip"}}
+       "mjkin/PlanarReach-v0": {"model": "planar_3link", "site": "tip"},
+       "mjkin/PandaReach-v0": {"model": "panda", "site": "flange"}}
 
 for _id, _kwargs in IDS.items():
     if _id not in registry:
