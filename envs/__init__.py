@@ -11,8 +11,9 @@ batched :class:`ReachVectorEnv`.
 from gymnasium.envs.registration import register, registry
 
 from .reach import ReachEnv, ik_expert
+from .vector import ReachVectorEnv
 
-__all__ = ["ReachEnv", "ik_expert"]
+__all__ = ["ReachEnv", "ReachVectorEnv", "ik_expert"]
 
 IDS = {"mjkin/Reach-v0": {"model": "arm7", "site": "ee"},
        "mjkin/PlanarReach-v0": {"model": "planar_3link", "site": "tip"},
@@ -20,4 +21,5 @@ IDS = {"mjkin/Reach-v0": {"model": "arm7", "site": "ee"},
 
 for _id, _kwargs in IDS.items():
     if _id not in registry:
-        register(id=_id, entry_point="mjkin.envs.reach:ReachEnv", max_episode_steps=100, kwargs=_kwargs)
+        register(id=_id, entry_point="mjkin.envs.reach:ReachEnv", vector_entry_point="mjkin.envs.vector:ReachVectorEnv",
+                 max_episode_steps=100, kwargs=_kwargs)

@@ -115,8 +115,10 @@ class ReachEnv(gym.Env):
     v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).
     """
 
-    # "human" is offered only where a display exists: gymnasium's checks open every listed mode
-    metadata = {"render_modes": ["rgb_array", "human"] if has_display() else ["rgb_array"], "render_fps": 30}
+    # gym.make reads the class's modes: with "human" listed it never wraps the env in pygame's HumanRendering;
+    # an instance lists "human" only where a display exists (or it was asked for): gymnasium's checks open every
+    # listed mode
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
     def __init__(self, model: str = "arm7", site: str = "ee", action_type: str = "joint",
                  goal_type: str = "position", goal_conditioned: bool = False, step_size: float | None = None,
@@ -136,6 +138,8 @@ class ReachEnv(gym.Env):
         self.step_size, self.success_tol, self.rot_tol, self.extent = t.step_size, t.success_tol, t.rot_tol, t.extent
         self.action_space, self.observation_space = t.action_space, t.observation_space
         self.render_mode, self.width, self.height = render_mode, width, height
+        human = has_display() or render_mode == "human"
+        self.metadata = {**ReachEnv.metadata, "render_modes": ["rgb_array", "human"] if human else ["rgb_array"]}
         if render_mode == "human" and not has_display():
             warnings.warn("render_mode='human' needs a display; this machine has none, so nothing is shown "
                           "(use render_mode='rgb_array' for frames)", stacklevel=2)

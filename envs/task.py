@@ -152,7 +152,8 @@ class ReachTask:
         frames = self.tree.kinematics(q)
         body, r, o = self.site_local
         R_body = frames.rot[:, body]
-        p = frames.pos[:, body] + R_body.dot(o)
+        # element-wise (no BLAS), so a row's numbers do not depend on the batch size
+        p = frames.pos[:, body] + R_body[:, :, 0] * o[0] + R_body[:, :, 1] * o[1] + R_body[:, :, 2] * o[2]
         if self.goal_type == "position":
             return p, None
         R = R_body @ r
@@ -238,8 +239,7 @@ class ReachTask:
 
     def contacts(self, q: Array) -> NDArray[np.int64]:
         """MuJoCo contacts ``(B,)`` at valid ``q (B, nq)`` (adjacent bodies excluded)."""
-        collide = self.scene._collide
-        return np.fromiter((len(collide(x)[1]) for x in q), np.int64, len(q))
+        return self.scene.counts(q)
 
     def outcome(self, q: Array, achieved: Array, desired: Array) -> tuple[dict[str, Array], Array]:
         """Per-env ``info`` arrays ``(B,)`` (distance, is_success, contacts, in_collision[, angle]) and rewards."""

@@ -102,11 +102,26 @@ class Scene:
         """Number of counted contacts at ``q (nq,)`` or ``(B, nq)`` (``(B,)``); ``margin``: only those closer."""
         qs = self.tree.check_q(q)
         flat = qs.reshape(-1, qs.shape[-1])
-        out = np.empty(len(flat), dtype=np.int64)
-        for b in range(len(flat)):
-            _, dist = self._collide(flat[b])
-            out[b] = len(dist) if margin is None else int(np.count_nonzero(dist < margin))
+        if margin is None and not self._masked:
+            out = self.counts(flat)
+        else:
+            out = np.array([np.count_nonzero(self._collide(x)[1] < (np.inf if margin is None else margin))
+                            for x in flat], dtype=np.int64)
         return int(out[0]) if qs.ndim == 1 else out.reshape(qs.shape[:-1])
+
+    def counts(self, qs: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Counted contacts ``(B,)`` for already valid ``qs (B, nq)``: the tight loop an env steps with."""
+        if self._masked:
+            return np.array([len(self._collide(x)[1]) for x in qs], dtype=np.int64)
+        m, d = self.model, self.data
+        qpos, kinematics, collision = d.qpos, mujoco.mj_kinematics, mujoco.mj_collision
+        out = np.empty(len(qs), dtype=np.int64)
+        for b in range(len(qs)):
+            qpos[:] = qs[b]
+            kinematics(m, d)
+            collision(m, d)
+            out[b] = d.ncon
+        return out
 
     def in_collision(self, q: ArrayLike, margin: float = 0.0) -> bool | NDArray[np.bool_]:
         """Whether any counted geom pair is closer than ``margin``: a bool for ``(nq,)``, ``(B,)`` for ``(B, nq)``."""
