@@ -189,7 +189,6 @@ class ReachEnv(gym.Env):
         """Start an episode: a start near the home pose and a new target, or those in ``options``."""
         super().reset(seed=seed)
         q, self.target = self.task.start(self.np_random, options)
-        self._camera = None
         info, _ = self._settle(q[None])
         return self._observe(), info
 
@@ -209,8 +208,11 @@ class ReachEnv(gym.Env):
             return None
         if self._painter is None:
             self._painter = Painter(self.tree, self.width, self.height)
-        if self._camera is None:
-            self._camera = default_camera(self.tree, np.stack([self.home, self.q]), self.target[None, :3])
+        if self._camera is None:  # one camera for the whole workspace, so consecutive episodes make one video
+            region = self.task.target_region
+            reach = self.task.achieved(self.tree.random_q(0, 64))[0][:, :3] if region is None else \
+                np.stack(region)  # where targets can be
+            self._camera = default_camera(self.tree, self.home[None], reach)
         frame = self._painter.draw(self.q, self._camera, [self.target[:3]], overlay=Overlay(point_size=0.03))
         if self.render_mode == "human":  # pragma: no cover - needs a display
             show(frame, self.metadata["render_fps"])

@@ -131,7 +131,6 @@ class ReachVectorEnv(VectorEnv):
         env.q, env.target, env._achieved = self.q[i].copy(), self.target[i].copy(), self.achieved[i].copy()
         env._R = None if self.R is None else self.R[i:i + 1].copy()
         env._np_random = self.rngs[i]
-        env._camera = None
         return env
 
     def _store(self, i: int) -> None:

@@ -343,3 +343,23 @@ def test_vector_render_get_attr_and_call():
     single.reset(seed=2)
     np.testing.assert_array_equal(frames[2], single.render())
     nat.close()
+
+
+def test_episode_example_reaches_targets_in_a_row(tmp_path, monkeypatch, capsys):
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "episode.py"
+    spec = importlib.util.spec_from_file_location("episode", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = tmp_path / "reach.gif"
+    monkeypatch.setattr(sys, "argv", ["episode.py", "-o", str(out), "--targets", "3"])
+    module.main()
+    assert "3/3 targets reached" in capsys.readouterr().out
+    import imageio.v3 as imageio
+
+    frames = imageio.imread(out)
+    assert len(frames) > 45  # several targets, more than a second and a half at 30 fps
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 1
