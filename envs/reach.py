@@ -174,7 +174,7 @@ class ReachEnv(gym.Env):
 
     def _settle(self, q: Array) -> tuple[dict[str, Any], float]:
         """Make ``q (1, nq)`` current: one FK for the effector, MuJoCo for contacts; ``info`` and the reward."""
-        achieved, R = self.task.achieved(q)
+        achieved, R, _ = self.task.achieved(q)
         self.q, self._achieved, self._R = q[0], achieved[0], R
         out, reward = self.task.outcome(q, achieved, self.target[None])
         distance = float(out["distance"][0])

@@ -53,7 +53,7 @@ class ReachVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         n, t = self.num_envs, self.task
         self.q = np.tile(t.home, (n, 1))
-        self.target, R = t.achieved(self.q)
+        self.target, R, _ = t.achieved(self.q)
         self.achieved, self.R = self.target.copy(), R
         self.elapsed = np.zeros(n, dtype=np.int64)
         self.autoreset = np.zeros(n, dtype=bool)
@@ -70,8 +70,8 @@ class ReachVectorEnv(VectorEnv):
 
     def _settle(self) -> tuple[Any, NDArray[np.float64], dict[str, Any]]:
         """One FK for all envs, MuJoCo's contacts for each; observations, rewards and ``info``."""
-        self.achieved, self.R = self.task.achieved(self.q)
-        out, reward = self.task.outcome(self.q, self.achieved, self.target)
+        self.achieved, self.R, frames = self.task.achieved(self.q)
+        out, reward = self.task.outcome(self.q, self.achieved, self.target, frames)
         out["reward_distance"] = -out["distance"]
         return self.task.observe(self.q, self.achieved, self.target), reward, out
 

@@ -16,12 +16,16 @@ elements, or ``filterparent`` disabled).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .tree import Tree
+
+if TYPE_CHECKING:
+    from .fk import Frames
 
 _NO_GEOMS = np.empty((0, 2), np.int32)
 _NO_DISTANCES = np.empty(0)
@@ -66,8 +70,51 @@ class Scene:
         filterparent = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
         # MuJoCo drops every adjacent pair itself unless a <pair> or a disabled filter lets one through
         self._masked = exclude_adjacent and (m.npair > 0 or not filterparent)
+        self._pairs_for_broadphase()
         self._geom_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}" for g in range(m.ngeom)]
         self._body_names = [tree.names("body")[b] for b in body]  # body of each geom
+
+    def _pairs_for_broadphase(self) -> None:
+        """The geom pairs MuJoCo could report (its own filters, and the pair mask), with their bounding radii.
+
+        Used by :meth:`counts` to skip ``mj_collision`` for configurations where no
+        such pair's bounding spheres (``geom_rbound`` + margin) meet. Planes have no
+        bounding sphere: a pair with a plane fixed in the world is tested by the other
+        geom's distance from the plane; a moving plane disables the shortcut.
+        """
+        m = self.model
+        body = np.asarray(m.geom_bodyid)
+        weld = np.asarray(m.body_weldid)[body]
+        parent_weld = np.asarray(m.body_weldid)[np.asarray(m.body_parentid)[weld]]
+        g1, g2 = np.triu_indices(m.ngeom, 1)
+        contype, affinity = np.asarray(m.geom_contype), np.asarray(m.geom_conaffinity)
+        ok = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
+        ok &= weld[g1] != weld[g2]
+        if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT:
+            both = (weld[g1] != 0) & (weld[g2] != 0)
+            ok &= ~(both & ((weld[g1] == parent_weld[g2]) | (parent_weld[g1] == weld[g2])))
+        if m.nexclude:  # signature (body1 << 16) + body2; either order
+            sig = np.asarray(m.exclude_signature)
+            ok &= ~np.isin((body[g1] << 16) + body[g2], sig) & ~np.isin((body[g2] << 16) + body[g1], sig)
+        pairs = np.stack([g1[ok], g2[ok]], 1)
+        if m.npair:
+            pairs = np.concatenate([pairs, np.stack([m.pair_geom1, m.pair_geom2], 1)])
+        if self._masked:
+            pairs = pairs[self._keep[pairs[:, 0], pairs[:, 1]]]
+        plane = np.asarray(m.geom_type) == mujoco.mjtGeom.mjGEOM_PLANE
+        reach = np.asarray(m.geom_rbound) + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0)
+        pairs = pairs[~plane[pairs].all(1)]  # MuJoCo has no plane-plane collision
+        is_plane = plane[pairs]
+        self._prefilter = not bool(np.any(is_plane & (weld[pairs] != 0)))
+        mujoco.mj_kinematics(m, self.data)  # the world's planes are where qpos0 puts them
+        sphere = pairs[~is_plane.any(1)]
+        with_plane = pairs[is_plane.any(1)]
+        with_plane = np.where(plane[with_plane[:, :1]], with_plane, with_plane[:, ::-1])  # (plane, other)
+        self._spheres = (sphere, reach[sphere[:, 0]] + reach[sphere[:, 1]])
+        normal = self.data.geom_xmat.reshape(-1, 3, 3)[with_plane[:, 0], :, 2]
+        self._planes = (with_plane[:, 1], normal, np.einsum("ij,ij->i", normal, self.data.geom_xpos[with_plane[:, 0]]),
+                        reach[with_plane[:, 1]])
+        self._geom_body, self._geom_pos = body, np.asarray(m.geom_pos).copy()
 
     def set(self, q: ArrayLike) -> mujoco.MjData:
         """Write ``q (nq,)`` into ``qpos`` and update what drawing and collision need."""
@@ -109,19 +156,40 @@ class Scene:
                             for x in flat], dtype=np.int64)
         return int(out[0]) if qs.ndim == 1 else out.reshape(qs.shape[:-1])
 
-    def counts(self, qs: NDArray[np.float64]) -> NDArray[np.int64]:
-        """Counted contacts ``(B,)`` for already valid ``qs (B, nq)``: the tight loop an env steps with."""
+    def counts(self, qs: NDArray[np.float64], frames: Frames | None = None) -> NDArray[np.int64]:
+        """Counted contacts ``(B,)`` for already valid ``qs (B, nq)``: the tight loop an env steps with.
+
+        With ``frames``, mjkin's FK of ``qs`` (``tree.kinematics(qs)``), configurations
+        where no pair MuJoCo could report has its bounding spheres within reach skip
+        ``mj_collision`` (they have no contact); the counts are the same.
+        """
+        todo = range(len(qs)) if frames is None or not self._prefilter else np.flatnonzero(self._near(frames))
+        out = np.zeros(len(qs), dtype=np.int64)
         if self._masked:
-            return np.array([len(self._collide(x)[1]) for x in qs], dtype=np.int64)
+            for b in todo:
+                out[b] = len(self._collide(qs[b])[1])
+            return out
         m, d = self.model, self.data
         qpos, kinematics, collision = d.qpos, mujoco.mj_kinematics, mujoco.mj_collision
-        out = np.empty(len(qs), dtype=np.int64)
-        for b in range(len(qs)):
+        for b in todo:
             qpos[:] = qs[b]
             kinematics(m, d)
             collision(m, d)
             out[b] = d.ncon
         return out
+
+    def _near(self, frames: Frames) -> NDArray[np.bool_]:
+        """``(B,)``: some pair's bounding spheres (or a sphere and a world plane) are within reach."""
+        rot, pos = frames.rot[:, self._geom_body], frames.pos[:, self._geom_body]
+        centre = pos + np.matmul(rot, self._geom_pos[None, :, :, None])[..., 0]  # (B, ngeom, 3)
+        pairs, reach = self._spheres
+        d = centre[:, pairs[:, 0]] - centre[:, pairs[:, 1]]
+        near = np.any(np.einsum("bpi,bpi->bp", d, d) <= reach * reach, axis=1)
+        other, normal, offset, radius = self._planes
+        if len(other):
+            height = np.einsum("bpi,pi->bp", centre[:, other], normal) - offset
+            near |= np.any(height <= radius, axis=1)
+        return near
 
     def in_collision(self, q: ArrayLike, margin: float = 0.0) -> bool | NDArray[np.bool_]:
         """Whether any counted geom pair is closer than ``margin``: a bool for ``(nq,)``, ``(B,)`` for ``(B, nq)``."""

@@ -13,7 +13,7 @@ from mjkin.scene import Scene
 # a chain whose parent-child pair MuJoCo would report: an explicit <pair>, and filterparent disabled
 LINK = ('<body name="{name}" pos="{x} 0 0"><joint name="j{name}" type="hinge" axis="0 1 0" range="-2.8 2.8"/>'
         '<geom name="g{name}" type="capsule" fromto="0 0 0 .5 0 0" size=".08"/>')
-OVERLAPPING = ('<mujoco><option><flag filterparent="{flag}"/></option><worldbody>'
+OVERLAPPING = ('<mujoco><compiler angle="radian"/><option><flag filterparent="{flag}"/></option><worldbody>'
                '<geom name="ground" type="plane" size="2 2 .1" pos="0 0 -0.5"/>'
                + LINK.format(name="a", x=0) + LINK.format(name="b", x=0.5) + LINK.format(name="c", x=0.5)
                + '</body></body></body></worldbody>{pair}</mujoco>')
@@ -88,3 +88,21 @@ def test_bad_q_is_one_clear_error():
         scene.in_collision(np.zeros(3))
     with pytest.raises(mjkin.InputError, match="NaN"):
         scene.in_collision(np.full((2, 7), np.nan))
+
+
+@pytest.mark.parametrize("model", ["arm7", "primate", "panda", "exclude", "pair", "noparent"])
+def test_counts_with_fk_frames_skip_only_configurations_without_contacts(model):
+    """The batched broad phase (bounding spheres from mjkin's FK) never changes a count."""
+    src = {"exclude": OVERLAPPING.format(flag="enable", pair='<contact><exclude body1="world" body2="c"/></contact>'),
+           "pair": OVERLAPPING.format(flag="enable", pair='<contact><pair geom1="ga" geom2="gb"/></contact>'),
+           "noparent": OVERLAPPING.format(flag="disable", pair="")}.get(model, model)
+    tree = tree_of(src) if src == model else mjkin.load(src)
+    for exclude_adjacent in (True, False):
+        scene = Scene(tree, exclude_adjacent=exclude_adjacent)
+        qs = tree.random_q(3, 300)
+        plain = scene.counts(qs)
+        np.testing.assert_array_equal(scene.counts(qs, tree.kinematics(qs)), plain)
+        assert plain.any() and (not exclude_adjacent or not plain.all())  # both kinds are compared
+        np.testing.assert_array_equal(plain, [len(scene.contacts(q)) for q in qs])
+    if model in ("arm7", "panda"):  # the shortcut is taken: far fewer MuJoCo calls than configurations
+        assert scene._prefilter and np.count_nonzero(scene._near(tree.kinematics(qs))) < len(qs)
