@@ -43,6 +43,29 @@ def joint_move(q: Array, a: Array, step: float, lo: Array, hi: Array, wrap: NDAr
             out[b, i] = min(max(x, lo[i]), hi[i])
 
 
+@njit
+def goal_measures(achieved: Array, desired: Array, hit: Array, tol: float, rot_tol: float, bonus: float,
+                  penalty: float, sparse: bool, distance: Array, angle: Array, ok: NDArray[np.bool_],
+                  reward: Array) -> None:
+    """Per row of goals ``(B, 3|7)``: distance, angle, success and reward (the env docstring's formulas)."""
+    for b in range(achieved.shape[0]):
+        dx, dy, dz = desired[b, 0] - achieved[b, 0], desired[b, 1] - achieved[b, 1], desired[b, 2] - achieved[b, 2]
+        distance[b] = np.sqrt(dx * dx + dy * dy + dz * dz)
+        angle[b] = 0.0
+        if achieved.shape[1] == 7:
+            dot = abs(achieved[b, 3] * desired[b, 3] + achieved[b, 4] * desired[b, 4]
+                      + achieved[b, 5] * desired[b, 5] + achieved[b, 6] * desired[b, 6])
+            angle[b] = 2.0 * np.arccos(min(dot, 1.0))
+        ok[b] = distance[b] < tol and (achieved.shape[1] == 3 or angle[b] < rot_tol)
+        success = 1.0 if ok[b] else 0.0
+        if sparse:
+            reward[b] = success - 1.0
+        else:
+            reward[b] = bonus * success - (distance[b] + (tol / rot_tol) * angle[b])
+        if penalty != 0.0:
+            reward[b] -= penalty * hit[b]
+
+
 def model_spec(model: str, obstacles: Sequence[tuple[Array, float]], table: float | None,
                extent: float) -> mujoco.MjSpec | str:
     """The model with obstacle spheres (and a table top at height ``table``) added as world geoms through MjSpec."""
@@ -194,44 +217,42 @@ class ReachTask:
         return self.tidy(mjkin.solve(self.tree, goal, q0=q, max_iters=30, restarts=0).q.reshape(q.shape))
 
     # -------------------------------------------------------------- measures
-    def errors(self, achieved: Array, desired: Array) -> tuple[Array, Array | None]:
-        """Position distance ``(B,)`` (m) and, for pose goals, rotation angle ``(B,)`` (rad; None for positions)."""
-        d = desired[..., :3] - achieved[..., :3]
-        distance = np.sqrt(np.add.reduce(d * d, axis=-1))
-        if self.goal_type == "position":
-            return distance, None
-        dot = np.abs(np.add.reduce(achieved[..., 3:] * desired[..., 3:], axis=-1))
-        return distance, 2.0 * np.arccos(np.minimum(dot, 1.0))
+    def measure(self, achieved: Array, desired: Array, hit: Array) -> tuple[Array, Array, NDArray[np.bool_], Array]:
+        """Distance ``(B,)`` (m), angle ``(B,)`` (rad, 0 for positions), success and reward for goals ``(B, 3|7)``.
 
-    def success(self, distance: Array, angle: Array | None) -> NDArray[np.bool_]:
-        """Within both tolerances."""
-        ok = distance < self.success_tol
-        return ok if angle is None else ok & (angle < self.rot_tol)
+        ``hit (B,)``: in collision (used when ``collision_penalty`` is set). One compiled loop, shared by
+        ``step`` and :meth:`compute_reward`, so both give the same numbers.
+        """
+        B = achieved.shape[0]
+        distance, angle, reward = np.empty(B), np.empty(B), np.empty(B)
+        ok = np.empty(B, dtype=np.bool_)
+        goal_measures(achieved, desired, hit, self.success_tol, self.rot_tol, self.success_bonus,
+                      self.collision_penalty, self.sparse, distance, angle, ok, reward)
+        return distance, angle, ok, reward
 
-    def reward(self, distance: Array, angle: Array | None, ok: Array, in_collision: Any) -> Array:
-        """The reward from the measures (the class docstring's formula)."""
-        if self.sparse:
-            reward = ok - 1.0
-        else:
-            err = distance if angle is None else distance + (self.success_tol / self.rot_tol) * angle
-            reward = self.success_bonus * ok - err
-        if self.collision_penalty:
-            reward = reward - self.collision_penalty * in_collision
-        return reward
+    def _flat(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any
+              ) -> tuple[tuple[int, ...], tuple[Array, Array, NDArray[np.bool_], Array]]:
+        """Measures of goals with any leading shape, flattened; and that shape."""
+        achieved = np.asarray(achieved_goal, dtype=np.float64)
+        desired = np.asarray(desired_goal, dtype=np.float64)
+        shape = np.broadcast_shapes(achieved.shape, desired.shape)
+        if shape[-1:] != (self.goal_dim,):
+            raise mjkin.InputError(f"goals have shape {shape}; expected (..., {self.goal_dim})")
+        a = np.ascontiguousarray(np.broadcast_to(achieved, shape)).reshape(-1, self.goal_dim)
+        d = np.ascontiguousarray(np.broadcast_to(desired, shape)).reshape(-1, self.goal_dim)
+        hit = np.zeros(len(a)) if not self.collision_penalty else \
+            np.broadcast_to(info_column(info, "in_collision"), shape[:-1]).reshape(-1).astype(np.float64)
+        return shape[:-1], self.measure(a, d, hit)
 
     def compute_reward(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Array | float:
         """Reward for goals ``(..., 3|7)``; ``info`` supplies ``in_collision`` when a collision penalty is set."""
-        achieved, desired = np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64)
-        distance, angle = self.errors(achieved, desired)
-        hit = info_column(info, "in_collision").reshape(distance.shape) if self.collision_penalty else 0.0
-        reward = self.reward(distance, angle, self.success(distance, angle), hit)
-        return float(reward) if reward.ndim == 0 else reward
+        shape, (_, _, _, reward) = self._flat(achieved_goal, desired_goal, info)
+        return float(reward[0]) if shape == () else reward.reshape(shape)
 
     def compute_terminated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
         """An episode ends when the goal is met (both tolerances)."""
-        achieved, desired = np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64)
-        ok = self.success(*self.errors(achieved, desired))
-        return bool(ok) if ok.ndim == 0 else ok
+        shape, (_, _, ok, _) = self._flat(achieved_goal, desired_goal, info)
+        return bool(ok[0]) if shape == () else ok.reshape(shape)
 
     def compute_truncated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
         """Never by the goals; the time limit truncates."""
@@ -249,14 +270,13 @@ class ReachTask:
     def outcome(self, q: Array, achieved: Array, desired: Array,
                 frames: Frames | None = None) -> tuple[dict[str, Array], Array]:
         """Per-env ``info`` arrays ``(B,)`` (distance, is_success, contacts, in_collision[, angle]) and rewards."""
-        distance, angle = self.errors(achieved, desired)
-        ok = self.success(distance, angle)
         contacts = self.contacts(q, frames)
         hit = contacts > 0
+        distance, angle, ok, reward = self.measure(achieved, desired, hit.astype(np.float64))
         out = {"distance": distance, "is_success": ok, "contacts": contacts, "in_collision": hit}
-        if angle is not None:
+        if self.goal_dim == 7:
             out["angle"] = angle
-        return out, self.reward(distance, angle, ok, hit)
+        return out, reward
 
     def observe(self, q: Array, achieved: Array, desired: Array) -> Any:
         """Observations of a batch: ``(B, n_obs)``, or a dict of such arrays when goal-conditioned."""
