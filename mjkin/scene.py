@@ -101,8 +101,15 @@ class Scene:
             pairs = np.concatenate([pairs, np.stack([m.pair_geom1, m.pair_geom2], 1)])
         if self._masked:
             pairs = pairs[self._keep[pairs[:, 0], pairs[:, 1]]]
-        plane = np.asarray(m.geom_type) == mujoco.mjtGeom.mjGEOM_PLANE
-        reach = np.asarray(m.geom_rbound) + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0)
+        kind = np.asarray(m.geom_type)
+        plane = kind == mujoco.mjtGeom.mjGEOM_PLANE
+        # every geom as a segment (half-length along its z axis) swept by a radius: capsules exactly,
+        # spheres with no length, anything else as its bounding sphere; margins and a hair added
+        capsule = kind == mujoco.mjtGeom.mjGEOM_CAPSULE
+        exact = capsule | (kind == mujoco.mjtGeom.mjGEOM_SPHERE)
+        self._half = np.where(capsule, np.asarray(m.geom_size)[:, 1], 0.0)
+        reach = np.where(exact, np.asarray(m.geom_size)[:, 0], np.asarray(m.geom_rbound)) \
+            + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0)
         pairs = pairs[~plane[pairs].all(1)]  # MuJoCo has no plane-plane collision
         is_plane = plane[pairs]
         self._prefilter = not bool(np.any(is_plane & (weld[pairs] != 0)))
@@ -115,6 +122,10 @@ class Scene:
         self._planes = (with_plane[:, 1], normal, np.einsum("ij,ij->i", normal, self.data.geom_xpos[with_plane[:, 0]]),
                         reach[with_plane[:, 1]])
         self._geom_body, self._geom_pos = body, np.asarray(m.geom_pos).copy()
+        quat = np.asarray(m.geom_quat)
+        w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]  # the geom's z axis in its body frame
+        self._geom_axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1) \
+            / np.sum(quat * quat, axis=1)[:, None]
 
     def set(self, q: ArrayLike) -> mujoco.MjData:
         """Write ``q (nq,)`` into ``qpos`` and update what drawing and collision need."""
@@ -179,15 +190,18 @@ class Scene:
         return out
 
     def _near(self, frames: Frames) -> NDArray[np.bool_]:
-        """``(B,)``: some pair's bounding spheres (or a sphere and a world plane) are within reach."""
+        """``(B,)``: some pair MuJoCo could report is within reach (segment distances, or heights over planes)."""
         rot, pos = frames.rot[:, self._geom_body], frames.pos[:, self._geom_body]
         centre = pos + np.matmul(rot, self._geom_pos[None, :, :, None])[..., 0]  # (B, ngeom, 3)
+        axis = np.matmul(rot, self._geom_axis[None, :, :, None])[..., 0] * self._half[:, None]  # centre to end
         pairs, reach = self._spheres
-        d = centre[:, pairs[:, 0]] - centre[:, pairs[:, 1]]
-        near = np.any(np.einsum("bpi,bpi->bp", d, d) <= reach * reach, axis=1)
+        gap = segment_distance(centre[:, pairs[:, 0]], axis[:, pairs[:, 0]], centre[:, pairs[:, 1]],
+                               axis[:, pairs[:, 1]])
+        near = np.any(gap <= reach, axis=1)
         other, normal, offset, radius = self._planes
         if len(other):
-            height = np.einsum("bpi,pi->bp", centre[:, other], normal) - offset
+            height = np.einsum("bpi,pi->bp", centre[:, other], normal) - offset \
+                - np.abs(np.einsum("bpi,pi->bp", axis[:, other], normal))
             near |= np.any(height <= radius, axis=1)
         return near
 
@@ -195,3 +209,28 @@ class Scene:
         """Whether any counted geom pair is closer than ``margin``: a bool for ``(nq,)``, ``(B,)`` for ``(B, nq)``."""
         n = self.count(q, margin)
         return bool(n) if isinstance(n, int) else n > 0
+
+
+def segment_distance(c1: NDArray[np.float64], h1: NDArray[np.float64], c2: NDArray[np.float64],
+                     h2: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance ``(...)`` between segments ``c1 ± h1`` and ``c2 ± h2`` (centres and half-vectors ``(..., 3)``).
+
+    The clamped closest-point parameters of Ericson, *Real-Time Collision Detection* §5.1.9,
+    with zero-length segments allowed.
+    """
+    p1, d1, p2, d2 = c1 - h1, 2 * h1, c2 - h2, 2 * h2
+    r = p1 - p2
+    a, e = np.sum(d1 * d1, -1), np.sum(d2 * d2, -1)
+    b, c, f = np.sum(d1 * d2, -1), np.sum(d1 * r, -1), np.sum(d2 * r, -1)
+    tiny = 1e-300
+    denom = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 1e-12 * np.maximum(a * e, tiny), np.clip((b * f - c * e) / denom, 0, 1), 0.0)
+        s = np.where(a > tiny, s, 0.0)
+        s = np.where(e > tiny, s, np.where(a > tiny, np.clip(-c / a, 0, 1), 0.0))  # a point: nearest on segment 1
+        t = np.where(e > tiny, (b * s + f) / e, 0.0)
+        s = np.where(t < 0, np.where(a > tiny, np.clip(-c / a, 0, 1), 0.0), s)
+        s = np.where(t > 1, np.where(a > tiny, np.clip((b - c) / a, 0, 1), 0.0), s)
+    t = np.clip(t, 0, 1)
+    gap = (p1 + s[..., None] * d1) - (p2 + t[..., None] * d2)
+    return np.sqrt(np.sum(gap * gap, -1))

@@ -5,10 +5,12 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import mjkin
 from conftest import tree_of
-from mjkin.scene import Scene
+from mjkin.scene import Scene, segment_distance
 
 # a chain whose parent-child pair MuJoCo would report: an explicit <pair>, and filterparent disabled
 LINK = ('<body name="{name}" pos="{x} 0 0"><joint name="j{name}" type="hinge" axis="0 1 0" range="-2.8 2.8"/>'
@@ -106,3 +108,25 @@ def test_counts_with_fk_frames_skip_only_configurations_without_contacts(model):
         np.testing.assert_array_equal(plain, [len(scene.contacts(q)) for q in qs])
     if model in ("arm7", "panda"):  # the shortcut is taken: far fewer MuJoCo calls than configurations
         assert scene._prefilter and np.count_nonzero(scene._near(tree.kinematics(qs))) < len(qs)
+
+
+vec3 = st.lists(st.floats(-2, 2, allow_nan=False), min_size=3, max_size=3).map(np.array)
+
+
+@given(vec3, vec3, vec3, vec3, st.sampled_from(["free", "point1", "point2", "parallel", "touching"]))
+def test_segment_distance_is_the_closest_approach(c1, h1, c2, h2, case):
+    """Never above a dense sampling of both segments, and below it by at most the sampling step."""
+    if case == "point1":
+        h1 = 0 * h1
+    elif case == "point2":
+        h2 = 0 * h2
+    elif case == "parallel":
+        h2 = -1.5 * h1
+    elif case == "touching":
+        c2 = c1 + 0.5 * h1
+    d = segment_distance(c1, h1, c2, h2)
+    t = np.linspace(-1, 1, 201)
+    a, b = c1 + t[:, None] * h1, c2 + t[:, None] * h2
+    brute = np.sqrt(((a[:, None] - b[None]) ** 2).sum(-1)).min()
+    step = (np.linalg.norm(h1) + np.linalg.norm(h2)) / 100
+    assert brute - step - 1e-9 <= d <= brute + 1e-9
