@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .jit import njit, njit_inline
 from .tree import Tree
 
 if TYPE_CHECKING:
@@ -117,11 +118,11 @@ class Scene:
         sphere = pairs[~is_plane.any(1)]
         with_plane = pairs[is_plane.any(1)]
         with_plane = np.where(plane[with_plane[:, :1]], with_plane, with_plane[:, ::-1])  # (plane, other)
-        self._spheres = (sphere, reach[sphere[:, 0]] + reach[sphere[:, 1]])
-        normal = self.data.geom_xmat.reshape(-1, 3, 3)[with_plane[:, 0], :, 2]
-        self._planes = (with_plane[:, 1], normal, np.einsum("ij,ij->i", normal, self.data.geom_xpos[with_plane[:, 0]]),
-                        reach[with_plane[:, 1]])
-        self._geom_body, self._geom_pos = body, np.asarray(m.geom_pos).copy()
+        self._spheres = (np.ascontiguousarray(sphere, dtype=np.int64), reach[sphere[:, 0]] + reach[sphere[:, 1]])
+        normal = np.ascontiguousarray(self.data.geom_xmat.reshape(-1, 3, 3)[with_plane[:, 0], :, 2])
+        self._planes = (np.ascontiguousarray(with_plane[:, 1], dtype=np.int64), normal,
+                        np.einsum("ij,ij->i", normal, self.data.geom_xpos[with_plane[:, 0]]), reach[with_plane[:, 1]])
+        self._geom_body, self._geom_pos = body.astype(np.int64), np.array(m.geom_pos, dtype=np.float64)
         quat = np.asarray(m.geom_quat)
         w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]  # the geom's z axis in its body frame
         self._geom_axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1) \
@@ -191,18 +192,11 @@ class Scene:
 
     def _near(self, frames: Frames) -> NDArray[np.bool_]:
         """``(B,)``: some pair MuJoCo could report is within reach (segment distances, or heights over planes)."""
-        rot, pos = frames.rot[:, self._geom_body], frames.pos[:, self._geom_body]
-        centre = pos + np.matmul(rot, self._geom_pos[None, :, :, None])[..., 0]  # (B, ngeom, 3)
-        axis = np.matmul(rot, self._geom_axis[None, :, :, None])[..., 0] * self._half[:, None]  # centre to end
+        near = np.empty(frames.rot.shape[0], dtype=np.bool_)
         pairs, reach = self._spheres
-        gap = segment_distance(centre[:, pairs[:, 0]], axis[:, pairs[:, 0]], centre[:, pairs[:, 1]],
-                               axis[:, pairs[:, 1]])
-        near = np.any(gap <= reach, axis=1)
         other, normal, offset, radius = self._planes
-        if len(other):
-            height = np.einsum("bpi,pi->bp", centre[:, other], normal) - offset \
-                - np.abs(np.einsum("bpi,pi->bp", axis[:, other], normal))
-            near |= np.any(height <= radius, axis=1)
+        near_kernel(frames.rot, frames.pos, self._geom_body, self._geom_pos, self._geom_axis, self._half, pairs,
+                    reach, other, normal, offset, radius, near)
         return near
 
     def in_collision(self, q: ArrayLike, margin: float = 0.0) -> bool | NDArray[np.bool_]:
@@ -211,26 +205,89 @@ class Scene:
         return bool(n) if isinstance(n, int) else n > 0
 
 
-def segment_distance(c1: NDArray[np.float64], h1: NDArray[np.float64], c2: NDArray[np.float64],
-                     h2: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Distance ``(...)`` between segments ``c1 ± h1`` and ``c2 ± h2`` (centres and half-vectors ``(..., 3)``).
+@njit_inline
+def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int) -> float:
+    """Distance between segments ``C[i] ± H[i]`` and ``C[j] ± H[j]`` (centres and half-vectors, rows of ``(n, 3)``).
 
     The clamped closest-point parameters of Ericson, *Real-Time Collision Detection* §5.1.9,
-    with zero-length segments allowed.
+    with zero-length segments allowed. Indexed element by element (see :mod:`mjkin.jit`).
     """
-    p1, d1, p2, d2 = c1 - h1, 2 * h1, c2 - h2, 2 * h2
-    r = p1 - p2
-    a, e = np.sum(d1 * d1, -1), np.sum(d2 * d2, -1)
-    b, c, f = np.sum(d1 * d2, -1), np.sum(d1 * r, -1), np.sum(d2 * r, -1)
+    a = e = b = c = f = 0.0
+    for k in range(3):
+        d1, d2 = 2.0 * H[i, k], 2.0 * H[j, k]
+        r = (C[i, k] - H[i, k]) - (C[j, k] - H[j, k])
+        a += d1 * d1
+        e += d2 * d2
+        b += d1 * d2
+        c += d1 * r
+        f += d2 * r
     tiny = 1e-300
-    denom = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(denom > 1e-12 * np.maximum(a * e, tiny), np.clip((b * f - c * e) / denom, 0, 1), 0.0)
-        s = np.where(a > tiny, s, 0.0)
-        s = np.where(e > tiny, s, np.where(a > tiny, np.clip(-c / a, 0, 1), 0.0))  # a point: nearest on segment 1
-        t = np.where(e > tiny, (b * s + f) / e, 0.0)
-        s = np.where(t < 0, np.where(a > tiny, np.clip(-c / a, 0, 1), 0.0), s)
-        s = np.where(t > 1, np.where(a > tiny, np.clip((b - c) / a, 0, 1), 0.0), s)
-    t = np.clip(t, 0, 1)
-    gap = (p1 + s[..., None] * d1) - (p2 + t[..., None] * d2)
-    return np.sqrt(np.sum(gap * gap, -1))
+    s = t = 0.0
+    if a <= tiny and e <= tiny:
+        s = t = 0.0
+    elif a <= tiny:
+        t = min(max(f / e, 0.0), 1.0)
+    elif e <= tiny:
+        s = min(max(-c / a, 0.0), 1.0)
+    else:
+        denom = a * e - b * b
+        s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
+        t = (b * s + f) / e
+        if t < 0.0:
+            t, s = 0.0, min(max(-c / a, 0.0), 1.0)
+        elif t > 1.0:
+            t, s = 1.0, min(max((b - c) / a, 0.0), 1.0)
+    gap = 0.0
+    for k in range(3):
+        g = (C[i, k] + (2.0 * s - 1.0) * H[i, k]) - (C[j, k] + (2.0 * t - 1.0) * H[j, k])
+        gap += g * g
+    return float(np.sqrt(gap))
+
+
+@njit
+def _segment_gap_of(C: NDArray[np.float64], H: NDArray[np.float64]) -> float:
+    return _segment_gap(C, H, 0, 1)
+
+
+def segment_distance(c1: ArrayLike, h1: ArrayLike, c2: ArrayLike, h2: ArrayLike) -> float:
+    """Distance between segments ``c1 ± h1`` and ``c2 ± h2`` (centres and half-vectors, ``(3,)`` each)."""
+    C = np.array([c1, c2], dtype=np.float64)
+    H = np.array([h1, h2], dtype=np.float64)
+    return float(_segment_gap_of(C, H))
+
+
+@njit
+def near_kernel(rot: NDArray[np.float64], pos: NDArray[np.float64], geom_body: NDArray[np.int64],
+                geom_pos: NDArray[np.float64], geom_axis: NDArray[np.float64], half: NDArray[np.float64],
+                pairs: NDArray[np.int64], reach: NDArray[np.float64], other: NDArray[np.int64],
+                normal: NDArray[np.float64], offset: NDArray[np.float64], radius: NDArray[np.float64],
+                near: NDArray[np.bool_]) -> None:
+    """For each of ``B`` body-frame sets ``rot (B, nbody, 3, 3)``, ``pos (B, nbody, 3)``: is a pair within reach."""
+    ngeom = geom_body.shape[0]
+    centre = np.empty((ngeom, 3))
+    axis = np.empty((ngeom, 3))
+    for b in range(rot.shape[0]):
+        for g in range(ngeom):
+            k = geom_body[g]
+            for i in range(3):
+                centre[g, i] = pos[b, k, i] + (rot[b, k, i, 0] * geom_pos[g, 0] + rot[b, k, i, 1] * geom_pos[g, 1]
+                                               + rot[b, k, i, 2] * geom_pos[g, 2])
+                axis[g, i] = half[g] * (rot[b, k, i, 0] * geom_axis[g, 0] + rot[b, k, i, 1] * geom_axis[g, 1]
+                                        + rot[b, k, i, 2] * geom_axis[g, 2])
+        hit = False
+        for p in range(pairs.shape[0]):
+            if _segment_gap(centre, axis, pairs[p, 0], pairs[p, 1]) <= reach[p]:
+                hit = True
+                break
+        for p in range(other.shape[0]):
+            if hit:
+                break
+            g = other[p]
+            height = -offset[p]
+            along = 0.0
+            for i in range(3):
+                height += centre[g, i] * normal[p, i]
+                along += axis[g, i] * normal[p, i]
+            if height - abs(along) <= radius[p]:
+                hit = True
+        near[b] = hit

@@ -110,6 +110,7 @@ def test_counts_with_fk_frames_skip_only_configurations_without_contacts(model):
         assert scene._prefilter and np.count_nonzero(scene._near(tree.kinematics(qs))) < len(qs)
 
 
+segment_distance([0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1])  # load the compiled kernel outside hypothesis' clock
 vec3 = st.lists(st.floats(-2, 2, allow_nan=False), min_size=3, max_size=3).map(np.array)
 
 
