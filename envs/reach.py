@@ -169,6 +169,8 @@ class ReachEnv(gym.Env):
         return self.task.compute_truncated(achieved_goal, desired_goal, info)
 
     def _observe(self) -> Any:
+        if self.goal_type == "position" and not self.goal_conditioned:  # the common case, without a batch axis
+            return np.concatenate((self.q, self._achieved, self.target, self.target - self._achieved))
         obs = self.task.observe(self.q[None], self._achieved[None], self.target[None])
         return {k: v[0] for k, v in obs.items()} if self.goal_conditioned else obs[0]
 

@@ -44,6 +44,15 @@ def joint_move(q: Array, a: Array, step: float, lo: Array, hi: Array, wrap: NDAr
 
 
 @njit
+def site_points(rot: Array, pos: Array, body: int, o: Array, out: Array) -> None:
+    """``out (B, 3)``: the point ``o`` of ``body`` in the world, from body frames ``rot (B, nbody, 3, 3)``, ``pos``."""
+    for b in range(rot.shape[0]):
+        for i in range(3):
+            out[b, i] = pos[b, body, i] + (rot[b, body, i, 0] * o[0] + rot[b, body, i, 1] * o[1]
+                                           + rot[b, body, i, 2] * o[2])
+
+
+@njit
 def goal_measures(achieved: Array, desired: Array, hit: Array, tol: float, rot_tol: float, bonus: float,
                   penalty: float, sparse: bool, distance: Array, angle: Array, ok: NDArray[np.bool_],
                   reward: Array) -> None:
@@ -113,7 +122,8 @@ class ReachTask:
             if self.obstacles or table is not None else base
         self.site = site
         self.site_kind, self.site_id = self.tree.frame(site)  # unknown names fail here, with the list of names
-        self.site_local = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
+        body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
+        self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
         self.action_type, self.goal_type, self.goal_conditioned = action_type, goal_type, bool(goal_conditioned)
         self.extent = extent
         self.step_size = float(step_size if step_size is not None else
@@ -176,11 +186,11 @@ class ReachTask:
         """
         frames = self.tree.kinematics(q)
         body, r, o = self.site_local
-        R_body = frames.rot[:, body]
-        p = frames.pos[:, body] + np.matmul(R_body, o)  # one product per row: no dependence on the batch size
+        p = np.empty((len(q), 3))
+        site_points(frames.rot, frames.pos, body, o, p)
         if self.goal_type == "position":
             return p, None, frames
-        R = R_body @ r
+        R = frames.rot[:, body] @ r
         quat = spatial.mat_to_quat(R)
         quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
         return np.concatenate([p, quat], axis=1), R, frames
