@@ -48,8 +48,8 @@ class ReachEnv(gym.Env):
     ## Observation space
     A goal ``g`` is the effector position ``[x, y, z]`` (``goal_type="position"``,
     3 numbers) or its pose ``[x, y, z, qw, qx, qy, qz]`` (``"pose"``, 7 numbers,
-    ``qw >= 0``). With ``E = MjModel.stat.extent`` (arm7: 1.09 m, planar_3link:
-    30, panda: see ``env.unwrapped.extent``), float64 ``Box`` with these bounds:
+    ``qw >= 0``). With ``E = MjModel.stat.extent`` (arm7: 1.43 m, planar_3link:
+    30, panda: 1.2 m; ``env.unwrapped.extent``), float64 ``Box`` with these bounds:
 
     | index | meaning | bounds |
     |---|---|---|

@@ -363,3 +363,10 @@ def test_episode_example_reaches_targets_in_a_row(tmp_path, monkeypatch, capsys)
     frames = imageio.imread(out)
     assert len(frames) > 45  # several targets, more than a second and a half at 30 fps
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 1
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_docstring_states_the_extent_that_sets_the_bounds(env_id):
+    env = gym.make(env_id).unwrapped
+    assert f"{env.tree.name}: {env.extent:g}" in " ".join(type(env).__doc__.split())
+    assert env.observation_space.high[env.tree.nq] == pytest.approx(4 * env.extent)
