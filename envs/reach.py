@@ -83,7 +83,8 @@ class ReachEnv(gym.Env):
     The target is the effector goal of a random in-limit configuration that is
     free of contacts (so always reachable), inside ``target_region`` (``(low,
     high)`` boxes, world m) when given and outside every obstacle; resampled
-    until so. ``reset(options={"q": q, "target": g})`` sets either instead.
+    until so. ``reset(options={"q": q, "target": g})`` sets either instead (``q`` clipped into the limits;
+    ``options={"q": env.unwrapped.q}`` keeps the arm where it is for a new target).
 
     ## Episode end
     ``terminated`` when ``success``; ``truncated`` by the registration's
