@@ -201,14 +201,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    """Run benchmarks and print their tables."""
-    names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
-    for name in names:
-        for title, rows in bench.BENCHMARKS[name]().items():
-            print(f"== mjkin bench {name}: {title}")
-            print(bench.format_table(rows))
-            print()
-    return 0
+    """Run a benchmark, print its tables, and write them with ``--json``."""
+    return bench.main(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -275,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(run=cmd_replay, deg=False)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
-    s.add_argument("which", choices=[*bench.BENCHMARKS, "all"])
+    bench.add_arguments(s)
     s.set_defaults(run=cmd_bench)
     return p
 
