@@ -68,13 +68,18 @@ class Arm:
 
 @dataclass(frozen=True)
 class Run:
-    """One solver's answers: ``q (N, nq)``, seconds per target ``(N,)`` (None if only batched), counts ``(N,)``."""
+    """One solver's answers: ``q (N, nq)``, seconds per target ``(N,)`` (None if only batched), counts ``(N,)``.
+
+    ``cpu`` is the calling thread's CPU seconds per target, when measured: the solve's own
+    work without the waits of a shared machine.
+    """
 
     q: Array
     seconds: Array | None
     iterations: Array
     restarts: Array
     per_s: float | None = None
+    cpu: Array | None = None
 
 
 def arms(names: Sequence[str] | None, default: Sequence[str] = tuple(IK_ARMS)) -> list[Arm]:
@@ -149,14 +154,14 @@ def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float
     tree, frame, kind = arm.tree, arm.frame, arm.kind
     solve(tree, G.Pose(frame, T=targets[0], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
     N = len(targets)
-    q, seconds = np.empty((N, tree.nq)), np.empty(N)
+    q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
     iters, used = np.empty(N), np.empty(N)
     for k in range(N):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
-        seconds[k] = time.perf_counter() - start
+        seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
         q[k], iters[k], used[k] = res.q, res.iterations, res.restarts
-    return Run(q, seconds, iters, used, N / seconds.sum())
+    return Run(q, seconds, iters, used, N / seconds.sum(), cpu)
 
 
 def mjkin_batched(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, repeat: int = 3,
@@ -188,9 +193,9 @@ def mujoco_dls(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, 
     cur, neg, diff, err, goal = np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(6), np.zeros(4)
     lam2 = damping ** 2 * np.eye(6)
     N = len(targets)
-    out, seconds, iters = np.empty((N, model.nq)), np.empty(N), np.zeros(N)
+    out, seconds, cpu, iters = np.empty((N, model.nq)), np.empty(N), np.empty(N), np.zeros(N)
     for n, T in enumerate(targets):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         mujoco.mju_mat2Quat(goal, T[:3, :3].ravel())
         q = q0.copy()
         for it in range(max_iters + 1):
@@ -209,9 +214,9 @@ def mujoco_dls(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, 
             dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
             mujoco.mj_integratePos(model, q, dq, 1.0)
             q[qa] = np.clip(q[qa], lo, hi)
-        seconds[n] = time.perf_counter() - start
+        seconds[n], cpu[n] = time.perf_counter() - start, time.thread_time() - start_cpu
         out[n], iters[n] = q, it
-    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum())
+    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
 
 
 def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max_iters: int) -> Run:
@@ -226,10 +231,10 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
     task = mink.FrameTask(arm.frame, arm.kind, position_cost=1.0, orientation_cost=1.0, lm_damping=1.0)
     limits = [mink.ConfigurationLimit(config.model)]
     N = len(targets)
-    out, seconds, iters = np.empty((N, arm.tree.nq)), np.empty(N), np.zeros(N)
+    out, seconds, cpu, iters = np.empty((N, arm.tree.nq)), np.empty(N), np.empty(N), np.zeros(N)
     for n in range(-1, N):  # n = -1: one untimed solve first (imports, first QP)
         T = targets[max(n, 0)]
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         config.update(q0)
         task.set_target(mink.SE3.from_matrix(T))
         it = 0
@@ -240,10 +245,10 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
             e = task.compute_error(config)
             if np.linalg.norm(e[:3]) <= tol and np.linalg.norm(e[3:]) <= rot_tol:
                 break
-        elapsed = time.perf_counter() - start
+        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
         if n >= 0:
-            seconds[n], out[n], iters[n] = elapsed, config.q, it
-    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum())
+            seconds[n], cpu[n], out[n], iters[n] = elapsed, elapsed_cpu, config.q, it
+    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
 
 
 def row(arm: Arm, solver: str, run: Run, targets: Array, tol: float, rot_tol: float,
@@ -257,6 +262,7 @@ def row(arm: Arm, solver: str, run: Run, targets: Array, tol: float, rot_tol: fl
               "p95_ms": None if ms is None else float(np.percentile(ms, 95)),
               "single_per_s": None if ms is None else run.per_s,
               "batched_per_s": None if batched is None else batched.per_s,
+              "cpu_mean_ms": None if run.cpu is None else 1e3 * float(run.cpu.mean()),
               "iterations_mean": float(run.iterations.mean()), "restarts_mean": float(run.restarts.mean())}
     if batched is not None:
         r["batched_success"] = 100.0 * float(success(arm, batched.q, targets, tol, rot_tol).mean())
@@ -306,7 +312,9 @@ def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: floa
                 "start": "home keyframe (else qpos0)", "success": "% of targets within both tolerances, "
                 "re-checked by mujoco.mj_kinematics", "mjkin": "method auto: up to 50 iterations x (1 + 24 restarts)",
                 "single-start budget": f"{iters} iterations, no restart (mjkin-single-start, mujoco-dls, mink)",
-                "mink": "installed" if use_mink else "not installed (pip install 'mjkin[bench]')"}
+                "mink": "installed" if use_mink else "not installed (pip install 'mjkin[bench]')",
+                "times": "wall clock per target, one call each; cpu_mean_ms: the calling thread's CPU time "
+                         "(the solve's own work, without waits for a shared machine's cores)"}
     title = (f"{targets} random reachable 6-D poses per model from the home keyframe; success at {tol:g} m / "
              f"{rot_tol:g} rad re-checked by mj_kinematics; times per target, one call each")
     return Report({title: rows}, settings)
@@ -346,6 +354,7 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
                 "applied after the fact to single calls (this mjkin.solve has no timeout=); batched rows unbounded",
                 "success": "% within both tolerances (norms), re-checked by mujoco.mj_kinematics",
                 "mean_ms": "over all queries including failures; batched: wall time / targets",
+                "cpu_mean_ms": "the calling thread's CPU time per single call (no waits for a shared machine)",
                 "published": TRAC_IK_SOURCE}
     tables = {f"TRAC-IK protocol: {targets} random in-limit configurations -> FK poses, start mid-range, "
               f"{tol:g} m / {rot_tol:g} rad, {1e3 * time_limit:g} ms per solve": rows}
