@@ -80,6 +80,7 @@ class Run:
     restarts: Array
     per_s: float | None = None
     cpu: Array | None = None
+    status: NDArray[np.str_] | None = None
 
 
 def arms(names: Sequence[str] | None, default: Sequence[str] = tuple(IK_ARMS)) -> list[Arm]:
@@ -155,13 +156,13 @@ def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float
     solve(tree, G.Pose(frame, T=targets[0], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
     N = len(targets)
     q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
-    iters, used = np.empty(N), np.empty(N)
+    iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")
     for k in range(N):
         start, start_cpu = time.perf_counter(), time.thread_time()
         res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
         seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
-        q[k], iters[k], used[k] = res.q, res.iterations, res.restarts
-    return Run(q, seconds, iters, used, N / seconds.sum(), cpu)
+        q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
+    return Run(q, seconds, iters, used, N / seconds.sum(), cpu, status)
 
 
 def mjkin_batched(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, repeat: int = 3,
@@ -174,7 +175,8 @@ def mjkin_batched(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: floa
         start = time.perf_counter()
         res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
         best = min(best, time.perf_counter() - start)
-    return Run(res.q, None, res.iterations.astype(float), res.restarts.astype(float), len(targets) / best)
+    return Run(res.q, None, res.iterations.astype(float), res.restarts.astype(float), len(targets) / best,
+               status=np.asarray(res.status))
 
 
 def mujoco_dls(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max_iters: int,
@@ -341,12 +343,16 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
         if in_time is not None:  # the limit applied after the fact
             ok = success(arm, single.q, T, tol, rot_tol) & in_time
             r["success"] = 100.0 * float(ok.mean())
+            r["over_time_limit"] = int((~in_time).sum())
         rows.append(r)
         batched = mjkin_batched(arm, T, q0, tol, rot_tol, repeat=1, **options)
         b = row(arm, "mjkin batched", batched, T, tol, rot_tol)
         assert batched.per_s is not None
         b["mean_ms"], b["batched_per_s"] = 1e3 / batched.per_s, batched.per_s
         rows.append(b)
+        if bounded:
+            for out, run in ((r, single), (b, batched)):
+                out["timeouts"] = int(np.sum(run.status == "timeout"))
     published = [p for p in TRAC_IK_PUBLISHED if p["model"] in {r["model"] for r in rows}]
     settings = {"protocol": "trac-ik", "targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol,
                 "time_limit_s": time_limit, "seed": seed, "start": "mid-range of every limited joint",
