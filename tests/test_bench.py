@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin import bench, cli
+from mjkin import bench, build, cli
 from mjkin.bench_ik import (
     TRAC_IK_SOURCE,
     Run,
@@ -98,6 +98,17 @@ def test_mink_reaches_easy_targets_by_its_own_error_and_stops_at_its_budget():
     assert row(ARM7, "mink", run, targets, 1e-5, 1e-5)["success"] == 100.0
     assert (run.iterations >= 1).all() and (run.seconds > 0).all()
     assert (mink_ik(ARM7, targets, ARM7.home, 1e-12, 1e-12, max_iters=2).iterations == 2).all()
+
+
+def test_models_take_names_and_files(tmp_path):
+    path = mjkin.bundled_models()["arm7"]
+    (arm,) = arms([str(path)])
+    assert (arm.name, arm.frame, arm.kind) == ("arm7", "ee", "site")
+    renamed = tmp_path / "two.xml"  # the last site is the frame, whatever its name
+    renamed.write_text(build.planar_chain([1.0, 0.5]).replace('<site name="ee"', '<site name="hand"'))
+    assert arms([str(renamed)])[0].frame == "hand"
+    with pytest.raises(mjkin.InputError, match="neither"):
+        arms(["no_such_arm"])
 
 
 def test_mid_range_is_the_middle_of_every_limited_joint():
