@@ -235,7 +235,7 @@ def bench_seeds(out: Path | None = None) -> Report:
 
 
 def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: int = 0,
-                 repeat: int = 2) -> Report:
+                 repeat: int = 3) -> Report:
     """Frames/s of mjkin's render pipeline beside a bare ``mujoco.Renderer`` loop doing the same MuJoCo work.
 
     Both make a renderer, set each q, run ``mj_kinematics`` + ``mj_comPos`` + ``mj_camlight``
