@@ -371,7 +371,8 @@ def _positive_float(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.cli.build_parser`)."""
-    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,seeds}")
+    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds}",
+                                help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
         s.add_argument("--json", metavar="FILE", help="also write the rows and settings to this .json file")
@@ -416,6 +417,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--num-envs", type=_positive_int, default=256, help="envs in the vector env (default 256)")
     common(s)
 
+    s = sub.add_parser("play", help="the playground's frame rate and drag-to-frame latency over HTTP")
+    common(s)
+
     s = sub.add_parser("seeds", help="the seeds' examples as tables, and their figures")
     s.add_argument("--out", default="mjkin-seeds", help="folder for the figures (default mjkin-seeds)")
     common(s)
@@ -454,6 +458,10 @@ def run(args: argparse.Namespace) -> Report:
         return bench_render(args.frames, args.width, args.height, args.seed)
     if args.which == "env":
         return bench_env(args.steps, args.num_envs, args.seed)
+    if args.which == "play":
+        from .play.bench import measure
+
+        return Report(measure())
     return bench_seeds(Path(args.out))
 
 

@@ -21,6 +21,7 @@ from .bench import Report, Row
 from .build import Link, links_mjcf
 from .errors import InputError
 from .ik import solve
+from .parallel import set_threads, threads
 from .progress import track
 from .qspace import FREE
 from .tree import Tree, load
@@ -114,13 +115,27 @@ def _met(case: Case, q: Array, goals: Sequence[G.Goal]) -> bool:
 def bench_realtime(dofs: Sequence[int] = (2, 4, 8, 16, 32, 64, 128), frames: int = 120, seed: int = 0,
                    plot: str | None = None) -> Report:
     """Per-frame 6-D IK cost, warm (animation) and cold (from home), and the largest chain each rate allows."""
-    import mjkin
-
     if frames < 2 or not dofs or min(dofs) < 1:
         raise InputError(f"need --frames >= 2 and chain sizes >= 1, got {frames} and {list(dofs)}")
-    threads = getattr(mjkin, "set_threads", None)
-    if threads is not None:
-        threads(1)
+    before = threads()
+    set_threads(1)
+    try:
+        rows, largest = _measure(dofs, frames, seed)
+    finally:
+        set_threads(before)
+    if plot:
+        draw(rows, plot)
+    settings = {"frames": frames, "seed": seed, "tol_m": 1e-4, "rot_tol_rad": 1e-3, "method": "auto",
+                "threads": "mjkin.set_threads(1): one core",
+                "every frame": "warm chains on target in every frame whose slowest frame fits the budget, by wall "
+                               "clock and by the thread's CPU time (without a shared machine's waits)"}
+    return Report({f"6-D IK per frame along a smooth {frames}-frame path: warm = from the previous frame's "
+                   "answer, cold = from home; success re-checked by FK": rows,
+                   "largest chain solved every frame (warm)": largest}, settings)
+
+
+def _measure(dofs: Sequence[int], frames: int, seed: int) -> tuple[list[Row], list[Row]]:
+    """Rows per case and mode, and the largest chain per rate."""
     rows: list[Row] = []
     fits_every_frame: list[tuple[int, float, float]] = []  # warm chains on target every frame: dof, slowest ms
     cases = [chain(n) for n in sorted(set(dofs))] + tree_cases()
@@ -144,15 +159,7 @@ def bench_realtime(dofs: Sequence[int] = (2, 4, 8, 16, 32, 64, 128), frames: int
         by_cpu = [dof for dof, _, slow in fits_every_frame if slow <= 1e3 * budget]
         largest.append({"rate": label, "budget_ms": 1e3 * budget, "largest_dof_wall": max(by_wall, default=None),
                         "largest_dof_cpu": max(by_cpu, default=None), "largest_measured": measured})
-    if plot:
-        draw(rows, plot)
-    settings = {"frames": frames, "seed": seed, "tol_m": 1e-4, "rot_tol_rad": 1e-3, "method": "auto",
-                "threads": "mjkin.set_threads(1)" if threads is not None else "single-target calls (one core)",
-                "every frame": "warm chains on target in every frame whose slowest frame fits the budget, by wall "
-                               "clock and by the thread's CPU time (without a shared machine's waits)"}
-    return Report({f"6-D IK per frame along a smooth {frames}-frame path: warm = from the previous frame's "
-                   "answer, cold = from home; success re-checked by FK": rows,
-                   "largest chain solved every frame (warm)": largest}, settings)
+    return rows, largest
 
 
 def draw(rows: list[Row], path: str) -> Path:

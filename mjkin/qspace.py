@@ -68,17 +68,26 @@ class Layout:
 def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
     """``q`` as a float64 array ``(..., nq)``; :class:`InputError` for a bad shape or value."""
     try:
-        a = np.asarray(q, dtype=np.float64)
+        a = q if type(q) is np.ndarray and q.dtype == np.float64 else np.asarray(q, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be an array of numbers of shape (..., {tree.nq})") from None
     if a.ndim == 0 or a.shape[-1] != tree.nq:
         raise InputError(f"{name} has shape {a.shape}; this model needs (..., {tree.nq}) (nq = {tree.nq})")
-    if not np.isfinite(a).all():
+    if not all_finite(a.reshape(-1)):
         raise InputError(f"{name} contains NaN or inf")
     quats = tree.layout.quats
     if quats.size and (np.square(a[..., quats]).sum(-1) < 1e-18).any():
         raise InputError(f"{name} has a zero quaternion for a ball or free joint; use (1, 0, 0, 0) for no rotation")
     return a
+
+
+@njit
+def all_finite(a: Array) -> bool:
+    """No NaN or inf in ``a (n,)`` (one compiled pass, no temporary)."""
+    for x in a:
+        if not np.isfinite(x):
+            return False
+    return True
 
 
 def _rng(rng: np.random.Generator | int | None) -> np.random.Generator:

@@ -212,8 +212,10 @@ def test_fk_baselines_do_the_same_work_as_mjkin():
 def test_realtime_reports_chains_and_trees_warm_and_cold(tmp_path):
     pytest.importorskip("matplotlib")
     plot = tmp_path / "rt.png"
+    before = mjkin.threads()
     report = bench.run(cli.build_parser().parse_args(
         ["bench", "realtime", "--dofs", "2", "6", "--frames", "3", "--plot", str(plot)]))
+    assert mjkin.threads() == before and report.settings["threads"].startswith("mjkin.set_threads(1)")
     rows, largest = report.tables.values()
     models = {(r["model"], r["start"]) for r in rows}
     assert {("chain 2", "warm"), ("chain 6", "cold")} <= models
@@ -251,3 +253,15 @@ def test_mjkin_solve_still_meets_what_bench_ik_counts():
     res = mjkin.solve(ARM7.tree, mjkin.goals.Pose(ARM7.frame, T=targets), q0=ARM7.home, tol=1e-5, rot_tol=1e-5)
     ep, er = frame_errors(ARM7.tree.model, ARM7.frame, ARM7.kind, res.q, targets)
     assert (ep <= 1e-5).all() and (er <= 1e-5).all() and res.success.all()
+
+
+def test_every_bench_option_has_help():
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert sub.help and all(c.help for c in sub._choices_actions)
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            assert action.help, f"mjkin bench {name} {'/'.join(action.option_strings)} has no help"
