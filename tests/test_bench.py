@@ -222,6 +222,9 @@ def test_realtime_reports_chains_and_trees_warm_and_cold(tmp_path):
     assert any(m.startswith("primate") for m, _ in models) and any(m.startswith("4-arm") for m, _ in models)
     assert {r["dof"] for r in rows if str(r["model"]).startswith("chain")} == {2, 6}
     assert [r["rate"] for r in largest] == ["60 Hz", "1 kHz"] and largest[0]["largest_measured"] == 6
+    for r in largest:  # every chain up to N fits, so N itself fits
+        for clock in ("wall", "cpu"):
+            assert r[f"all_up_to_{clock}"] is None or r[f"largest_dof_{clock}"] >= r[f"all_up_to_{clock}"]
     assert plot.stat().st_size > 1000 and [p.name for p in tmp_path.iterdir()] == ["rt.png"]
 
 
