@@ -353,14 +353,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    """Run benchmarks and print their tables."""
-    names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
-    for name in names:
-        for title, rows in bench.BENCHMARKS[name]().items():
-            print(f"== mjkin bench {name}: {title}")
-            print(bench.format_table(rows))
-            print()
-    return 0
+    """Run a benchmark, print its tables, and write them with ``--json``."""
+    return bench.main(args)
 
 
 def cmd_play(args: argparse.Namespace) -> int:
@@ -466,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(run=cmd_replay, deg=False, seed=None)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
-    s.add_argument("which", choices=[*bench.BENCHMARKS, "all"], help="which benchmark ('all' runs each)")
+    bench.add_arguments(s)
     s.set_defaults(run=cmd_bench)
 
     s = sub.add_parser("play", help="the playground in a browser: drag a target, watch each IK method work")
