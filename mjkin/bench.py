@@ -291,16 +291,24 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
 
 
 def env_steps_per_s(env: object, steps: int, seed: int) -> float:
-    """Steps/s of ``env`` (single or vector) under random actions, resetting a single env when it ends."""
+    """Steps/s of ``env`` (single or vector) under random actions, resetting a single env when it ends.
+
+    The actions are drawn before the clock starts, and a few untimed steps first
+    load (or compile) whatever the env's first step needs.
+    """
     import gymnasium as gym
 
-    env.reset(seed=seed)  # type: ignore[attr-defined]
     space = env.action_space  # type: ignore[attr-defined]
     space.seed(seed)
+    actions = [space.sample() for _ in range(steps)]
     vector = isinstance(env, gym.vector.VectorEnv)
+    env.reset(seed=seed)  # type: ignore[attr-defined]
+    for a in actions[:3]:
+        env.step(a)  # type: ignore[attr-defined]
+    env.reset(seed=seed)  # type: ignore[attr-defined]
     start = time.perf_counter()
-    for _ in range(steps):
-        _, _, term, trunc, _ = env.step(space.sample())  # type: ignore[attr-defined]
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)  # type: ignore[attr-defined]
         if not vector and (term or trunc):
             env.reset()  # type: ignore[attr-defined]
     elapsed = time.perf_counter() - start
@@ -371,7 +379,7 @@ def _positive_float(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.cli.build_parser`)."""
-    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds}",
+    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -424,6 +432,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--out", default="mjkin-seeds", help="folder for the figures (default mjkin-seeds)")
     common(s)
 
+    s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
+    common(s)
+
+
+ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
+
 
 def _writable(path: str | None, suffix: str, option: str) -> None:
     if path is None:
@@ -467,15 +481,26 @@ def run(args: argparse.Namespace) -> Report:
 
 def main(args: argparse.Namespace) -> int:
     """``mjkin bench ...``: run, print every table, write ``--json`` atomically."""
-    report = run(args)
-    for title, rows in report.tables.items():
-        print(f"== mjkin bench {args.which}: {title}")
-        print(format_table(rows))
-        print()
-    if report.settings:
-        print("settings: " + "; ".join(f"{k}: {v}" for k, v in report.settings.items()))
+    _writable(args.json, ".json", "--json")
+    if args.which == "all":
+        defaults = argparse.ArgumentParser()
+        add_arguments(defaults)
+        runs = [defaults.parse_args([name, "--seed", str(args.seed)]) for name in ALL]
+    else:
+        runs = [args]
+    out = {}
+    for one in runs:
+        report = run(one)
+        for title, rows in report.tables.items():
+            print(f"== mjkin bench {one.which}: {title}")
+            print(format_table(rows))
+            print()
+        if report.settings:
+            print("settings: " + "; ".join(f"{k}: {v}" for k, v in report.settings.items()))
+        out[one.which] = report.as_json()
     if args.json:
-        write_text(args.json, json.dumps(report.as_json(), indent=1, default=_plain) + "\n")
+        data = out if args.which == "all" else out[args.which]
+        write_text(args.json, json.dumps(data, indent=1, default=_plain) + "\n")
         print(f"wrote {args.json}")
     return 0
 
