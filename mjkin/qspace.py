@@ -76,7 +76,7 @@ def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
     if not all_finite(a.reshape(-1)):
         raise InputError(f"{name} contains NaN or inf")
     quats = tree.layout.quats
-    if quats.size and (np.square(a[..., quats]).sum(-1) < 1e-18).any():
+    if quats.size and _zero_quaternion(np.ascontiguousarray(a).reshape(-1, a.shape[-1]), quats):
         raise InputError(f"{name} has a zero quaternion for a ball or free joint; use (1, 0, 0, 0) for no rotation")
     return a
 
@@ -88,6 +88,19 @@ def all_finite(a: Array) -> bool:
         if not np.isfinite(x):
             return False
     return True
+
+
+@njit
+def _zero_quaternion(q: Array, quats: Index) -> bool:
+    """Whether any quaternion ``q[b, quats[i]]`` of ``q (B, nq)`` is (nearly) zero."""
+    for b in range(q.shape[0]):
+        for i in range(quats.shape[0]):
+            n = 0.0
+            for k in range(4):
+                n += q[b, quats[i, k]] ** 2
+            if n < 1e-18:
+                return True
+    return False
 
 
 def _rng(rng: np.random.Generator | int | None) -> np.random.Generator:
