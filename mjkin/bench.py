@@ -19,6 +19,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .argtypes import positive_float, positive_int
 from .errors import InputError
 from .files import write_text
 from .progress import track
@@ -357,26 +358,6 @@ def bench_env(steps: int = 2000, num_envs: int = 256, seed: int = 0) -> Report:
 # ---------------------------------------------------------------------------------------------- CLI
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
@@ -388,7 +369,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     s = sub.add_parser("fk", help="batched FK and one pose, beside mj_kinematics from Python")
     s.add_argument("--models", nargs="+", metavar="NAME|PATH", help=f"models (default: {', '.join(FK_MODELS)})")
-    s.add_argument("--batch", nargs="+", type=_positive_int, default=[1, 100, 10_000], metavar="B",
+    s.add_argument("--batch", nargs="+", type=positive_int, default=[1, 100, 10_000], metavar="B",
                    help="batch sizes (default 1 100 10000)")
     common(s)
 
@@ -398,31 +379,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "else last body); default all available (trac-ik: the five real arms)")
     s.add_argument("--protocol", choices=["default", "trac-ik"], default="default",
                    help="default: home start, --tol/--rot-tol; trac-ik: mid-range start, 1e-5 m / 1e-5 rad, 5 ms")
-    s.add_argument("--targets", type=_positive_int, help="targets per model (default 1000; trac-ik 10000)")
-    s.add_argument("--tol", type=_positive_float, help="position tolerance, m (default 1e-4; trac-ik 1e-5)")
-    s.add_argument("--rot-tol", type=_positive_float, help="rotation tolerance, rad (default 1e-3; trac-ik 1e-5)")
-    s.add_argument("--iters", type=_positive_int, default=200,
+    s.add_argument("--targets", type=positive_int, help="targets per model (default 1000; trac-ik 10000)")
+    s.add_argument("--tol", type=positive_float, help="position tolerance, m (default 1e-4; trac-ik 1e-5)")
+    s.add_argument("--rot-tol", type=positive_float, help="rotation tolerance, rad (default 1e-3; trac-ik 1e-5)")
+    s.add_argument("--iters", type=positive_int, default=200,
                    help="iteration budget of the single-start rows (mjkin-single-start, mujoco-dls, mink; default 200)")
-    s.add_argument("--time-limit", type=_positive_float, default=0.005,
+    s.add_argument("--time-limit", type=positive_float, default=0.005,
                    help="trac-ik: seconds per solve (default 0.005)")
     common(s)
 
     s = sub.add_parser("realtime", help="6-D IK per frame for chains of 2..128 DoF and trees, warm and cold")
-    s.add_argument("--dofs", nargs="+", type=_positive_int, default=[2, 4, 8, 16, 32, 64, 128], metavar="N",
+    s.add_argument("--dofs", nargs="+", type=positive_int, default=[2, 4, 8, 16, 32, 64, 128], metavar="N",
                    help="chain sizes (default 2 4 8 16 32 64 128)")
-    s.add_argument("--frames", type=_positive_int, default=120, help="frames of the target path (default 120)")
+    s.add_argument("--frames", type=positive_int, default=120, help="frames of the target path (default 120)")
     s.add_argument("--plot", metavar="FILE.png", help="also draw the cost against DoF into this .png")
     common(s)
 
     s = sub.add_parser("render", help="mjkin's render pipeline beside a bare mujoco.Renderer loop")
-    s.add_argument("--frames", type=_positive_int, default=60, help="frames per model (default 60)")
-    s.add_argument("--width", type=_positive_int, default=640, help="frame width, pixels (default 640)")
-    s.add_argument("--height", type=_positive_int, default=480, help="frame height, pixels (default 480)")
+    s.add_argument("--frames", type=positive_int, default=60, help="frames per model (default 60)")
+    s.add_argument("--width", type=positive_int, default=640, help="frame width, pixels (default 640)")
+    s.add_argument("--height", type=positive_int, default=480, help="frame height, pixels (default 480)")
     common(s)
 
     s = sub.add_parser("env", help="env steps/s beside gymnasium's Reacher-v5 (and the native vector env)")
-    s.add_argument("--steps", type=_positive_int, default=2000, help="random steps per env (default 2000)")
-    s.add_argument("--num-envs", type=_positive_int, default=256, help="envs in the vector env (default 256)")
+    s.add_argument("--steps", type=positive_int, default=2000, help="random steps per env (default 2000)")
+    s.add_argument("--num-envs", type=positive_int, default=256, help="envs in the vector env (default 256)")
     common(s)
 
     s = sub.add_parser("play", help="the playground's frame rate and drag-to-frame latency over HTTP")
