@@ -324,7 +324,7 @@ def test_markers_and_trail_cast_no_shadow():
     fwd, _, up = render._basis(cam.azimuth, cam.elevation)
     rel = np.vstack([marker, trail]) - (cam.lookat - cam.distance * fwd)
     ndc_y = (rel @ up) / ((rel @ fwd) * np.tan(np.radians(tree.model.vis.global_.fovy) / 2))
-    lowest = int(((1 - ndc_y.min()) / 2 * 240)) + 15  # the overlay's lowest image row, and the marker's radius
+    lowest = int((1 - ndc_y.min()) / 2 * 240) + 15  # the overlay's lowest image row, and the marker's radius
     changed = np.abs(marked.astype(int) - plain).sum(-1) > 12
     assert changed[:lowest].sum() > 100  # the markers are drawn
     assert not changed[lowest:].any()  # and nothing below them changed: no shadow on the floor or the arm

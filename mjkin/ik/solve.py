@@ -19,7 +19,7 @@ from .kernel import STATUS_NAMES
 
 Array = NDArray[np.float64]
 
-METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
+METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach")
 CORES = os.cpu_count() or 1
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
@@ -166,8 +166,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
             error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
-            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar), or
-            ``"optimize"`` (SciPy, box and coupling constraints).
+            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar),
+            ``"optimize"`` (SciPy, box and coupling constraints), or ``"reach"``
+            (recursive reach; status ``"root_would_move"`` when the goal is out of the chain's ring).
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
         max_iters: iteration (CCD: sweep) limit of each run (the start and every
@@ -282,6 +283,10 @@ def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, m
     n_restarts = (AUTO_RESTARTS if method == "auto" else 0) if restarts is None else int(restarts)
     if n_restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
+    if name == "reach":
+        from .reach import solve_reach
+
+        return solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
     if name == "optimize":
         from .optimize import solve_optimize
 
