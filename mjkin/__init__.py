@@ -16,6 +16,7 @@ from . import goals, spatial  # noqa: E402
 from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError  # noqa: E402
 from .ik import Result, singular_values, solve  # noqa: E402
 from .tree import Tree, bundled_models, load  # noqa: E402
+from .workspace import workspace  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -34,4 +35,5 @@ __all__ = [
     "singular_values",
     "solve",
     "spatial",
+    "workspace",
 ]

@@ -200,6 +200,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return cmd_render(args)
 
 
+def cmd_workspace(args: argparse.Namespace) -> int:
+    """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
+    from .workspace import plot, workspace
+
+    tree = load(args.model)
+    ws = workspace(tree, args.frame, args.samples)
+    shape = (f"planar annulus {ws.inner:.4g} <= r <= {ws.outer:.4g} about {np.round(ws.base, 4).tolist()}"
+             if ws.planar else f"{ws.inner:.4g} <= distance from the base <= {ws.outer:.4g}")
+    plot(ws, args.output, f"{tree.name} · {args.frame}: {args.samples} samples")
+    print(f"wrote {args.output}: {shape}; box {np.round(ws.lo, 4).tolist()} .. {np.round(ws.hi, 4).tolist()}; "
+          f"dexterous {ws.dexterous.mean():.0%} of the samples")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run benchmarks and print their tables."""
     names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
@@ -273,6 +287,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", help="model (default: the one named in the script)")
     video_options(s, None)
     s.set_defaults(run=cmd_replay, deg=False)
+
+    s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
+    s.add_argument("model", help=model_help)
+    s.add_argument("--frame", required=True, help="the site or body whose workspace is sampled")
+    s.add_argument("--samples", type=int, default=20_000, help="random configurations (default 20000)")
+    s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
+    s.set_defaults(run=cmd_workspace)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     s.add_argument("which", choices=[*bench.BENCHMARKS, "all"])
