@@ -148,8 +148,8 @@ def plot(ws: Workspace, path: str | os.PathLike[str], title: str = "") -> Path:
     if ws.planar:
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         xy = ws.plane_coords()
-        ax.scatter(*xy[reach].T, s=1, c="tab:blue", alpha=0.3, label="reachable", rasterized=True)
-        ax.scatter(*xy[dex].T, s=1, c="tab:orange", alpha=0.5, label="dexterous (every orientation)",
+        ax.scatter(xy[reach, 0], xy[reach, 1], s=1, c="tab:blue", alpha=0.3, label="reachable", rasterized=True)
+        ax.scatter(xy[dex, 0], xy[dex, 1], s=1, c="tab:orange", alpha=0.5, label="dexterous (every orientation)",
                    rasterized=True)
         phi = np.linspace(0, 2 * np.pi, 200)
         for r, name in ((ws.inner, "inner"), (ws.outer, "outer")):
