@@ -149,6 +149,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_walk(args: argparse.Namespace) -> int:
+    """Render the primate walking (heel to toe, arms swinging), seen from the side by a tracking camera."""
+    from . import render
+
+    tree = load("primate")
+    walk = motion.walk_cycle(tree, steps=args.steps, stride=args.stride, fps=args.fps)
+    ok = walk.success if walk.success is not None else np.ones(len(walk.q), bool)
+    print(f"walk: {args.steps} steps of {args.stride} m, {len(walk.q)} frames, feet on target in {ok.mean():.0%}")
+    _video_or_image(args, render.frames(tree, walk.q, args.width, args.height, view=render.WALK_VIEW, follow=True))
+    return 0
+
+
 def cmd_trajectory(args: argparse.Namespace) -> int:
     """Solve a Cartesian path for a site frame by frame and save it as a script."""
     tree = load(args.model)
@@ -255,6 +267,12 @@ def build_parser() -> argparse.ArgumentParser:
     video_options(s, "mjkin-demo.mp4")
     s.add_argument("--seconds", type=float, default=6.0)
     s.set_defaults(run=cmd_demo)
+
+    s = sub.add_parser("walk", help="render the bundled primate walking, seen from the side")
+    video_options(s, "mjkin-walk.mp4")
+    s.add_argument("--steps", type=int, default=4, help="steps (default 4)")
+    s.add_argument("--stride", type=float, default=0.3, help="stride length in metres (default 0.3)")
+    s.set_defaults(run=cmd_walk)
 
     s = sub.add_parser("trajectory", help="solve a Cartesian path for a site and save the script (JSON)")
     s.add_argument("model", help=model_help)

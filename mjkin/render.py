@@ -33,6 +33,7 @@ from .tree import Tree
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MARGIN = 0.07  # the camera keeps the figure this fraction of the image away from every edge (≥ 5 % asked)
 SIDE_VIEW = (135.0, -20.0)  # azimuth, elevation (degrees) for figures that are not planar chains
+WALK_VIEW = (90.0, -8.0)  # from the figure's right side, world x (the walking direction) to the right
 Caption = str | Sequence[str] | Callable[[int], str] | None
 
 
@@ -315,8 +316,8 @@ class Painter:
         return self.cameras(camera, qs, points)[0]
 
     def cameras(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
-                points: NDArray[np.float64] | None = None,
-                view: tuple[float, float] | None = None) -> list[mujoco.MjvCamera | int]:
+                points: NDArray[np.float64] | None = None, view: tuple[float, float] | None = None,
+                follow: bool | None = None) -> list[mujoco.MjvCamera | int]:
         """One camera per frame: the one given, a model camera by name, or :func:`camera_path` (tracking)."""
         if isinstance(camera, str):
             model = self.tree.model
@@ -327,7 +328,7 @@ class Painter:
             return [cam_id] * len(qs)
         if camera is not None:
             return [camera] * len(qs)
-        return list(camera_path(self.tree, qs, points, aspect=self.width / self.height, view=view))
+        return list(camera_path(self.tree, qs, points, aspect=self.width / self.height, view=view, follow=follow))
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
@@ -360,12 +361,13 @@ class Painter:
 
 
 def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camera: mujoco.MjvCamera | str | None = None,
-           overlay: Overlay | None = None, desc: str = "render",
-           view: tuple[float, float] | None = None) -> NDArray[np.uint8]:
+           overlay: Overlay | None = None, desc: str = "render", view: tuple[float, float] | None = None,
+           follow: bool | None = None) -> NDArray[np.uint8]:
     """RGB frames ``(T, height, width, 3)`` of configurations ``qs (T, nq)``.
 
     ``camera``: a :class:`mujoco.MjvCamera`, the name of a model camera, or None
-    for :func:`camera_path` (``view`` = its azimuth and elevation). ``overlay.points``
+    for :func:`camera_path` (``view`` = its azimuth and elevation, ``follow`` = track
+    the figure; default: when it travels). ``overlay.points``
     are ``(n, 3)`` for every frame or ``(T, n, 3)`` per frame; the trail grows frame
     by frame, decimated to ``overlay.trail_points``.
     """
@@ -381,7 +383,7 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
         seen = np.concatenate([points, trail[:, None]], axis=1) if points.ndim == 3 \
             else np.concatenate([points.reshape(-1, 3), trail])
     with Painter(tree, width, height) as painter:
-        cams = painter.cameras(camera, qs, seen, view)
+        cams = painter.cameras(camera, qs, seen, view, follow)
         for t in track(range(len(qs)), desc, total=len(qs)):
             out[t] = painter.draw(qs[t], cams[t], points[t] if points.ndim == 3 else points,
                                   None if trail is None else trail[trail_indices(t, ov.trail_points)], ov,
