@@ -135,16 +135,10 @@ def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
-    from . import render
+    """Render the showcase: the seeds' arm under three solvers, the 7-DoF arm's path, the primate's walk."""
+    from .showcase import showcase
 
-    tree = load("arm7")
-    traj, stops = demo_trajectory(tree, int(args.seconds * args.fps), args.fps)
-    ok = traj.success if traj.success is not None else np.ones(len(traj.q), bool)
-    print(f"IK: {ok.mean():.0%} of {len(traj.q)} frames on target; largest joint step per frame "
-          f"{traj.jumps(tree).max():.3f} rad")
-    overlay = render.Overlay(points=stops[1:-1], trail="ee")
-    images = render.frames(tree, traj.q, args.width, args.height, overlay=overlay)
+    images = showcase(args.scene, args.seconds, args.fps, args.width, args.height)
     _video_or_image(args, images)
     return 0
 
@@ -263,9 +257,10 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--fps", type=float, default=30.0)
         s.add_argument("--frame", type=int, default=-1, help="for an image output: which frame (default -1, the last)")
 
-    s = sub.add_parser("demo", help="render a scripted IK trajectory of the 7-DoF arm (the main job)")
+    s = sub.add_parser("demo", help="render the showcase video (the main job): seeds' arm, 7-DoF path, walk")
     video_options(s, "mjkin-demo.mp4")
-    s.add_argument("--seconds", type=float, default=6.0)
+    s.add_argument("--seconds", type=float, default=15.0, help="length of the showcase (default 15)")
+    s.add_argument("--scene", default="all", choices=["all", "seeds", "arm", "walk"], help="one part only")
     s.set_defaults(run=cmd_demo)
 
     s = sub.add_parser("walk", help="render the bundled primate walking, seen from the side")

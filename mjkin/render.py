@@ -50,7 +50,7 @@ class Overlay:
     point_rgba: tuple[float, float, float, float] = (0.95, 0.2, 0.2, 0.9)
     trail: str | None = None  # name of the site or body whose path is drawn
     trail_rgba: tuple[float, float, float, float] = (0.1, 0.5, 0.95, 0.9)
-    trail_width: float = 3.0  # line width in pixels of a 480-row frame (scaled with the frame height)
+    trail_width: float = 3.0  # line width in pixels on 640x480 (scaled with the frame)
     trail_points: int = 128  # the trail is decimated to at most this many points (+ the newest)
     caption: Caption = None
 
@@ -264,17 +264,20 @@ def caption_at(caption: Caption, t: int) -> str:
     return str(caption[t]) if t < len(caption) else ""
 
 
-def draw_caption(image: NDArray[np.uint8], text: str, scale: float = 1.0) -> NDArray[np.uint8]:
-    """``image (H, W, 3)`` with ``text`` (lines split at newlines) on a dark band in its top-left corner."""
+def draw_caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
+    """``image (H, W, 3)`` with ``text`` (lines split at newlines) on a dark band in its top-left corner.
+
+    The font grows with the image (18 px on 640x480; a wide strip counts by its width).
+    """
     if not text:
         return image
     from PIL import Image, ImageDraw, ImageFont
 
-    h = image.shape[0]
-    font = ImageFont.load_default(size=max(8, round(scale * h / 26)))
+    h = max(image.shape[0], 0.75 * image.shape[1])
+    font = ImageFont.load_default(size=max(8, round(h / 26)))
     pil = Image.fromarray(image)
     draw = ImageDraw.Draw(pil, "RGBA")
-    pad = max(2, h // 80)
+    pad = max(2, round(h / 80))
     box = draw.multiline_textbbox((2 * pad, 2 * pad), text, font=font)
     draw.rectangle((box[0] - pad, box[1] - pad, box[2] + pad, box[3] + pad), fill=(20, 20, 30, 160))
     draw.multiline_text((2 * pad, 2 * pad), text, font=font, fill=(255, 255, 255, 255))
@@ -341,7 +344,7 @@ class Painter:
         for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
             _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
         if trail is not None:  # lines: a capsule per segment costs a millisecond each in software GL
-            width = max(1.0, ov.trail_width * self.height / 480)
+            width = max(1.0, ov.trail_width * max(self.height, 0.75 * self.width) / 480)
             for a, b in zip(trail[:-1], trail[1:], strict=True):
                 g = _add(r.scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], a, ov.trail_rgba)
                 if g is not None:
