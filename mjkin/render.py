@@ -186,7 +186,7 @@ def _spheres(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float64] | N
     return pts, radius
 
 
-def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspect: float = 4 / 3,
+def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspect: float = 1.0,
                 view: tuple[float, float] | None = None, follow: bool | None = None, margin: float = MARGIN,
                 extra_radius: float = 0.03) -> list[mujoco.MjvCamera]:
     """One free camera per frame of ``qs (T, nq)`` that keeps every figure geom and ``extra`` point in view.
@@ -195,7 +195,7 @@ def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspec
         tree: the figure.
         qs: configurations ``(T, nq)`` (or one ``(nq,)``).
         extra: points to keep in view too, ``(n, 3)`` for all frames or ``(T, n, 3)``.
-        aspect: image width / height.
+        aspect: image width / height; the default 1 frames any image at least as wide as tall.
         view: ``(azimuth, elevation)`` in degrees; default along the joint axis of a
             planar chain, else :data:`SIDE_VIEW`.
         follow: track the figure (a smoothed centre at a fixed distance) instead of
@@ -244,10 +244,11 @@ def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspec
 
 
 def default_camera(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float64] | None = None, *,
-                   aspect: float = 4 / 3, view: tuple[float, float] | None = None) -> mujoco.MjvCamera:
+                   aspect: float = 1.0, view: tuple[float, float] | None = None) -> mujoco.MjvCamera:
     """One still free camera that frames every figure geom of every ``q`` in ``qs`` (and ``extra`` points).
 
-    See :func:`camera_path` (this is its shot with ``follow=False``).
+    See :func:`camera_path` (this is its shot with ``follow=False``; pass ``aspect`` = width / height
+    of the frames for the tightest shot).
     """
     return camera_path(tree, qs, extra, aspect=aspect, view=view, follow=False)[0]
 
