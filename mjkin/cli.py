@@ -211,10 +211,12 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     from .workspace import plot, workspace
 
     tree = load(args.model)
-    ws = workspace(tree, args.frame, args.samples)
+    sites = [n for n in tree.names("site") if n]
+    frame = args.frame or (sites[-1] if sites else tree.names("body")[-1])  # default: the last site, the tip
+    ws = workspace(tree, frame, args.samples)
     shape = (f"planar annulus {ws.inner:.4g} <= r <= {ws.outer:.4g} about {np.round(ws.base, 4).tolist()}"
              if ws.planar else f"{ws.inner:.4g} <= distance from the base <= {ws.outer:.4g}")
-    plot(ws, args.output, f"{tree.name} · {args.frame}: {args.samples} samples")
+    plot(ws, args.output, f"{tree.name} · {frame}: {args.samples} samples")
     print(f"wrote {args.output}: {shape}; box {np.round(ws.lo, 4).tolist()} .. {np.round(ws.hi, 4).tolist()}; "
           f"dexterous {ws.dexterous.mean():.0%} of the samples")
     return 0
@@ -303,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
     s.add_argument("model", help=model_help)
-    s.add_argument("--frame", required=True, help="the site or body whose workspace is sampled")
+    s.add_argument("--frame", help="the site or body whose workspace is sampled (default: the model's last site)")
     s.add_argument("--samples", type=int, default=20_000, help="random configurations (default 20000)")
     s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
     s.set_defaults(run=cmd_workspace)

@@ -60,5 +60,7 @@ def test_cli_workspace_plot(tmp_path, capsys):
     out = tmp_path / "ws.png"
     assert main(["workspace", "planar_2link", "--frame", "tip", "--samples", "3000", "-o", str(out)]) == 0
     assert out.stat().st_size > 5000 and "annulus 0.3 <= r <= 1.7" in capsys.readouterr().out
+    assert main(["workspace", "planar_3link", "-o", str(tmp_path / "tip.png"), "--samples", "500"]) == 0
+    assert "annulus" in capsys.readouterr().out  # the last site (the tip) by default
     assert main(["workspace", "arm7", "--frame", "nope", "-o", str(tmp_path / "x.png")]) == 2
     assert "unknown site or body 'nope'" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
