@@ -15,6 +15,7 @@ if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and os.name =
 from . import goals, spatial  # noqa: E402
 from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError  # noqa: E402
 from .ik import Result, singular_values, solve  # noqa: E402
+from .parallel import set_threads, threads  # noqa: E402
 from .tree import Tree, bundled_models, load  # noqa: E402
 from .workspace import workspace  # noqa: E402
 
@@ -33,7 +34,9 @@ __all__ = [
     "goals",
     "load",
     "singular_values",
+    "set_threads",
     "solve",
     "spatial",
+    "threads",
     "workspace",
 ]

@@ -17,11 +17,12 @@ sets the body's world pose directly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import spatial
 from .jit import axis_angle, njit, njit_inline, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE
 
@@ -163,18 +164,16 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
 
 def forward(tree: Tree, q: Array) -> Frames:
     """World frames of all bodies for ``q (..., nq)`` (already validated)."""
-    p = tree.plan
     batch = q.shape[:-1]
-    qf = np.ascontiguousarray(q.reshape(-1, tree.nq))
+    qf = np.ascontiguousarray(q.reshape(-1, q.shape[-1]))
     B = qf.shape[0]
-    rot = np.empty((B, tree.nbody, 3, 3))
-    pos = np.empty((B, tree.nbody, 3))
-    n_inner = int(np.count_nonzero(p.jnt_inner >= 0))
+    arrays = fk_arrays(tree)
+    nbody, n_inner = len(arrays[0]), tree.__dict__["_fk_n_inner"]
+    rot = np.empty((B, nbody, 3, 3))
+    pos = np.empty((B, nbody, 3))
     inner_rot = np.empty((B, n_inner, 3, 3))
     inner_pos = np.empty((B, n_inner, 3))
-    fk_kernel(qf, p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
-              p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
-              rot, pos, inner_rot, inner_pos)
+    fk_kernel(qf, *arrays, rot, pos, inner_rot, inner_pos)  # type: ignore[call-arg]  # the 14 arrays of fk_arrays
     return Frames(tree, batch, rot, pos, inner_rot, inner_pos)
 
 
@@ -202,18 +201,25 @@ class Frames:
             return int(t.site_body[i]), t.site_rot[i], t.site_pos[i]
         return i, np.eye(3), np.zeros(3)
 
-    def frame(self, kind: str, i: int) -> tuple[Array, Array]:
-        """World rotation ``(B, 3, 3)`` and origin ``(B, 3)`` of a site or body."""
-        b, r, o = self.local_frame(kind, i)
-        R = self.rot[:, b]
-        if kind == "body":
-            return R, self.pos[:, b]
-        return R @ r, self.pos[:, b] + R @ o
+    def frame(self, kind: str, i: int, offset: Array | None = None) -> tuple[Array, Array]:
+        """World rotation ``(B, 3, 3)`` and origin ``(B, 3)`` of a site or body (or a point ``offset`` on it)."""
+        T = self.world(kind, i, offset)
+        return T[:, :3, :3], T[:, :3, 3]
+
+    def world(self, kind: str, i: int, offset: Array | None = None) -> Array:
+        """World poses ``(B, 4, 4)`` of a site or body frame, moved to a local point ``offset (3,)`` if given."""
+        t = self.tree
+        b, local = (int(t.site_body[i]), spatial.make_transform(t.site_rot[i], t.site_pos[i])) if kind == "site" \
+            else (i, _EYE4)
+        if offset is not None:
+            local = moved(local, offset)
+        T = np.empty((self.rot.shape[0], 4, 4))
+        frames_world(self.rot, self.pos, b, local, T)
+        return T
 
     def pose(self, kind: str, i: int) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body."""
-        R, x = self.frame(kind, i)
-        return to_poses(R, x).reshape(self.batch + (4, 4))
+        return self.world(kind, i).reshape(self.batch + (4, 4))
 
     def poses(self) -> Array:
         """World pose of every body ``(..., nbody, 4, 4)``."""
@@ -224,6 +230,16 @@ class Frames:
         from .jacobian import frame_jacobian
 
         return frame_jacobian(self, kind, i, offset).reshape(self.batch + (6, self.tree.nv))
+
+
+_EYE4 = np.eye(4)
+
+
+def moved(local: Array, offset: Array) -> Array:
+    """The frame ``local (4, 4)`` with its origin moved to the point ``offset (3,)`` given in it."""
+    out = local.copy()
+    out[:3, 3] = local[:3, 3] + local[:3, :3] @ offset
+    return out
 
 
 @njit
@@ -243,3 +259,117 @@ def to_poses(R: Array, x: Array) -> Array:
     _poses_kernel(np.ascontiguousarray(R).reshape(-1, 3, 3), np.ascontiguousarray(x).reshape(-1, 3),
                   T.reshape(-1, 4, 4))
     return T
+
+
+class Kinematics(NamedTuple):
+    """The tree's arrays for the compiled code (``nbody`` bodies, ``njnt`` joints, ``nv`` dofs).
+
+    The first fields are :class:`mjkin.fk.Plan`'s (see there); the rest locate
+    each dof (``dof_*``, ``(nv, ...)``) and each body's ancestor dofs
+    (``body_dof_idx[body_dof_ptr[b]:body_dof_ptr[b + 1]]``), and give the joint
+    limits ``jnt_lo``/``jnt_hi`` (``(njnt,)``, ±inf when unlimited).
+    """
+
+    parent: Index
+    fixed_rot: Array
+    fixed_pos: Array
+    jnt_start: Index
+    jnt_count: Index
+    jnt_inner: Index
+    fixed_plain: NDArray[np.bool_]
+    hinge_coord: Index
+    anchor_zero: NDArray[np.bool_]
+    jnt_type: Index
+    jnt_qadr: Index
+    jnt_axis: Array
+    jnt_pos: Array
+    qpos0: Array
+    jnt_dofadr: Index
+    body_dof_ptr: Index
+    body_dof_idx: Index
+    dof_body: Index
+    dof_inner: Index
+    dof_axis: Array
+    dof_world: NDArray[np.bool_]
+    dof_rot: NDArray[np.bool_]
+    dof_anchor: Array
+    jnt_lo: Array
+    jnt_hi: Array
+    dof_qadr: Index
+    dof_jnt: Index
+    jnt_body: Index
+
+
+def kinematic_arrays(tree: Tree) -> Kinematics:
+    """The tree's :class:`Kinematics` (built once per tree)."""
+    cached = tree.__dict__.get("_kin_arrays")
+    if cached is None:
+        p = tree.plan
+        dofs = tree.body_dofs
+        ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
+        idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
+        lo, hi = tree.layout.jnt_lo, tree.layout.jnt_hi
+        cached = Kinematics(
+            p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
+            p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
+            tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt], p.dof_axis, p.dof_world,
+            p.dof_rot, p.dof_anchor, lo, hi, np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt,
+            tree.jnt_body)
+        object.__setattr__(tree, "_kin_arrays", cached)
+    return cached
+
+
+def fk_arrays(tree: Tree) -> tuple:
+    """The arrays :func:`fk_kernel` takes after ``q``, in its order (kept on the tree)."""
+    cached = tree.__dict__.get("_fk_arrays")
+    if cached is None:
+        k = kinematic_arrays(tree)
+        cached = (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
+                  k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0)
+        object.__setattr__(tree, "_fk_n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
+        object.__setattr__(tree, "_fk_arrays", cached)
+    return cached
+
+
+@njit
+def frame_pose_one(q: Array, body: int, local: Array, T: Array, parent: Index, fixed_rot: Array, fixed_pos: Array,
+                   jnt_start: Index, jnt_count: Index, jnt_inner: Index, fixed_plain: NDArray[np.bool_],
+                   hinge_coord: Index, anchor_zero: NDArray[np.bool_], jnt_type: Index, jnt_qadr: Index,
+                   jnt_axis: Array, jnt_pos: Array, qpos0: Array) -> None:
+    """World pose ``T (4, 4)`` of the frame ``local (4, 4)`` fixed in ``body``, for one ``q (1, nq)``.
+
+    The short path of :meth:`mjkin.Tree.pose` for a single configuration: one
+    compiled call taking the FK arrays one by one (numba passes separate arrays
+    faster than a tuple of them), no per-body output.
+    """
+    n_inner = 0
+    for j in range(jnt_inner.shape[0]):
+        n_inner += jnt_inner[j] >= 0
+    rot, pos = np.empty((1, parent.shape[0], 3, 3)), np.empty((1, parent.shape[0], 3))
+    irot, ipos = np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+    fk_kernel(q, parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
+              anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, irot, ipos)
+    frame_world(rot, pos, 0, body, local, T)
+
+
+@njit_inline
+def frame_world(rot: Array, pos: Array, b: int, body: int, local: Array, T: Array) -> None:
+    """World pose ``T (4, 4)`` of a frame ``local (4, 4)`` fixed in ``body``, from FK output ``b``.
+
+    Every path to a frame's pose (one configuration or a batch) goes through
+    this one formula, so they agree to the last bit.
+    """
+    for i in range(3):
+        for k in range(4):
+            T[i, k] = rot[b, body, i, 0] * local[0, k] + rot[b, body, i, 1] * local[1, k] + (
+                rot[b, body, i, 2] * local[2, k])
+        T[i, 3] += pos[b, body, i]
+        T[3, i] = 0.0
+    T[3, 3] = 1.0
+
+
+@njit
+def frames_world(rot: Array, pos: Array, body: int, local: Array, out: Array) -> None:
+    """:func:`frame_world` for every configuration: ``out (B, 4, 4)``."""
+    for b in range(out.shape[0]):
+        frame_world(rot, pos, b, body, local, out[b])

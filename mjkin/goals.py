@@ -20,15 +20,16 @@ goals are validated and encoded as arrays (:func:`compile_goals`), and
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import spatial
 from .errors import GoalError, MjkinError
-from .qspace import HINGE, SLIDE
+from .jit import njit
+from .qspace import HINGE, SLIDE, all_finite
 
 if TYPE_CHECKING:
     from .tree import Kind, Tree
@@ -50,9 +51,24 @@ def _array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
     if a.shape[a.ndim - len(shape):] != shape or a.ndim > len(shape) + 1:
         batched = "(B, " + ", ".join(map(str, shape)) + ")"
         raise GoalError(f"{what} has shape {a.shape}; expected {shape} or {batched}")
-    if not np.isfinite(a).all():
+    if not all_finite(a.reshape(-1)):
         raise GoalError(f"{what} contains NaN or inf")
     return a
+
+
+@njit
+def _rotation_defect(R: Array) -> tuple[float, float]:
+    """Largest ``|RRᵀ - I|`` entry and smallest determinant over ``R (n, 3, 3)``."""
+    drift, det = 0.0, np.inf
+    for n in range(R.shape[0]):
+        for i in range(3):
+            for k in range(3):
+                dot = R[n, i, 0] * R[n, k, 0] + R[n, i, 1] * R[n, k, 1] + R[n, i, 2] * R[n, k, 2]
+                drift = max(drift, abs(dot - (1.0 if i == k else 0.0)))
+        det = min(det, R[n, 0, 0] * (R[n, 1, 1] * R[n, 2, 2] - R[n, 1, 2] * R[n, 2, 1])
+                  - R[n, 0, 1] * (R[n, 1, 0] * R[n, 2, 2] - R[n, 1, 2] * R[n, 2, 0])
+                  + R[n, 0, 2] * (R[n, 1, 0] * R[n, 2, 1] - R[n, 1, 1] * R[n, 2, 0]))
+    return drift, det
 
 
 def _unit(value: ArrayLike, what: str) -> Array:
@@ -73,8 +89,8 @@ def _rotation(value: ArrayLike, what: str) -> Array:
             raise GoalError(f"{what} is a zero quaternion")
         return spatial.quat_to_mat(q / n)
     R = _array(a, (3, 3), what)
-    drift = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max()
-    if drift > 1e-6 or np.any(np.linalg.det(R) < 0):
+    drift, det = _rotation_defect(np.ascontiguousarray(R).reshape(-1, 3, 3))
+    if drift > 1e-6 or det < 0:
         raise GoalError(f"{what} is not a rotation matrix (orthonormal, det +1)")
     return R if drift < 1e-12 else spatial.orthonormalize(R)
 
@@ -106,6 +122,23 @@ class Goal:
     def encode(self, tree: Tree, data: Array) -> int:
         """Write target numbers into ``data (B, DATA)``; return the goal's auxiliary integer."""
         return 0
+
+    _batched: ClassVar[tuple[str, ...]] = ()  # fields that may carry the leading batch axis
+
+    def take(self, lo: int, hi: int) -> Goal:
+        """This goal with only the targets ``lo:hi`` of its batch (an unbatched goal as it is).
+
+        For splitting a batched solve into pieces: ``solve(tree, [g.take(lo, hi) for g in goals])``.
+        """
+        if self.batch() == ():
+            return self
+        changes: dict[str, Any] = {}
+        for name in self._batched:
+            value = np.asarray(getattr(self, name))
+            core = 2 if name == "T" or (name == "quat" and value.shape[-1:] != (4,)) else 1
+            if value.ndim > core:
+                changes[name] = value[lo:hi]
+        return replace(self, **changes)
 
 
 @dataclass(frozen=True)
@@ -160,6 +193,7 @@ class Position(FrameGoal):
     xyz: ArrayLike = (0.0, 0.0, 0.0)
     code: ClassVar[int] = POSITION
     rows: ClassVar[int] = 3
+    _batched: ClassVar[tuple[str, ...]] = ("xyz",)
 
     def _validate(self) -> list[Array]:
         return [_array(self.xyz, (3,), "Position xyz")]
@@ -182,6 +216,7 @@ class Orientation(FrameGoal):
     axes: str = "xyz"
     code: ClassVar[int] = ORIENTATION
     rows: ClassVar[int] = 3
+    _batched: ClassVar[tuple[str, ...]] = ("quat",)
     _cores: ClassVar[tuple[int, ...]] = (2,)
 
     def __post_init__(self) -> None:
@@ -194,6 +229,11 @@ class Orientation(FrameGoal):
 
     def encode(self, tree: Tree, data: Array) -> int:  # noqa: D102
         data[:, 3:12] = self._targets()[0].reshape(-1, 9)
+        return self.axis_index
+
+    @property
+    def axis_index(self) -> int:
+        """The one constrained axis (0, 1, 2 for x, y, z), or -1 for all three."""
         return _AXES[self.axes] if len(self.axes) == 1 else -1
 
     @property
@@ -209,6 +249,7 @@ class Pose(FrameGoal):
     T: ArrayLike = field(default_factory=lambda: np.eye(4))
     code: ClassVar[int] = POSE
     rows: ClassVar[int] = 6
+    _batched: ClassVar[tuple[str, ...]] = ("T",)
     _cores: ClassVar[tuple[int, ...]] = (2, 1)
 
     def _validate(self) -> list[Array]:
@@ -230,6 +271,7 @@ class Aim(FrameGoal):
     point: ArrayLike = (0.0, 0.0, 0.0)
     code: ClassVar[int] = AIM
     rows: ClassVar[int] = 3
+    _batched: ClassVar[tuple[str, ...]] = ("point",)
 
     def _validate(self) -> list[Array]:
         axis = _unit(self.axis, "Aim axis")
@@ -246,6 +288,7 @@ class Line(FrameGoal):
     direction: ArrayLike = (0.0, 0.0, 1.0)
     code: ClassVar[int] = LINE
     rows: ClassVar[int] = 3
+    _batched: ClassVar[tuple[str, ...]] = ("point", "direction")
 
     def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), "Line point"), _unit(self.direction, "Line direction")]
@@ -259,6 +302,7 @@ class Plane(FrameGoal):
     normal: ArrayLike = (0.0, 0.0, 1.0)
     code: ClassVar[int] = PLANE
     rows: ClassVar[int] = 1
+    _batched: ClassVar[tuple[str, ...]] = ("point", "normal")
 
     def _validate(self) -> list[Array]:
         return [_array(self.point, (3,), f"{type(self).__name__} point"),
@@ -284,6 +328,7 @@ class Rest(Goal):
     stiffness: ArrayLike = 1.0
     code: ClassVar[int] = REST
     rows: ClassVar[int] = -1
+    _batched: ClassVar[tuple[str, ...]] = ("q_rest",)
 
     def nrows(self, tree: Tree) -> int:  # noqa: D102
         return tree.nv
@@ -368,6 +413,10 @@ class Program:
 def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     """Validate goals against ``tree`` and encode them (see :class:`Program`).
 
+    The part that does not depend on the targets (frames, weights, priorities,
+    rows) is kept on the tree, keyed by the goals' structure, so a loop of
+    solves with new targets only encodes the targets.
+
     Raises:
         GoalError: a goal is malformed (non-finite, wrong shape, zero direction) or
             batches disagree.
@@ -379,7 +428,15 @@ def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     for g in goals:
         if not isinstance(g, Goal):
             raise GoalError(f"goals must be mjkin.goals objects, got {type(g).__name__}")
-    goals = tuple(sorted(goals, key=lambda g: g.priority))  # stable: order within a level kept
+    key = _structure_key(goals)
+    cache: dict = tree.__dict__.setdefault("_goal_structures", {})
+    structure = cache.get(key) if key is not None else None
+    if structure is None:
+        structure = _structure(tree, goals)
+        if key is not None and len(cache) < 256:
+            cache[key] = structure
+    order, prog = structure
+    goals = tuple(goals[i] for i in order)
     try:
         batch = tuple(np.broadcast_shapes(*(g.batch() for g in goals)))
     except ValueError:
@@ -387,28 +444,59 @@ def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     if len(batch) > 1:
         raise GoalError(f"targets may have one leading batch axis, got batch shape {batch}")
     B = batch[0] if batch else 1
+    data = np.zeros((B, len(goals), DATA))
+    rest_q = np.empty((len(prog.rest_q), B, tree.nq))
+    for i, g in enumerate(goals):
+        g.encode(tree, data[:, i])
+        if isinstance(g, Rest):
+            rest_q[prog.aux[i]] = g.arrays(tree)[0]
+    return Program(goals, batch, prog.kind, prog.body, prog.lrot, prog.lpos, data, prog.aux, prog.sqrt_w, prog.row,
+                   prog.level_rows, rest_q, prog.rest_k, prog.coupling, prog.counted)
+
+
+def _structure_key(goals: tuple[Goal, ...]) -> tuple | None:
+    """What a program depends on besides the targets; None when a part is not hashable."""
+    parts: list = []
+    for g in goals:
+        part: tuple = (type(g), g.weight, g.priority)
+        if isinstance(g, FrameGoal):
+            offset = None if g.offset is None else tuple(np.asarray(g.offset, dtype=float).ravel())
+            part += (g.name, g.kind, offset, getattr(g, "axes", None))
+        elif isinstance(g, Rest):
+            part += (np.asarray(g.stiffness, dtype=float).tobytes(),)
+        elif isinstance(g, Coupling):
+            part += (tuple(g.coefficients.items()), )
+        parts.append(part)
+    key = tuple(parts)
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
+def _structure(tree: Tree, goals: tuple[Goal, ...]) -> tuple[list[int], Program]:
+    """The priority order of ``goals`` and their target-independent encoding (targets left empty)."""
+    order = sorted(range(len(goals)), key=lambda i: goals[i].priority)  # stable: order within a level kept
+    goals = tuple(goals[i] for i in order)
     G = len(goals)
     kind = np.array([g.code for g in goals], dtype=np.int64)
     body = np.full(G, -1, dtype=np.int64)
     lrot = np.tile(np.eye(3), (G, 1, 1))
     lpos = np.zeros((G, 3))
-    data = np.zeros((B, G, DATA))
     aux = np.zeros(G, dtype=np.int64)
-    rest_q: list[Array] = []
     rest_k: list[Array] = []
     coupling: list[Array] = []
     nrows = []
     for i, g in enumerate(goals):
         if isinstance(g, FrameGoal):
             body[i], lrot[i], lpos[i] = g.frame(tree)
-        aux[i] = g.encode(tree, data[:, i])
+        aux[i] = g.axis_index if isinstance(g, Orientation) else 0
         if isinstance(g, Orientation) and g.single_axis:
             kind[i] = AXIS
         if isinstance(g, Rest):
-            q, k = g.arrays(tree)
-            aux[i] = len(rest_q)
-            rest_q.append(np.broadcast_to(q, (B, tree.nq)))
-            rest_k.append(k)
+            aux[i] = len(rest_k)
+            rest_k.append(g.arrays(tree)[1])
         if isinstance(g, Coupling):
             aux[i] = len(coupling)
             coupling.append(g.row(tree))
@@ -419,11 +507,10 @@ def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     priorities = [g.priority for g in goals]  # sorted: each level's rows are contiguous
     level_rows = np.array([row_list[i] for i in range(G) if i == 0 or priorities[i] != priorities[i - 1]]
                           + [row_list[-1]], dtype=np.int64)
-    row = np.array(row_list, dtype=np.int64)
-    return Program(
-        goals=goals, batch=batch, kind=kind, body=body, lrot=lrot, lpos=lpos, data=data, aux=aux,
-        sqrt_w=np.sqrt([float(g.weight) for g in goals]), row=row, level_rows=level_rows,
-        rest_q=np.array(rest_q).reshape(len(rest_q), B, tree.nq),
+    return order, Program(
+        goals=goals, batch=(), kind=kind, body=body, lrot=lrot, lpos=lpos, data=np.zeros((1, G, DATA)), aux=aux,
+        sqrt_w=np.sqrt([float(g.weight) for g in goals]), row=np.array(row_list, dtype=np.int64),
+        level_rows=level_rows, rest_q=np.zeros((len(rest_k), 1, tree.nq)),
         rest_k=np.array(rest_k).reshape(len(rest_k), tree.nv),
         coupling=np.array(coupling).reshape(len(coupling), tree.nv),
         counted=np.array([g.weight > 0 and not isinstance(g, Rest) for g in goals]),

@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
-from .jit import njit_inline
+from .fk import Kinematics, fk_kernel, frame_world
+from .jit import njit, njit_inline
 
 if TYPE_CHECKING:
     from .fk import Frames
@@ -79,10 +80,38 @@ def point_jacobian(frames: Frames, body: int, point: Array) -> Array:
 def frame_jacobian(frames: Frames, kind: str, i: int, offset: ArrayLike | None = None) -> Array:
     """Jacobian ``(B, 6, nv)`` at a site/body origin, or at ``offset (3,)`` in its local frame."""
     body, _, _ = frames.local_frame(kind, i)
-    R, x = frames.frame(kind, i)
-    if offset is not None:
-        off = np.asarray(offset, dtype=np.float64)
-        if off.shape != (3,) or not np.all(np.isfinite(off)):
-            raise InputError(f"offset must be 3 finite numbers (a point in the frame), got shape {off.shape}")
-        x = x + R @ off
+    _, x = frames.frame(kind, i, None if offset is None else check_offset(offset))
     return point_jacobian(frames, body, x)
+
+
+def check_offset(offset: ArrayLike) -> Array:
+    """A point ``(3,)`` fixed in a frame, validated."""
+    off = np.asarray(offset, dtype=np.float64)
+    if off.shape != (3,) or not np.all(np.isfinite(off)):
+        raise InputError(f"offset must be 3 finite numbers (a point in the frame), got shape {off.shape}")
+    return off
+
+
+@njit
+def frame_jacobian_one(kin: Kinematics, q: Array, body: int, local: Array, J: Array) -> None:
+    """Jacobian ``J (6, nv)`` at the origin of the frame ``local (4, 4)`` fixed in ``body``, one ``q (1, nq)``.
+
+    The short path of :meth:`mjkin.Tree.jacobian` for a single configuration.
+    """
+    rot, pos = np.empty((1, kin.parent.shape[0], 3, 3)), np.empty((1, kin.parent.shape[0], 3))
+    n_inner = 0
+    for j in range(kin.jnt_inner.shape[0]):
+        n_inner += kin.jnt_inner[j] >= 0
+    irot, ipos = np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+    fk_kernel(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
+              kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
+              kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
+    T = np.empty((4, 4))
+    frame_world(rot, pos, 0, body, local, T)
+    x = np.empty((1, 3))
+    for i in range(3):
+        x[0, i] = T[i, 3]
+    J6 = np.zeros((1, 6, J.shape[1]))
+    jacobian_kernel(rot, pos, irot, ipos, kin.body_dof_idx[kin.body_dof_ptr[body]:kin.body_dof_ptr[body + 1]],
+                    kin.dof_body, kin.dof_inner, kin.dof_axis, kin.dof_world, kin.dof_rot, kin.dof_anchor, x, J6)
+    J[:] = J6[0]

@@ -178,23 +178,56 @@ class Trajectory:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], tree: Tree | None = None) -> Trajectory:
-        """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch)."""
+        """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch).
+
+        Raises:
+            MjkinIOError: the file is missing, unreadable, or not JSON.
+            InputError: a key is missing, or a value has the wrong type or shape (the message names it).
+        """
+        name = repr(str(path))
         try:
             doc = json.loads(Path(path).read_text())
         except FileNotFoundError:
-            raise MjkinIOError(f"trajectory file not found: {str(path)!r}") from None
+            raise MjkinIOError(f"trajectory file not found: {name}") from None
         except (OSError, ValueError) as e:
-            raise MjkinIOError(f"cannot read trajectory {str(path)!r}: {e}") from None
+            raise MjkinIOError(f"cannot read trajectory {name}: {e}") from None
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-            raise MjkinIOError(f"{str(path)!r} is not an mjkin trajectory (no \"format\": \"{FORMAT}\")")
-        traj = cls(times=np.asarray(doc["times"], float), q=np.asarray(doc["qpos"], float),
-                   fingerprint=str(doc["fingerprint"]), model=str(doc.get("model", "")), site=doc.get("site"),
-                   targets=None if doc.get("targets") is None else np.asarray(doc["targets"], float),
-                   success=None if doc.get("success") is None else np.asarray(doc["success"], bool),
-                   meta=dict(doc.get("meta") or {}))
+            raise MjkinIOError(f"{name} is not an mjkin trajectory (no \"format\": \"{FORMAT}\")")
+
+        def numbers(key: str, ndim: int, what: str, dtype: type = float) -> NDArray:
+            if key not in doc:
+                raise InputError(f"trajectory {name} has no {key!r} ({what}); keys needed: times, qpos, fingerprint")
+            a: NDArray | None
+            try:
+                a = np.asarray(doc[key], dtype=dtype)
+            except (TypeError, ValueError):
+                a = None
+            if a is None or a.ndim != ndim or (dtype is float and not np.isfinite(a).all()):
+                raise InputError(f"trajectory {name}: {key!r} must be {what} (finite numbers)")
+            return a
+
+        times = numbers("times", 1, "a list of T times in seconds")
+        q = numbers("qpos", 2, "a list of T configurations, each a list of nq numbers")
+        fp = doc.get("fingerprint")
+        if not isinstance(fp, str):
+            raise InputError(f"trajectory {name}: 'fingerprint' must be a string (from the model it was recorded on)")
+        if len(times) != len(q) or len(q) == 0:
+            raise InputError(f"trajectory {name}: 'times' ({len(times)}) and 'qpos' ({len(q)}) must have the same "
+                             "number of frames, at least one")
+        targets = None if doc.get("targets") is None else numbers("targets", 3, "per frame a list of x,y,z points")
+        success = None if doc.get("success") is None else numbers("success", 1, "one true/false per frame", bool)
+        if targets is not None and (len(targets) != len(q) or targets.shape[-1] != 3):
+            raise InputError(f"trajectory {name}: 'targets' must hold x,y,z points for each of the {len(q)} frames")
+        if success is not None and len(success) != len(q):
+            raise InputError(f"trajectory {name}: 'success' must hold one true/false for each of the {len(q)} frames")
+        model, site, meta = doc.get("model", ""), doc.get("site"), doc.get("meta") or {}
+        if not isinstance(model, str) or not (site is None or isinstance(site, str)) or not isinstance(meta, dict):
+            raise InputError(f"trajectory {name}: 'model' and 'site' must be strings (or site null), 'meta' an object")
+        traj = cls(times=times, q=q, fingerprint=fp, model=model, site=site, targets=targets, success=success,
+                   meta=dict(meta))
         if tree is not None:
             if traj.fingerprint != fingerprint(tree):
-                raise InputError(f"trajectory {str(path)!r} was recorded on model {traj.model!r} "
+                raise InputError(f"trajectory {name} was recorded on model {traj.model!r} "
                                  f"(fingerprint {traj.fingerprint}), not on {tree.name!r} ({fingerprint(tree)})")
             tree.check_q(traj.q, "trajectory qpos")
         return traj

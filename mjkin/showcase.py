@@ -25,6 +25,7 @@ Array = NDArray[np.float64]
 Images = NDArray[np.uint8]
 SHARES = {"seeds": 0.34, "arm": 0.36, "walk": 0.3}  # parts of the showcase's length
 SEED_METHODS = ("pinv", "dls", "ccd")
+WALK_STEPS = 4
 OBSTACLES = np.array([[0.52, 0.02, 0.3, 0.1], [0.2, 0.0, 1.07, 0.08]])  # x, y, z, radius (m)
 ARM_STOPS = np.array([[0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
                       [0.45, 0.3, 0.45]])
@@ -107,9 +108,8 @@ def scene_arm(width: int, height: int, n: int, fps: float) -> Images:
 def scene_walk(width: int, height: int, n: int, fps: float) -> Images:
     """The primate walking four steps heel to toe, from the side, the camera following."""
     tree = load("primate")
-    steps = 4
-    walk = motion.walk_cycle(tree, steps=steps, frames_per_step=max(2, n // steps), fps=fps)
-    per = max(2, n // steps)
+    steps, per = WALK_STEPS, max(2, n // WALK_STEPS)
+    walk = motion.walk_cycle(tree, steps=steps, frames_per_step=per, fps=fps)
 
     def caption(t: int) -> str:
         return f"primate walk: heel to toe, arms swing\nstep {t // per + 1} of {steps} · planted foot is the IK root"
@@ -126,14 +126,21 @@ SCENES: dict[str, Callable[[int, int, int, float], Images]] = {
 }
 
 
-def showcase(scene: str = "all", seconds: float = 15.0, fps: float = 30.0, width: int = 640,
-             height: int = 480) -> Images:
-    """Frames ``(T, height, width, 3)`` of one scene or of all of them, one after another."""
+def scene_frames(scene: str = "all", seconds: float = 15.0, fps: float = 30.0) -> dict[str, int]:
+    """The frames each scene of ``scene`` (a name or "all") is asked for, and exactly renders."""
     names = list(SCENES) if scene == "all" else [scene]
     if any(s not in SCENES for s in names):
         raise InputError(f"unknown demo scene {scene!r}; choose one of: all, {', '.join(SCENES)}")
     if not (np.isfinite(seconds) and seconds > 0 and np.isfinite(fps) and fps > 0):
         raise InputError(f"--seconds and --fps must be positive, got {seconds!r}, {fps!r}")
     total = sum(SHARES[s] for s in names)
-    return np.concatenate([SCENES[s](width, height, _frames_of(SHARES[s] / total, seconds, fps), fps)
-                           for s in names])
+    out = {s: _frames_of(SHARES[s] / total, seconds, fps) for s in names}
+    if "walk" in out:  # whole steps
+        out["walk"] = WALK_STEPS * max(2, out["walk"] // WALK_STEPS)
+    return out
+
+
+def showcase(scene: str = "all", seconds: float = 15.0, fps: float = 30.0, width: int = 640,
+             height: int = 480) -> Images:
+    """Frames ``(T, height, width, 3)`` of one scene or of all of them, one after another."""
+    return np.concatenate([SCENES[s](width, height, n, fps) for s, n in scene_frames(scene, seconds, fps).items()])

@@ -6,7 +6,7 @@ import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -14,9 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import qspace, spatial
 from .errors import InputError, MjkinIOError, ModelError, UnknownNameError
-
-if TYPE_CHECKING:
-    from .fk import Frames, Plan
+from .fk import Frames, Plan, fk_arrays, forward, frame_pose_one, kinematic_arrays, moved
+from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
 Kind = Literal["body", "joint", "site"]
@@ -161,8 +160,6 @@ class Tree:
     @cached_property
     def plan(self) -> Plan:
         """Index arrays that drive the vectorised FK."""
-        from .fk import Plan
-
         return Plan.of(self)
 
     @cached_property
@@ -199,8 +196,6 @@ class Tree:
     # -------------------------------------------------------------- kinematics
     def kinematics(self, q: ArrayLike) -> Frames:
         """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
-        from .fk import forward
-
         return forward(self, self.check_q(q))
 
     def fk(self, q: ArrayLike) -> Array:
@@ -209,7 +204,13 @@ class Tree:
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
-        return self.kinematics(q).pose(*self.frame(name, kind))
+        q = self.check_q(q)
+        if q.ndim > 1:
+            return self.kinematics(q).pose(*self.frame(name, kind))
+        body, local = self.frame_body(name, kind)
+        T = np.empty((4, 4))
+        frame_pose_one(np.ascontiguousarray(q).reshape(1, -1), body, local, T, *fk_arrays(self))
+        return T
 
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
                  offset: ArrayLike | None = None) -> Array:
@@ -218,7 +219,14 @@ class Tree:
         Rows are ``[linear; angular]`` in world-aligned axes, as ``mj_jac`` stacked
         ``[jacp; jacr]``: ``d(point, world)/dt = J[:3] @ qvel`` and ``omega = J[3:] @ qvel``.
         """
-        return self.kinematics(q).jacobian(*self.frame(name, kind), offset=offset)
+        q = self.check_q(q)
+        if q.ndim > 1:
+            return self.kinematics(q).jacobian(*self.frame(name, kind), offset=offset)
+        body, local = self.frame_body(name, kind)
+        J = np.empty((6, self.nv))
+        frame_jacobian_one(kinematic_arrays(self), np.ascontiguousarray(q).reshape(1, -1), body,
+                           local if offset is None else moved(local, check_offset(offset)), J)
+        return J
 
 
 def bundled_models() -> dict[str, Path]:

@@ -18,3 +18,29 @@ def test_caches_are_dropped_when_any_source_changes(tmp_path):
     assert drop_stale_caches(tmp_path)
     assert not index.exists() and not data.exists()
     assert not drop_stale_caches(tmp_path)
+
+
+def test_numba_cache_dir_is_honoured(tmp_path, monkeypatch):
+    from mjkin.jit import cache_dir
+
+    pkg = tmp_path / "src" / "mjkin"
+    pkg.mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    assert cache_dir(pkg) == pkg
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    target = cache_dir(pkg)
+    assert target == tmp_path / "cache" / pkg.relative_to(pkg.anchor)
+    target.mkdir(parents=True)
+    stale = target / "a.f-1.py311.nbi"
+    stale.write_bytes(b"i")
+    assert drop_stale_caches(pkg) and not stale.exists()  # the caches numba would read are the ones checked
+    assert (target / "mjkin-sources.sha256").is_file() and not (pkg / "__pycache__").exists()
+
+
+def test_warmup_compiles_every_kernel_mjkin_runs():
+    from mjkin.fk import fk_kernel
+    from mjkin.ik import kernel
+    from mjkin.warmup import warmup
+
+    assert warmup() > 0
+    assert kernel.solve_batch.signatures and fk_kernel.signatures

@@ -105,4 +105,4 @@ def test_cli_walk(tmp_path, capsys):
     assert main(["walk", "--steps", "1", "--width", "160", "--height", "120", "-o", str(out)]) == 0
     assert out.stat().st_size > 1000 and "feet on target in 100%" in capsys.readouterr().out
     assert main(["walk", "--stride", "-1", "-o", str(tmp_path / "w.mp4")]) == 2
-    assert "stride must be a positive length" in capsys.readouterr().err
+    assert "--stride: must be a finite number > 0" in capsys.readouterr().err

@@ -15,10 +15,11 @@ from numpy.typing import NDArray
 from ..errors import GoalError
 from ..goals import POSITION, Program
 from ..jit import matvec3, njit
+from ..parallel import parallel_chunks
 from ..qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, _frames_scratch, kinematic_arrays
-from .solve import History, Result, package, parallel_chunks
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, Kinematics, _fk, _frames_scratch, kinematic_arrays
+from .solve import History, Result, package
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -32,16 +33,17 @@ def _tool(rot: Array, pos: Array, body: int, lpos: Array, out: Array) -> None:
 
 
 @njit
-def ccd_one(tk: tuple, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
+def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
             patience: int, hist_q: Array, hist_err: Array) -> tuple:
     """CCD for one target; ``q (1, nq)`` is updated in place. Returns (sweeps, status, error)."""
-    rot, pos, irot, ipos = _frames_scratch(tk)
-    jtype, qadr, axis, anchor, inner, jbody, lo, hi = tk[9], tk[10], tk[11], tk[12], tk[5], tk[27], tk[23], tk[24]
+    rot, pos, irot, ipos = _frames_scratch(kin)
+    jtype, qadr, axis, anchor = kin.jnt_type, kin.jnt_qadr, kin.jnt_axis, kin.jnt_pos
+    inner, jbody, lo, hi = kin.jnt_inner, kin.jnt_body, kin.jnt_lo, kin.jnt_hi
     p, u, a, v1, v2, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     best, since, status, it = np.inf, 0, MAX_ITERATIONS, 0
     pinned = False
     while True:
-        _fk(tk, q, rot, pos, irot, ipos)
+        _fk(kin, q, rot, pos, irot, ipos)
         _tool(rot, pos, body, lpos, p)
         e = np.sqrt((p[0] - goal[0]) ** 2 + (p[1] - goal[1]) ** 2 + (p[2] - goal[2]) ** 2)
         if it < hist_q.shape[0]:
@@ -62,7 +64,7 @@ def ccd_one(tk: tuple, q: Array, body: int, lpos: Array, goal: Array, order: Ind
         it += 1
         pinned = False
         for j in order:
-            _fk(tk, q, rot, pos, irot, ipos)
+            _fk(kin, q, rot, pos, irot, ipos)
             _tool(rot, pos, body, lpos, p)
             R, x = (irot[0, inner[j]], ipos[0, inner[j]]) if inner[j] >= 0 else (rot[0, jbody[j]], pos[0, jbody[j]])
             matvec3(R, axis[j], u)
@@ -102,21 +104,27 @@ def ccd_one(tk: tuple, q: Array, body: int, lpos: Array, goal: Array, order: Ind
 
 
 @njit
-def _ccd_batch(tk: tuple, q: Array, body: int, lpos: Array, goals: Array, order: Index, tol: float, sweeps: int,
-               patience: int, starts: Array, iters: Index, status: Index, err: Array, used: Index, hist_q: Array,
-               hist_err: Array, lo: int, hi: int) -> None:
-    """CCD for targets ``lo <= b < hi``, restarting from ``starts[b]`` when a run stalls; keeps the best."""
+def _ccd_batch(kin: Kinematics, q: Array, body: int, lpos: Array, goals: Array, order: Index, tol: float, sweeps: int,
+               patience: int, starts: Array, restart_q: NDArray[np.bool_], iters: Index, status: Index, err: Array,
+               used: Index, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:
+    """CCD for targets ``lo <= b < hi``, restarting from ``starts`` when a run stalls; keeps the best.
+
+    A restart takes the entries of ``starts[k]`` where ``restart_q`` is True and keeps the target's own start
+    values elsewhere.
+    """
     for b in range(lo, hi):
         best = q[b].copy()
-        it, st, e = ccd_one(tk, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, hist_q[b],
+        q_start = q[b].copy()
+        it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, hist_q[b],
                             hist_err[b])
         iters[b], status[b], err[b] = it, st, e
         best[:] = q[b]
-        for k in range(starts.shape[1]):
+        for k in range(starts.shape[0]):
             if status[b] == CONVERGED:
                 break
-            q[b] = starts[b, k]
-            it, st, e = ccd_one(tk, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience,
+            for c in range(q.shape[1]):
+                q[b, c] = starts[k, c] if restart_q[c] else q_start[c]
+            it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience,
                                 hist_q[b, :0], hist_err[b, :0])
             iters[b] += it
             used[b] = k + 1
@@ -127,7 +135,8 @@ def _ccd_batch(tk: tuple, q: Array, body: int, lpos: Array, goals: Array, order:
 
 
 def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, sweeps: int, sweep: str,
-              active: NDArray[np.bool_], history: bool, starts: Array, patience: int = 10) -> Result:
+              active: NDArray[np.bool_], history: bool, starts: Array, restart_q: NDArray[np.bool_],
+              patience: int = 10) -> Result:
     """CCD on one position goal (see :func:`mjkin.solve`)."""
     if len(prog.goals) != 1 or prog.kind[0] != POSITION:
         raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
@@ -143,11 +152,11 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
     hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
     hist_err[..., 1] = 0.0
     iters, status, err, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B), np.zeros(B, np.int64)
-    tk = kinematic_arrays(tree)
+    kin = kinematic_arrays(tree)
     goals = np.ascontiguousarray(prog.data[:, 0, :3])
 
     def run(lo: int, hi: int) -> None:
-        _ccd_batch(tk, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, np.ascontiguousarray(starts),
+        _ccd_batch(kin, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, starts, restart_q,
                    iters, status, err, used, hist_q, hist_err, lo, hi)
 
     parallel_chunks(run, B)
@@ -155,4 +164,4 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
     errors = np.zeros((B, 1, 2))
     errors[:, 0, 0] = err
     return package(prog, q, errors, iters, status, used, tol, rot_tol, "ccd",
-                   History(hist_q, hist_err) if history else None)
+                   History(hist_q, hist_err) if history else None, tree)

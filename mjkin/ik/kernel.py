@@ -30,15 +30,15 @@ configuration seen is returned.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..fk import fk_kernel
+from ..fk import Kinematics, fk_kernel, kinematic_arrays
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
 from ..jacobian import jacobian_kernel
-from ..jit import matvec3, njit, njit_inline
+from ..jit import matvec3, monotonic_ns, njit, njit_inline
 from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel
 
 if TYPE_CHECKING:
@@ -46,59 +46,85 @@ if TYPE_CHECKING:
     from ..tree import Tree
 
 Array = NDArray[np.float64]
+Index = NDArray[np.int64]
 
 DLS, PINV, TRANSPOSE, LM = 0, 1, 2, 3
-CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS = 0, 1, 2, 3
-STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits")
+CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS, TIMEOUT = 0, 1, 2, 3, 4
+STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits", "timeout")
 
 
-def kinematic_arrays(tree: Tree) -> tuple:
-    """The tree as a tuple of arrays for the compiled code (see :func:`_fk`, :func:`_jac`)."""
-    cached = tree.__dict__.get("_kin_arrays")
-    if cached is None:
-        p = tree.plan
-        dofs = tree.body_dofs
-        ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
-        idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
-        lo, hi = tree.layout.jnt_lo, tree.layout.jnt_hi
-        cached = (p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
-                  p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos,
-                  tree.qpos0, tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt],
-                  p.dof_axis, p.dof_world, p.dof_rot, p.dof_anchor, lo, hi,
-                  np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt, tree.jnt_body)
-        object.__setattr__(tree, "_kin_arrays", cached)
-    return cached
+class GoalArrays(NamedTuple):
+    """A :class:`mjkin.goals.Program` as the compiled code reads it (same fields, same shapes)."""
+
+    kind: Index
+    body: Index
+    lrot: Array
+    lpos: Array
+    data: Array
+    aux: Index
+    sqrt_w: Array
+    row: Index
+    rest_q: Array
+    rest_k: Array
+    coupling: Array
+    level_rows: Index
+    counted: NDArray[np.bool_]
 
 
-def program_arrays(prog: Program) -> tuple:
-    """The goals as a tuple of arrays for the compiled code."""
-    return (prog.kind, prog.body, prog.lrot, prog.lpos, prog.data, prog.aux, prog.sqrt_w, prog.row,
-            prog.rest_q, prog.rest_k, prog.coupling, prog.level_rows, prog.counted)
+class Settings(NamedTuple):
+    """Solver parameters (build with :func:`settings`, which fixes every field's type)."""
+
+    tol: float  # position tolerance (m)
+    rot_tol: float  # rotation tolerance (rad)
+    damping: float  # λ of dls, λ_min of lm
+    lm_factor: float  # lm: initial μ of λ² = λ_min² + μ·cost (0 for fixed λ)
+    alpha: float  # transpose step size (0 = Buss's)
+    max_step: float  # largest joint change per iteration
+    halving: bool  # iterative goal halving
+    patience: int  # iterations without progress before a run counts as stalled
+    goal_step: float  # largest residual norm one step aims to remove
+    timeout_ns: int  # per-target time limit (0 = none)
+
+
+def settings(tol: float, rot_tol: float, damping: float, lm_factor: float = 0.0, alpha: float = 0.0,
+             max_step: float = np.inf, halving: bool = False, patience: int = 10, goal_step: float = np.inf,
+             timeout: float | None = None) -> Settings:
+    """:class:`Settings` with Python types fixed, so every call shares one compiled specialisation."""
+    return Settings(float(tol), float(rot_tol), float(damping), float(lm_factor), float(alpha), float(max_step),
+                    bool(halving), int(patience), float(goal_step),
+                    0 if timeout is None else max(1, int(round(timeout * 1e9))))
+
+
+def program_arrays(prog: Program) -> GoalArrays:
+    """The goals as the compiled code reads them."""
+    return GoalArrays(prog.kind, prog.body, prog.lrot, prog.lpos, prog.data, prog.aux, prog.sqrt_w, prog.row,
+                      prog.rest_q, prog.rest_k, prog.coupling, prog.level_rows, prog.counted)
 
 
 # ------------------------------------------------------------------ kinematics
 @njit_inline
-def _fk(tk: tuple, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
-    fk_kernel(q, tk[0], tk[1], tk[2], tk[3], tk[4], tk[5], tk[6], tk[7], tk[8], tk[9], tk[10], tk[11], tk[12],
-              tk[13], rot, pos, irot, ipos)
+def _fk(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
+    fk_kernel(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
+              kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
+              kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
 
 
 @njit
-def _frames_scratch(tk: tuple) -> tuple[Array, Array, Array, Array]:
+def _frames_scratch(kin: Kinematics) -> tuple[Array, Array, Array, Array]:
     """Empty FK outputs for one configuration."""
     n_inner = 0
-    for j in range(tk[5].shape[0]):
-        if tk[5][j] >= 0:
+    for j in range(kin.jnt_inner.shape[0]):
+        if kin.jnt_inner[j] >= 0:
             n_inner += 1
-    nbody = tk[0].shape[0]
+    nbody = kin.parent.shape[0]
     return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
 
 
 @njit_inline
-def _jac(tk: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, body: int, point: Array, J6: Array) -> None:
+def _jac(kin: Kinematics, rot: Array, pos: Array, irot: Array, ipos: Array, body: int, point: Array, J6: Array) -> None:
     J6[:] = 0.0
-    jacobian_kernel(rot, pos, irot, ipos, tk[16][tk[15][body]:tk[15][body + 1]], tk[17], tk[18], tk[19], tk[20],
-                    tk[21], tk[22], point, J6)
+    jacobian_kernel(rot, pos, irot, ipos, kin.body_dof_idx[kin.body_dof_ptr[body]:kin.body_dof_ptr[body + 1]],
+                    kin.dof_body, kin.dof_inner, kin.dof_axis, kin.dof_world, kin.dof_rot, kin.dof_anchor, point, J6)
 
 
 @njit
@@ -164,15 +190,16 @@ def goal_scratch(nv: int) -> tuple:
 
 
 @njit_inline
-def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array, pos: Array, irot: Array,
+def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array, rot: Array, pos: Array, irot: Array,
                    ipos: Array, g: Array, J: Array, err: Array) -> None:
     """Weighted residuals ``g (m,)``, Jacobians ``J (m, nv)``, errors ``err (G, 2)`` at ``q (1, nq)``.
 
     ``rot``/``pos``/``irot``/``ipos`` must hold FK at ``q``. ``b`` selects the target;
     ``ws`` comes from :func:`goal_scratch`.
     """
-    kind, body, lrot, lpos, data, aux, sqrt_w, row = pa[0], pa[1], pa[2], pa[3], pa[4], pa[5], pa[6], pa[7]
-    rest_q, rest_k, coupling = pa[8], pa[9], pa[10]
+    kind, body, lrot, lpos, data, aux, sqrt_w, row = (ga.kind, ga.body, ga.lrot, ga.lpos, ga.data, ga.aux, ga.sqrt_w,
+                                                      ga.row)
+    rest_q, rest_k, coupling = ga.rest_q, ga.rest_k, ga.coupling
     J6, pt, R, E, Li, v, f, dv = ws
     nv = J.shape[1]
     for i in range(kind.shape[0]):
@@ -181,14 +208,14 @@ def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array
         err[i, 0] = 0.0
         err[i, 1] = 0.0
         if k == REST:
-            difference_kernel(q, rest_q[aux[i], b:b + 1], tk[9], tk[10], tk[14], dv)
+            difference_kernel(q, rest_q[aux[i], b:b + 1], kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr, dv)
             for j in range(nv):
                 g[r0 + j] = w * rest_k[aux[i], j] * dv[0, j]
                 for c in range(nv):
                     J[r0 + j, c] = 1.0 if c == j else 0.0
-            for jt in range(tk[9].shape[0]):  # rotations: d log(q_rest⁻¹ q) = J_r⁻¹(φ) ω (local ω)
-                if tk[9][jt] == BALL or tk[9][jt] == FREE:
-                    d0 = tk[14][jt] + (3 if tk[9][jt] == FREE else 0)
+            for jt in range(kin.jnt_type.shape[0]):  # rotations: d log(q_rest⁻¹ q) = J_r⁻¹(φ) ω (local ω)
+                if kin.jnt_type[jt] == BALL or kin.jnt_type[jt] == FREE:
+                    d0 = kin.jnt_dofadr[jt] + (3 if kin.jnt_type[jt] == FREE else 0)
                     for a in range(3):
                         v[a] = -dv[0, d0 + a]
                     _left_jacobian_inverse(v, float(np.sqrt(v @ v)), Li)  # J_l⁻¹(-φ) = J_r⁻¹(φ)
@@ -202,7 +229,7 @@ def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array
         if k == COUPLING:
             s = -data[b, i, 0]
             for j in range(nv):
-                s += coupling[aux[i], j] * q[0, tk[25][j]]
+                s += coupling[aux[i], j] * q[0, kin.dof_qadr[j]]
                 J[r0, j] = w * coupling[aux[i], j]
             g[r0] = w * s
             err[i, 0] = abs(s)
@@ -215,7 +242,7 @@ def evaluate_goals(tk: tuple, pa: tuple, ws: tuple, b: int, q: Array, rot: Array
                     rot[0, bd, a, 2] * lrot[i, 2, c])
             pt[0, a] = pos[0, bd, a] + (rot[0, bd, a, 0] * lpos[i, 0] + rot[0, bd, a, 1] * lpos[i, 1]
                                         + rot[0, bd, a, 2] * lpos[i, 2])
-        _jac(tk, rot, pos, irot, ipos, bd, pt, J6)
+        _jac(kin, rot, pos, irot, ipos, bd, pt, J6)
         if k == POSITION or k == POSE:
             for a in range(3):
                 g[r0 + a] = w * (pt[0, a] - data[b, i, a])
@@ -395,7 +422,7 @@ def step_scratch(m: int, nv: int) -> tuple:
 
 
 @njit_inline
-def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam2: Array, alpha: float,
+def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array, alpha: float,
           scale: float, clamp: float, ws: tuple, dq: Array) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
 
@@ -435,7 +462,7 @@ def _step(J: Array, g: Array, level_rows: Array, locked: Array, method: int, lam
 
 # ----------------------------------------------------------------------- solve
 @njit
-def _costs(g: Array, level_rows: Array, out: Array) -> None:
+def _costs(g: Array, level_rows: Index, out: Array) -> None:
     for lv in range(level_rows.shape[0] - 1):
         out[lv] = 0.0
         for r in range(level_rows[lv], level_rows[lv + 1]):
@@ -470,7 +497,8 @@ def _max_abs(x: Array) -> float:
 
 
 @njit
-def _levels_met(err: Array, counted: Array, row: Array, level_rows: Array, tol: float, rot_tol: float) -> int:
+def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: Index, tol: float,
+                rot_tol: float) -> int:
     """How many levels, from the top, have every counted goal within tolerance."""
     met = level_rows.shape[0] - 1
     for i in range(err.shape[0]):
@@ -483,7 +511,7 @@ def _levels_met(err: Array, counted: Array, row: Array, level_rows: Array, tol: 
 
 
 @njit
-def _converged(err: Array, counted: Array, tol: float, rot_tol: float) -> bool:
+def _converged(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
     for i in range(err.shape[0]):
         if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
             return False
@@ -491,25 +519,28 @@ def _converged(err: Array, counted: Array, tol: float, rot_tol: float) -> bool:
 
 
 @njit
-def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array, max_iters: int,
-              restarts: Array, active: NDArray[np.bool_], err_out: Array, hist_q: Array, hist_err: Array) -> tuple:
+def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st: Settings, max_iters: int,
+              restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], err_out: Array,
+              hist_q: Array, hist_err: Array) -> tuple:
     """Solve target ``b`` from ``q (1, nq)`` (overwritten with the best configuration found).
 
-    ``params``: tol, rot_tol, damping λ, adaptive-λ factor, transpose α, max step,
-    halving (0/1), patience, goal step (largest residual norm one step aims to remove).
-    ``restarts (K, nq)``: starts tried when a run stalls or uses up ``max_iters``.
-    ``active (nv,)``: dofs allowed to move. Returns (iterations, status, restarts used).
+    ``restarts (K, nq)``: starts tried in turn when a run stalls or uses up
+    ``max_iters``; only the entries where ``restart_q (nq,)`` is True are taken
+    from them, the others keep this target's start values. ``active (nv,)``:
+    dofs allowed to move. Returns (iterations, status, restarts used); the
+    status is ``TIMEOUT`` when ``st.timeout_ns`` ran out first.
 
     The loop evaluates one configuration per pass (a start, or a trial step
     from the current one) at a single place, so the inlined kinematics and
     goal code are compiled once.
     """
-    tol, rot_tol, lam, lm_c, alpha, max_step = params[0], params[1], params[2], params[3], params[4], params[5]
-    halving, patience, goal_step = params[6] > 0, int(params[7]), params[8]
-    nv = tk[17].shape[0]
-    level_rows, counted = pa[11], pa[12]
-    m, G, L = pa[7][-1], pa[0].shape[0], level_rows.shape[0] - 1
-    rot, pos, irot, ipos = _frames_scratch(tk)
+    deadline = monotonic_ns() + st.timeout_ns if st.timeout_ns > 0 else 0
+    tol, rot_tol, lam, lm_c, alpha, max_step = st.tol, st.rot_tol, st.damping, st.lm_factor, st.alpha, st.max_step
+    halving, patience, goal_step = st.halving, st.patience, st.goal_step
+    nv = kin.dof_body.shape[0]
+    level_rows, counted = ga.level_rows, ga.counted
+    m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
+    rot, pos, irot, ipos = _frames_scratch(kin)
     ws, sws = goal_scratch(nv), step_scratch(m, nv)
     g, gt = np.empty(m), np.empty(m)
     J, Jt = np.empty((m, nv)), np.empty((m, nv))
@@ -519,15 +550,16 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
     dq = np.empty((1, nv))
     qt = q.copy()  # the configuration evaluated next: a start, or a trial step from q
     best_q = q.copy()
+    q_start = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
-    lo, hi, dof_q, dof_j = tk[23], tk[24], tk[25], tk[26]
+    lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
     best, best_met, run_best = np.inf, -1, np.inf  # best overall (returned) and of this run (for stalls)
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     scale, fresh, any_locked = 1.0, True, False
     while True:
-        _fk(tk, qt, rot, pos, irot, ipos)
-        evaluate_goals(tk, pa, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
+        _fk(kin, qt, rot, pos, irot, ipos)
+        evaluate_goals(kin, ga, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
         _costs(gt, level_rows, costt)
         if (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
                 or _max_abs(dq) < 1e-15):  # accept qt
@@ -542,7 +574,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
             since_best = 0 if fresh or merit < run_best * (1 - 1e-9) else since_best + 1
             run_best = merit if fresh else min(run_best, merit)
             fresh, attempts, scale = False, 0, 1.0
-            met = _levels_met(err, counted, pa[7], level_rows, tol, rot_tol)
+            met = _levels_met(err, counted, ga.row, level_rows, tol, rot_tol)
             if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit
                 best, best_met = merit, met
                 best_q[:] = q
@@ -566,9 +598,13 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
                 scale *= 0.5
             if attempts >= 12:  # no attempt helped: count as a stall
                 since_best = patience
+        if deadline and monotonic_ns() > deadline:
+            status = TIMEOUT
+            break
         if since_best >= patience or run_it >= max_iters:  # this run ended: restart, or stop
             if used < restarts.shape[0]:
-                qt[0] = restarts[used]
+                for k in range(qt.shape[1]):
+                    qt[0, k] = restarts[used, k] if restart_q[k] else q_start[0, k]
                 used += 1
                 run_it, mu, fresh = 0, lm_c, True
                 dq[:] = 0.0
@@ -591,7 +627,7 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
             changed = False
             for d in range(nv):
                 jj, qd = dof_j[d], q[0, dof_q[d]]
-                if locked[d] or not (tk[9][jj] == HINGE or tk[9][jj] == SLIDE):
+                if locked[d] or not (kin.jnt_type[jj] == HINGE or kin.jnt_type[jj] == SLIDE):
                     continue
                 if (dq[0, d] < 0 and qd <= lo[jj] + 1e-12) or (dq[0, d] > 0 and qd >= hi[jj] - 1e-12):
                     locked[d] = True  # at the limit and pushing outwards
@@ -602,33 +638,32 @@ def solve_one(tk: tuple, pa: tuple, b: int, q: Array, method: int, params: Array
         for d in range(nv):
             any_locked = any_locked or (locked[d] and active[d])
         qt[:] = q
-        integrate_kernel(qt, dq, tk[9], tk[10], tk[14])
-        clip_kernel(qt, tk[9], tk[10], lo, hi)
+        integrate_kernel(qt, dq, kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
+        clip_kernel(qt, kin.jnt_type, kin.jnt_qadr, lo, hi)
     q[:] = best_q
     return it, status, used
 
 
 @njit
-def solve_batch(tk: tuple, pa: tuple, q: Array, method: int, params: Array, max_iters: int, restarts: Array,
-                active: NDArray[np.bool_], iters: NDArray[np.int64], status: NDArray[np.int64],
-                used: NDArray[np.int64], err: Array, hist_q: Array,
-                hist_err: Array, lo: int, hi: int) -> None:
+def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Settings, max_iters: int,
+                restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], iters: Index,
+                status: Index, used: Index, err: Array, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:
     """Solve targets ``lo <= b < hi`` of ``q (B, nq)`` in place; see :func:`solve_one`."""
     for b in range(lo, hi):
-        it, st, u = solve_one(tk, pa, b, q[b:b + 1], method, params, max_iters, restarts[b], active, err[b],
-                              hist_q[b], hist_err[b])
+        it, code, u = solve_one(kin, ga, b, q[b:b + 1], method, st, max_iters, restarts, restart_q, active, err[b],
+                                hist_q[b], hist_err[b])
         iters[b] = it
-        status[b] = st
+        status[b] = code
         used[b] = u
 
 
 @njit
-def _evaluate_batch(tk: tuple, pa: tuple, q: Array, g: Array, J: Array, err: Array) -> None:
-    rot, pos, irot, ipos = _frames_scratch(tk)
+def _evaluate_batch(kin: Kinematics, ga: GoalArrays, q: Array, g: Array, J: Array, err: Array) -> None:
+    rot, pos, irot, ipos = _frames_scratch(kin)
     ws = goal_scratch(J.shape[2])
     for b in range(q.shape[0]):
-        _fk(tk, q[b:b + 1], rot, pos, irot, ipos)
-        evaluate_goals(tk, pa, ws, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
+        _fk(kin, q[b:b + 1], rot, pos, irot, ipos)
+        evaluate_goals(kin, ga, ws, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
 
 
 def evaluate_program(tree: Tree, prog: Program, q: Array) -> tuple[Array, Array, Array]:

@@ -110,8 +110,8 @@ class _Chain:
     """The joints between the root and the tool, grouped by anchor, with FK scratch space."""
 
     def __init__(self, tree: Tree, body: int, lpos: Array, joints: list[int]) -> None:
-        self.tk = kinematic_arrays(tree)
-        self.scratch = _frames_scratch(self.tk)
+        self.kin = kinematic_arrays(tree)
+        self.scratch = _frames_scratch(self.kin)
         self.body, self.lpos, self.joints = body, lpos, joints
         self.tree = tree
         axes = self.frames(tree.qpos0)[1]
@@ -122,9 +122,9 @@ class _Chain:
     def frames(self, q: Array) -> tuple[Array, Array, Array, list[Array]]:
         """World anchors ``(nj, 3)``, axes ``(nj, 3)`` of the chain's joints, the tool ``(3,)``, joint frames."""
         rot, pos, irot, ipos = self.scratch
-        tk = self.tk
-        _fk(tk, q[None], rot, pos, irot, ipos)
-        inner, jbody, axis, anchor = tk[5], tk[27], tk[11], tk[12]
+        kin = self.kin
+        _fk(kin, q[None], rot, pos, irot, ipos)
+        inner, jbody, axis, anchor = kin.jnt_inner, kin.jnt_body, kin.jnt_axis, kin.jnt_pos
         anchors, axes, Rs = [], [], []
         for j in self.joints:
             R, x = (irot[0, inner[j]], ipos[0, inner[j]]) if inner[j] >= 0 else (rot[0, jbody[j]], pos[0, jbody[j]])
@@ -150,8 +150,8 @@ class _Chain:
 
     def align(self, q: Array, want: Array, groups: list[list[int]]) -> bool:
         """Turn the joints base to tip so each brings its next point onto ``want``; True if one hit a limit."""
-        tk = self.tk
-        jtype, qadr, lo, hi = tk[9], tk[10], tk[23], tk[24]
+        kin = self.kin
+        jtype, qadr, lo, hi = kin.jnt_type, kin.jnt_qadr, kin.jnt_lo, kin.jnt_hi
         pinned = False
         for g, members in enumerate(groups):
             for k in members:

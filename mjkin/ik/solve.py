@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
+from .. import qspace
 from ..errors import InputError
-from ..qspace import NQ, NV
+from ..parallel import parallel_chunks
+from ..qspace import FREE, NQ, NV, clip_kernel
 from ..tree import Tree
 from . import kernel
 from .kernel import STATUS_NAMES
@@ -20,10 +20,12 @@ from .kernel import STATUS_NAMES
 Array = NDArray[np.float64]
 
 METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach")
-CORES = os.cpu_count() or 1
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
+TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
+_STATUS = np.array(STATUS_NAMES)
+_TIMED = ("auto", "lm", "dls", "pinv", "transpose")  # methods whose compiled loop checks a time limit
 
 
 @dataclass(frozen=True)
@@ -49,12 +51,16 @@ class Result:
         error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
         iterations: ``(...)`` steps taken (CCD: sweeps).
         status: ``"converged"``, ``"unreachable"`` (stalled away from the goal), ``"limits"``
-            (stalled with a joint held at its limit) or ``"max_iterations"``.
+            (stalled with a joint held at its limit), ``"max_iterations"``, ``"timeout"`` (the
+            ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``: every pose found
+            was in contact).
         goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
         goals: the goals as solved.
         method: the method that ran.
         restarts: ``(...)`` random restarts used.
         history: per-iteration record when asked for (``history=True``).
+        tree: the tree solved on; not pickled (a result sent to another process travels
+            without its ``MjModel``): re-attach it with :meth:`with_tree`.
     """
 
     q: Array
@@ -69,6 +75,14 @@ class Result:
     history: History | None = None
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
+    def __getstate__(self) -> dict:
+        """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it)."""
+        return {**self.__dict__, "tree": None}
+
+    def with_tree(self, tree: Tree) -> Result:
+        """This result with its tree attached again (after unpickling)."""
+        return replace(self, tree=tree)
+
     def singular_values(self) -> NDArray:
         """Singular values ``(..., k)`` of the top-priority goals' Jacobian at :attr:`q`.
 
@@ -76,7 +90,8 @@ class Result:
         product is Yoshikawa's manipulability.
         """
         if self.tree is None:
-            raise InputError("this result was built without its tree; use mjkin.singular_values(tree, goals, q)")
+            raise InputError("this result has no tree (results are pickled without it); "
+                             "use result.with_tree(tree) or mjkin.singular_values(tree, goals, q)")
         return singular_values(self.tree, self.goals, self.q)
 
     @property
@@ -115,7 +130,10 @@ def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> 
     q = tree.check_q(q0, "q0")
     if q.ndim == 2 and q.shape[0] != B or q.ndim > 2 or (q.ndim == 2 and not batch):
         raise InputError(f"q0 has shape {q.shape}; expected ({tree.nq},) or ({B}, {tree.nq}) for these targets")
-    return tree.clip(np.ascontiguousarray(np.broadcast_to(q, (B, tree.nq)), dtype=np.float64))
+    out = np.empty((B, tree.nq))
+    out[:] = q
+    clip_kernel(out, tree.jnt_type, tree.jnt_qadr, tree.layout.jnt_lo, tree.layout.jnt_hi)
+    return out
 
 
 def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
@@ -139,14 +157,55 @@ def _active_dofs(tree: Tree, prog: G.Program, base: str | None,
     return active
 
 
-def _frozen_q(tree: Tree, active: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """Mask over q of the joints none of whose dofs are active."""
-    frozen = np.zeros(tree.nq, dtype=bool)
+def _masks(tree: Tree, prog: G.Program, base: str | None, joints: Sequence[str] | None,
+           rooted: bool) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """:func:`_active_dofs` and :func:`_restart_q`, kept on the tree for repeated calls."""
+    key = (prog.body.tobytes(), base, None if joints is None else tuple(joints), rooted)
+    cache: dict = tree.__dict__.setdefault("_solve_masks", {})
+    if key not in cache:
+        if len(cache) > 64:
+            cache.clear()
+        active = _active_dofs(tree, prog, base, joints)
+        cache[key] = active, _restart_q(tree, prog, active, rooted)
+    return cache[key]
+
+
+def _restart_q(tree: Tree, prog: G.Program, active: NDArray[np.bool_], rooted: bool) -> NDArray[np.bool_]:
+    """Entries of q a restart may randomise: joints with an active dof that moves a goal frame.
+
+    Every other joint keeps its start value (an object's slide joints do not
+    help an arm reach), and with a planted ``root`` so does the free joint.
+    """
+    moving = np.zeros(tree.nv, dtype=bool)
+    bodies = {int(x) for x in prog.body if x >= 0}
+    for body in bodies:
+        moving[tree.body_dofs[body]] = True
+    if not bodies:  # joint-space goals only
+        moving[:] = True
+    moving &= active
+    mask = np.zeros(tree.nq, dtype=bool)
     for j in range(tree.njnt):
         kind = int(tree.jnt_type[j])
-        if not active[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + NV[kind]].any():
-            frozen[tree.jnt_qadr[j]:tree.jnt_qadr[j] + NQ[kind]] = True
-    return frozen
+        if moving[tree.jnt_dofadr[j]:tree.jnt_dofadr[j] + NV[kind]].any() and not (rooted and kind == FREE):
+            mask[tree.jnt_qadr[j]:tree.jnt_qadr[j] + NQ[kind]] = True
+    return mask
+
+
+def _random_starts(tree: Tree, seed: int | None, n: int) -> Array:
+    """``n`` restart configurations ``(n, nq)``, the same for the same seed (kept on the tree).
+
+    Quasi-random (:func:`mjkin.qspace.random` with ``spread``): on the TRAC-IK
+    protocol it cut the Panda's mean iterations by about 15 %.
+    """
+    if seed is None:
+        return np.ascontiguousarray(qspace.random(tree, np.random.default_rng(), n, spread=True))
+    cache: dict = tree.__dict__.setdefault("_random_starts", {})
+    key = (int(seed), n)
+    if key not in cache:
+        if len(cache) > 32:
+            cache.clear()
+        cache[key] = np.ascontiguousarray(qspace.random(tree, np.random.default_rng(seed), n, spread=True))
+    return cache[key]
 
 
 def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = None, method: str = "auto",
@@ -155,7 +214,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
           halving: bool = False, goal_step: float | None = None, restarts: int | None = None,
           seed: int | None = 0, patience: int | None = None,
           base: str | None = None, joints: Sequence[str] | None = None, root: str | None = None,
-          history: bool = False, sweep: str = "backward", avoid_collisions: bool = False) -> Result:
+          history: bool = False, sweep: str = "backward", avoid_collisions: bool = False,
+          timeout: float | None = None) -> Result:
     """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
 
     Args:
@@ -184,7 +244,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             remove, so the effector walks toward a far goal (error clamping); default
             unlimited.
         restarts: random restarts (within limits) when a solve stalls; default 24
-            for ``auto``, 0 otherwise.
+            for ``auto`` (1000 with a ``timeout``: restart until the time runs out),
+            0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
         patience: iterations without progress before a run counts as stalled; default
             6 for ``lm``/``auto`` (then it restarts), 10 for the others.
@@ -198,20 +259,103 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             non-adjacent bodies, or with the world): re-solve from seeded random
             starts (``restarts`` of them, at least 8); if none is free of contact,
             ``success`` is False and ``status`` is ``"collision"``.
+        timeout: seconds each target may take (checked inside the compiled loop,
+            per target, also in batches; ``auto``/``lm``/``dls``/``pinv``/
+            ``transpose``); a target that runs out returns its best pose so far
+            with ``status="timeout"``.
+
+    Restarts (and collision retries) randomise only the joints that move a goal
+    frame and may move (``joints``/``base``); every other joint keeps its ``q0``
+    value, and with ``root`` the free joint keeps its pose.
+
+    Repeated calls with the same goal structure (kinds, frames, weights,
+    priorities) and new targets reuse the encoded goals and the restart starts,
+    so a loop of single solves costs little more than the solves themselves.
 
     Raises:
         GoalError, UnknownNameError, InputError: malformed goals, names or options.
     """
-    options = {"method": method, "tol": tol, "rot_tol": rot_tol, "max_iters": max_iters, "damping": damping,
-               "alpha": alpha, "max_step": max_step, "halving": halving, "goal_step": goal_step,
-               "restarts": restarts, "seed": seed, "patience": patience, "base": base, "joints": joints,
-               "root": root, "history": history, "sweep": sweep}
-    result = replace(_solve(tree, goals, q0, **options), tree=tree)  # type: ignore[arg-type]
-    return _collision_free(tree, goals, result, options) if avoid_collisions else result
+    if method not in METHODS:
+        raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
+    if not (np.isfinite(tol) and tol > 0 and np.isfinite(rot_tol) and rot_tol > 0):
+        raise InputError(f"tol and rot_tol must be positive numbers, got {tol!r}, {rot_tol!r}")
+    if timeout is not None:
+        if method not in _TIMED:
+            raise InputError(f"timeout= works with the methods {', '.join(_TIMED)}, not {method!r}")
+        if not (np.isfinite(timeout) and timeout > 0):
+            raise InputError(f"timeout must be a positive number of seconds, got {timeout!r}")
+    goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
+    if method == "analytic2":
+        given = {"max_iters": max_iters, "damping": damping, "alpha": alpha, "max_step": max_step,
+                 "goal_step": goal_step, "restarts": restarts, "patience": patience, "base": base, "joints": joints,
+                 "root": root, "halving": halving or None, "history": history or None,
+                 "avoid_collisions": avoid_collisions or None}
+        bad = [k for k, v in given.items() if v is not None]
+        if bad:
+            raise InputError(f"method 'analytic2' is closed-form and cannot honour {', '.join(bad)}; "
+                             "use an iterative method (auto, dls, ...) for those")
+    if root is not None:  # a planted body: a top-priority pose goal at its pose in q0
+        body = tree.id(root, "body")
+        pose = tree.kinematics(tree.check_q(tree.qpos0 if q0 is None else q0, "q0")).pose("body", body)
+        if pose.ndim > 2:
+            raise InputError("root= needs one q0 (nq,): the planted body has one pose")
+        low = min(g.priority for g in goal_list if isinstance(g, G.Goal)) if goal_list else 0
+        goal_list = [G.Pose(root, kind="body", T=pose)] + [replace(g, priority=g.priority + 1 - low)
+                                                          if isinstance(g, G.Goal) else g for g in goal_list]
+    prog = G.compile_goals(tree, goal_list)
+    q = _start(tree, q0, prog.B, prog.batch)
+    name = "lm" if method == "auto" else method
+    if name == "analytic2":
+        from .analytic import solve_analytic2
+
+        return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
+    patience = (6 if name == "lm" else 10) if patience is None else int(patience)
+    iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
+    if iters < 0:
+        raise InputError(f"max_iters must be >= 0, got {max_iters}")
+    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
+        if restarts is None else int(restarts)
+    if n_restarts < 0:
+        raise InputError(f"restarts must be >= 0, got {restarts}")
+    if goal_step is not None and not goal_step > 0:
+        raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
+    active, restart_q = _masks(tree, prog, base, joints, root is not None)
+    starts = _random_starts(tree, seed, n_restarts)
+    if name == "optimize":
+        from .optimize import solve_optimize
+
+        result = solve_optimize(tree, prog, q, tol, rot_tol, iters, active, starts, restart_q)
+    elif name == "ccd":
+        from .ccd import solve_ccd
+
+        result = solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, restart_q, patience)
+    elif name == "reach":
+        from .reach import solve_reach
+
+        result = solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
+    else:
+        extent = float(tree.model.stat.extent) or 1.0
+        st = kernel.settings(tol, rot_tol, ((1e-5 if name == "lm" else 0.05) * extent) if damping is None else damping,
+                             0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
+                             (0.5 if name == "lm" else np.inf) if max_step is None else max_step, halving, patience,
+                             np.inf if goal_step is None else goal_step, timeout)
+        result = run_kernel(tree, prog, q, _CODES[name], st, iters, starts, restart_q, active, history, method)
+    if avoid_collisions:
+        retries = _random_starts(tree, seed, max(8, n_restarts))
+        result = _collision_free(tree, prog, result, q, retries, restart_q, method,
+                                 dict(tol=tol, rot_tol=rot_tol, max_iters=max_iters, damping=damping, alpha=alpha,
+                                      max_step=max_step, halving=halving, goal_step=goal_step, patience=patience,
+                                      base=base, joints=joints, sweep=sweep, timeout=timeout))
+    return result
 
 
-def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result, options: dict) -> Result:
-    """Re-solve the targets whose solution is in contact, from random starts, until one is free."""
+def _collision_free(tree: Tree, prog: G.Program, result: Result, q0: Array, retries: Array,
+                    restart_q: NDArray[np.bool_], method: str, options: dict) -> Result:
+    """Re-solve the targets whose solution is in contact, from the retry starts, until one is free.
+
+    A retry start takes ``retries[k]`` where ``restart_q`` is True and the target's
+    ``q0`` elsewhere, as restarts do.
+    """
     from ..scene import Scene
 
     scene = Scene(tree)
@@ -220,17 +364,15 @@ def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result
     goal_errors = np.array(result.goal_errors).reshape(len(q), -1, 2)
     success = np.array(result.success).reshape(-1).copy()
     status = np.array(result.status).reshape(-1).astype("<U14")
-    rng = np.random.default_rng(options["seed"])
-    goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
-    tries = max(8, options["restarts"] or 0)
     for b in range(len(q)):
         if not scene.in_collision(q[b]):
             continue
-        one = [_target(g, b, len(q)) for g in goal_list]
-        for start in tree.random_q(rng, tries):
-            retry = _solve(tree, one, start, **{**options, "restarts": 0})  # type: ignore[arg-type]
-            if retry.success and not scene.in_collision(retry.q):
-                q[b], error[b], goal_errors[b] = retry.q, retry.error, retry.goal_errors
+        one = [g.take(b, b + 1) for g in prog.goals]
+        for start in np.where(restart_q, retries, q0[b]):
+            retry = solve(tree, one, start, method, restarts=0, **options)
+            found = np.reshape(retry.q, (tree.nq,))
+            if retry.success.all() and not scene.in_collision(found):
+                q[b], error[b], goal_errors[b] = found, np.reshape(retry.error, 2), retry.goal_errors.reshape(-1, 2)
                 success[b], status[b] = True, "converged"
                 break
         else:
@@ -241,129 +383,43 @@ def _collision_free(tree: Tree, goals: G.Goal | Sequence[G.Goal], result: Result
                    status=status.reshape(shape) if shape else status[0])
 
 
-def _target(goal: G.Goal, b: int, B: int) -> G.Goal:
-    """The ``b``-th target of a batched goal (unbatched goals as they are)."""
-    if goal.batch() == ():
-        return goal
-    fields = {name: np.asarray(getattr(goal, name))[b]
-              for name in ("xyz", "quat", "T", "point", "direction", "normal", "q_rest")
-              if hasattr(goal, name) and np.ndim(getattr(goal, name)) > {"T": 2, "quat": 1}.get(name, 1)}
-    return replace(goal, **fields)
+def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, st: kernel.Settings, max_iters: int,
+               starts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], history: bool,
+               method: str) -> Result:
+    """Run the compiled solver on every target and package the result.
 
-
-def _solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None, method: str, tol: float,
-           rot_tol: float, max_iters: int | None, damping: float | None, alpha: float | None,
-           max_step: float | None, halving: bool, goal_step: float | None, restarts: int | None, seed: int | None,
-           patience: int | None, base: str | None, joints: Sequence[str] | None, root: str | None, history: bool,
-           sweep: str) -> Result:
-    if method not in METHODS:
-        raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
-    if not (np.isfinite(tol) and tol > 0 and np.isfinite(rot_tol) and rot_tol > 0):
-        raise InputError(f"tol and rot_tol must be positive numbers, got {tol!r}, {rot_tol!r}")
-    goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
-    if root is not None:
-        body = tree.id(root, "body")
-        start = tree.check_q(tree.qpos0 if q0 is None else q0, "q0")
-        pose = tree.kinematics(start).pose("body", body)
-        low = min((g.priority for g in goal_list if isinstance(g, G.Goal)), default=0)
-        goal_list = [G.Pose(root, kind="body", T=pose)] + [replace(g, priority=g.priority + 1 - low)
-                                                         if isinstance(g, G.Goal) else g for g in goal_list]
-    prog = G.compile_goals(tree, goal_list)
-    name = "lm" if method == "auto" else method
-    patience = (6 if name == "lm" else 10) if patience is None else int(patience)
-    iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
-    if iters < 0:
-        raise InputError(f"max_iters must be >= 0, got {max_iters}")
-    q = _start(tree, q0, prog.B, prog.batch)
-    active = _active_dofs(tree, prog, base, joints)
-    if name == "analytic2":
-        from .analytic import solve_analytic2
-
-        return solve_analytic2(tree, prog, q, tol)
-    n_restarts = (AUTO_RESTARTS if method == "auto" else 0) if restarts is None else int(restarts)
-    if n_restarts < 0:
-        raise InputError(f"restarts must be >= 0, got {restarts}")
-    if name == "reach":
-        from .reach import solve_reach
-
-        return solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
-    if name == "optimize":
-        from .optimize import solve_optimize
-
-        return solve_optimize(tree, prog, q, tol, rot_tol, iters, active, n_restarts, seed)
-    # one seeded set of restarts shared by every target (a batch solves exactly as a loop of single
-    # solves); joints that may not move keep their start values
-    starts = np.broadcast_to(tree.random_q(np.random.default_rng(seed), n_restarts) if n_restarts
-                             else np.zeros((0, tree.nq)), (prog.B, n_restarts, tree.nq))
-    frozen = np.zeros(tree.nq, dtype=bool) if active.all() else _frozen_q(tree, active)
-    if n_restarts and frozen.any():
-        starts = starts.copy()
-        starts[:, :, frozen] = q[:, None, frozen]
-    if name == "ccd":
-        from .ccd import solve_ccd
-
-        return solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, patience)
-    extent = float(tree.model.stat.extent) or 1.0
-    default_damping = (1e-5 if name == "lm" else 0.05) * extent
-    params = np.array([tol, rot_tol, default_damping if damping is None else damping,
-                       0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
-                       (0.5 if name == "lm" else np.inf) if max_step is None else max_step,
-                       float(halving), float(patience), np.inf if goal_step is None else goal_step])
-    if not params[8] > 0:
-        raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
-    return run_kernel(tree, prog, q, _CODES[name], params, iters, starts, active, history, method)
-
-
-def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, params: Array, max_iters: int, starts: Array,
-               active: NDArray[np.bool_], history: bool, method: str) -> Result:
-    """Run the compiled solver on every target and package the result."""
+    ``starts (K, nq)`` are shared by all targets (C-contiguous, as every other
+    array here, so one compiled specialisation serves every batch size).
+    """
     B = prog.B
     H = max_iters + 1 if history else 0
     hist_q = np.full((B, H, tree.nq), np.nan)
     hist_err = np.zeros((B, H, 2))
     iters, status, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
     err = np.zeros((B, len(prog.goals), 2))
-    tk, pa = kernel.kinematic_arrays(tree), kernel.program_arrays(prog)
-    starts = np.array(starts)  # writable and contiguous: numba's dispatcher types it on its fast path
+    kin, ga = kernel.kinematic_arrays(tree), kernel.program_arrays(prog)
 
     def run(lo: int, hi: int) -> None:  # targets lo..hi-1; the compiled code releases the GIL
-        kernel.solve_batch(tk, pa, q, code, params, max_iters, starts, active, iters, status, used, err,
+        kernel.solve_batch(kin, ga, q, code, st, max_iters, starts, restart_q, active, iters, status, used, err,
                            hist_q, hist_err, lo, hi)
 
     parallel_chunks(run, B)
     if history:
         valid = np.arange(H)[None, :] <= iters[:, None]
         hist_err[~valid] = np.nan
-    return package(prog, q, err, iters, status, used, params[0], params[1], method,
-                   History(hist_q, hist_err) if history else None)
-
-
-def parallel_chunks(run: Callable[[int, int], None], n: int, min_chunk: int = 32, per_worker: int = 8) -> None:
-    """Call ``run(lo, hi)`` over ``range(n)`` split across the machine's cores (threads).
-
-    Each thread takes the next chunk when it is done with one: hard targets (restarts)
-    come in clusters, and equal halves would leave one core idle while the other works.
-    """
-    workers = min(CORES, max(1, n // min_chunk))
-    if workers <= 1:
-        run(0, n)
-        return
-    chunks = min(workers * per_worker, max(workers, n // min_chunk))
-    edges = np.linspace(0, n, chunks + 1).astype(int)
-    with ThreadPoolExecutor(workers) as pool:
-        for f in [pool.submit(run, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]:
-            f.result()
+    return package(prog, q, err, iters, status, used, st.tol, st.rot_tol, method,
+                   History(hist_q, hist_err) if history else None, tree)
 
 
 def package(prog: G.Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
-            rot_tol: float, method: str, history: History | None = None) -> Result:
+            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
     """Build a :class:`Result` from flat per-target arrays."""
     counted = err[:, prog.counted] if prog.counted.any() else np.zeros((len(q), 1, 2))
     worst = counted.max(axis=1)
     success = (worst[:, 0] <= tol) & (worst[:, 1] <= rot_tol)
-    names = np.array(STATUS_NAMES)[status]
+    names = _STATUS[status]
     b = prog.batch
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
-                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist)
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)

@@ -1,0 +1,322 @@
+"""The playground's core as pure functions: camera rays, a drag on the view plane, the warm-started solve.
+
+``(state, event) → targets → IK → q``: :func:`move` turns a drag, a push in depth
+or a placed target into new targets; :func:`solve_state` runs the chosen IK method
+from the current pose (warm start, no random restarts, so the figure follows
+continuously and stays inside its joint limits). Nothing here touches a socket,
+a thread or a GL context, so all of it is tested without a browser.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .. import goals as G
+from .. import spatial
+from ..errors import InputError
+from ..ik.solve import METHODS, solve
+from ..qspace import FREE, HINGE, SLIDE
+from ..tree import Tree
+
+Array = NDArray[np.float64]
+
+PANEL_METHODS = tuple(m for m in ("auto", "dls", "pinv", "transpose", "ccd", "reach", "optimize") if m in METHODS)
+GOAL_KINDS = ("position", "pose", "aim")
+AUTO_ITERS = 200  # auto follows without restarts, so it gets more iterations than its 50 per restart
+AIM_AXIS = (0.0, 0.0, 1.0)  # the effector axis that aim goals point at the target (z: out of the flange)
+
+
+# ---------------------------------------------------------------------- camera
+@dataclass(frozen=True)
+class View:
+    """A pinhole camera: ``pos (3,)``, unit ``forward`` and ``up`` (world), vertical ``fovy`` (degrees), ``aspect``.
+
+    Image points ``uv`` are fractions of the image, ``(0, 0)`` the top-left corner,
+    ``(1, 1)`` the bottom-right, as the page measures a mouse position.
+    """
+
+    pos: Array
+    forward: Array
+    up: Array
+    fovy: float
+    aspect: float
+
+    @classmethod
+    def of(cls, cam: mujoco.MjvCamera, model: mujoco.MjModel, width: int, height: int) -> View:
+        """The view of a MuJoCo free camera (``lookat``, ``distance``, ``azimuth``, ``elevation``) in an image."""
+        az, el = np.radians(cam.azimuth), np.radians(cam.elevation)
+        forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        up = np.array([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
+        pos = np.asarray(cam.lookat, float) - cam.distance * forward
+        return cls(pos, forward, up, float(model.vis.global_.fovy), width / height)
+
+    @property
+    def right(self) -> Array:
+        """Unit vector to the right of the image, ``(3,)``."""
+        return np.cross(self.forward, self.up)
+
+    def ray(self, uv: ArrayLike) -> Array:
+        """Unit directions ``(..., 3)`` from :attr:`pos` through image points ``uv (..., 2)``."""
+        uv = np.asarray(uv, float)
+        t = np.tan(np.radians(self.fovy) / 2)
+        x = (2 * uv[..., :1] - 1) * t * self.aspect
+        y = (1 - 2 * uv[..., 1:2]) * t
+        d = self.forward + x * self.right + y * self.up
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def project(self, points: ArrayLike) -> Array:
+        """Image points ``(..., 2)`` of world ``points (..., 3)`` (in front of the camera)."""
+        rel = np.asarray(points, float) - self.pos
+        z = rel @ self.forward
+        t = np.tan(np.radians(self.fovy) / 2)
+        x = (rel @ self.right) / (z * t * self.aspect)
+        y = (rel @ self.up) / (z * t)
+        return np.stack([(x + 1) / 2, (1 - y) / 2], axis=-1)
+
+
+def drag(view: View, target: ArrayLike, uv: ArrayLike) -> Array:
+    """Where the ray through ``uv`` meets the plane facing the camera through ``target``: the dragged point ``(3,)``."""
+    target = np.asarray(target, float)
+    d = view.ray(uv)
+    along = float(d @ view.forward)
+    if along <= 1e-9:  # the ray runs along the plane: stay put
+        return target.copy()
+    return view.pos + d * float((target - view.pos) @ view.forward) / along
+
+
+def push(view: View, target: ArrayLike, amount: float) -> Array:
+    """``target`` moved ``amount`` metres along the line of sight (positive: away from the camera), ``(3,)``."""
+    target = np.asarray(target, float)
+    d = target - view.pos
+    return target + float(amount) * d / max(float(np.linalg.norm(d)), 1e-12)
+
+
+# ----------------------------------------------------------------------- state
+@dataclass(frozen=True)
+class State:
+    """What the playground shows: the pose ``q (nq,)``, one target per effector frame, how it is solved.
+
+    ``targets`` maps a site or body name to ``[x, y, z, qw, qx, qy, qz]`` (world).
+    ``error`` is the worst ``[position (m), rotation (rad)]`` error of the last
+    solve; ``singular`` the singular values of the goals' Jacobian at ``q``
+    (their product is the manipulability).
+    """
+
+    q: Array
+    targets: Mapping[str, Array]
+    method: str = "auto"
+    goal: str = "position"
+    step: bool = False
+    error: tuple[float, float] = (0.0, 0.0)
+    iterations: int = 0
+    status: str = "converged"
+    success: bool = True
+    singular: tuple[float, ...] = ()
+    stalled: bool = field(default=False, repr=False)
+
+    @property
+    def manipulability(self) -> float:
+        """Yoshikawa's manipulability, the product of :attr:`singular` (0 at a singularity)."""
+        return float(np.prod(self.singular)) if self.singular else 0.0
+
+
+@dataclass(frozen=True)
+class Drag:
+    """Move ``frame``'s target to image point ``uv`` on the plane facing the camera through the target."""
+
+    frame: str
+    uv: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Push:
+    """Move ``frame``'s target ``amount`` metres along the line of sight (the wheel)."""
+
+    frame: str
+    amount: float
+
+
+@dataclass(frozen=True)
+class Turn:
+    """Turn ``frame``'s target ``angle`` radians about the line of sight (counter-clockwise as seen; pose goals)."""
+
+    frame: str
+    angle: float
+
+
+@dataclass(frozen=True)
+class Place:
+    """Put ``frame``'s target at ``pos (3,)``, turned to ``quat (4,)`` when given."""
+
+    frame: str
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float] | None = None
+
+
+Event = Drag | Push | Turn | Place
+
+
+def default_frames(tree: Tree) -> list[str]:
+    """The effectors a model starts with: its sites on leaf bodies (hands, feet, a flange), else its leaf bodies."""
+    parents = set(tree.body_parent[1:].tolist())
+    leaves = [b for b in range(1, tree.nbody) if b not in parents]
+    sites = [n for i, n in enumerate(tree.names("site")) if n and int(tree.site_body[i]) in leaves]
+    bodies = [tree.names("body")[b] for b in leaves if tree.names("body")[b]]
+    return sites or bodies[-1:] or [tree.names("body")[-1]]
+
+
+def frame_target(tree: Tree, q: Array, frame: str) -> Array:
+    """``[x, y, z, qw, qx, qy, qz]`` of ``frame`` at ``q``: a target the frame already meets."""
+    T = tree.pose(q, frame)
+    return np.concatenate([T[:3, 3], spatial.mat_to_quat(T[:3, :3])])
+
+
+def initial_state(tree: Tree, frames: Sequence[str] | None = None, method: str = "auto") -> State:
+    """The first keyframe (else ``qpos0``), with targets where the effector frames are."""
+    q = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
+    state = State(q=tree.clip(q), targets={}, method=method)
+    return with_frames(tree, state, default_frames(tree) if frames is None else frames)
+
+
+def with_frames(tree: Tree, state: State, frames: Sequence[str]) -> State:
+    """The same state with these effector frames; new ones get a target where they are now."""
+    if not frames:
+        raise InputError("choose at least one effector frame (a site or body)")
+    for f in frames:
+        tree.frame(f)  # UnknownNameError lists the sites and bodies
+    targets = {f: state.targets[f] if f in state.targets else frame_target(tree, state.q, f) for f in frames}
+    return replace(state, targets=targets, iterations=0, stalled=False)
+
+
+def with_method(state: State, method: str) -> State:
+    """The same state solved by another method (one of :data:`PANEL_METHODS`)."""
+    if method not in PANEL_METHODS:
+        raise InputError(f"unknown method {method!r}; choose one of: {', '.join(PANEL_METHODS)}")
+    return replace(state, method=method, iterations=0, stalled=False)
+
+
+def with_goal(state: State, goal: str) -> State:
+    """The same state with another goal kind: ``position``, ``pose`` or ``aim``."""
+    if goal not in GOAL_KINDS:
+        raise InputError(f"unknown goal kind {goal!r}; choose one of: {', '.join(GOAL_KINDS)}")
+    return pending(replace(state, goal=goal))
+
+
+def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
+    """Forward kinematics: set one hinge or slide joint (clipped to its range); the targets follow the frames."""
+    j = tree.id(joint, "joint")
+    if int(tree.jnt_type[j]) not in (HINGE, SLIDE):
+        raise InputError(f"joint {joint!r} is a ball or free joint; sliders move hinge and slide joints only")
+    if not np.isfinite(value):
+        raise InputError(f"joint value must be a finite number, got {value!r}")
+    q = state.q.copy()
+    q[tree.jnt_qadr[j]] = value
+    q = tree.clip(q)
+    targets = {f: frame_target(tree, q, f) for f in state.targets}
+    return replace(state, q=q, targets=targets, error=(0.0, 0.0), iterations=0, status="converged",
+                   success=True, stalled=False)
+
+
+def move(tree: Tree, view: View, state: State, event: Event) -> State:
+    """New targets after a drag, a push, a turn or a placement (``q`` unchanged)."""
+    if event.frame not in state.targets:
+        tree.frame(event.frame)  # an unknown name: the error lists the names that exist
+        state = with_frames(tree, state, [*state.targets, event.frame])
+    old = np.asarray(state.targets[event.frame], float)
+    new = old.copy()
+    if isinstance(event, Drag):
+        uv = np.asarray(event.uv, float)
+        if uv.shape != (2,) or not np.isfinite(uv).all():
+            raise InputError(f"a drag needs image coordinates [u, v] (fractions of the image), got {event.uv!r}")
+        new[:3] = drag(view, old[:3], uv)
+    elif isinstance(event, Push):
+        if not np.isfinite(event.amount):
+            raise InputError(f"a push needs a finite distance in metres, got {event.amount!r}")
+        new[:3] = push(view, old[:3], event.amount)
+    elif isinstance(event, Turn):
+        if not np.isfinite(event.angle):
+            raise InputError(f"a turn needs a finite angle in radians, got {event.angle!r}")
+        new[3:] = spatial.quat_mul(spatial.quat_from_axis_angle(-view.forward, event.angle), old[3:])
+    else:
+        pos = np.asarray(event.pos, float)
+        if pos.shape != (3,) or not np.isfinite(pos).all():
+            raise InputError(f"pos must be 3 finite numbers [x, y, z] (metres), got {event.pos!r}")
+        new[:3] = pos
+        if event.quat is not None:
+            quat = np.asarray(event.quat, float)
+            if quat.shape != (4,) or not np.isfinite(quat).all() or np.linalg.norm(quat) < 1e-9:
+                raise InputError(f"quat must be 4 finite numbers [w, x, y, z], not all zero, got {event.quat!r}")
+            new[3:] = quat / np.linalg.norm(quat)
+    return pending(replace(state, targets={**state.targets, event.frame: new}))
+
+
+def pending(state: State) -> State:
+    """The state with goals not yet solved (step mode then has work to do)."""
+    return replace(state, success=False, status="pending", iterations=0, stalled=False)
+
+
+def goals_for(state: State) -> list[G.Goal]:
+    """The IK goals of the targets for the state's goal kind."""
+    out: list[G.Goal] = []
+    for frame, t in state.targets.items():
+        t = np.asarray(t, float)
+        if state.goal == "pose":
+            out.append(G.Pose(frame, T=spatial.make_transform(spatial.quat_to_mat(t[3:]), t[:3])))
+        elif state.goal == "aim":
+            out.append(G.Aim(frame, axis=AIM_AXIS, point=t[:3]))
+        else:
+            out.append(G.Position(frame, xyz=t[:3]))
+    return out
+
+
+def movable_joints(tree: Tree) -> list[str] | None:
+    """Joints IK may move: all but free joints (a free-floating figure keeps its root where it stands)."""
+    names = tree.names("joint")
+    free = tree.jnt_type == FREE
+    if not free.any() or free.all() or not all(names):
+        return None
+    return [n for n, f in zip(names, free, strict=True) if not f]
+
+
+def solve_state(tree: Tree, state: State, max_iters: int | None = None) -> State:
+    """Solve the targets from ``state.q`` (warm start, no restarts); ``max_iters=1`` is one step of step mode."""
+    method = "lm" if state.method == "auto" and max_iters is not None else state.method
+    iters = AUTO_ITERS if state.method == "auto" and max_iters is None else max_iters
+    res = solve(tree, goals_for(state), q0=state.q, method=method, max_iters=iters, restarts=0,
+                joints=movable_joints(tree))
+    q = np.asarray(res.q, float)
+    stepped = state.iterations + int(res.iterations) if max_iters is not None else int(res.iterations)
+    stalled = max_iters is not None and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12
+    return replace(state, q=q, error=(float(res.error[0]), float(res.error[1])), iterations=stepped,
+                   status=str(res.status), success=bool(res.success),
+                   singular=tuple(float(s) for s in np.atleast_1d(res.singular_values())), stalled=stalled)
+
+
+def apply(tree: Tree, view: View, state: State, event: Event) -> State:
+    """The whole step: the event moves a target, IK follows from the current pose (in step mode, frame by frame)."""
+    moved = move(tree, view, state, event)
+    return moved if moved.step else solve_state(tree, moved)
+
+
+def needs_step(state: State) -> bool:
+    """Step mode has work to do: not yet on target and still moving."""
+    return state.step and not state.success and not state.stalled
+
+
+def joint_sliders(tree: Tree) -> list[dict]:
+    """The hinge and slide joints as sliders: ``{"name", "qadr", "min", "max"}`` (unlimited: ±π, ±extent)."""
+    out = []
+    extent = float(tree.model.stat.extent) or 1.0
+    for j, name in enumerate(tree.names("joint")):
+        kind = int(tree.jnt_type[j])
+        if kind not in (HINGE, SLIDE) or not name:
+            continue
+        lo, hi = tree.jnt_range[j] if tree.jnt_limited[j] else ((-np.pi, np.pi) if kind == HINGE
+                                                               else (-extent, extent))
+        out.append({"name": name, "qadr": int(tree.jnt_qadr[j]), "min": float(lo), "max": float(hi)})
+    return out

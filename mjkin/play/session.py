@@ -1,0 +1,341 @@
+"""The live playground: one state under a lock, a render thread making JPEG frames, recording, who controls.
+
+Control: the first client that changes something holds control for
+:attr:`Playground.lease` seconds after its last change; meanwhile changes from
+other clients are refused (:class:`Busy`, HTTP 409) and they watch. A client is
+named by the page (a random id it sends with every request), else by its address.
+
+Threads: every GL call happens in the render thread (an EGL context belongs to the
+thread that made it current). It renders when the state changes, and at the frame
+rate while step mode runs or a recording is on; it sleeps otherwise.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from .. import motion, render, spatial
+from ..errors import InputError, MjkinError
+from ..tree import Tree
+from . import core
+
+AXIS_LENGTH = 0.08  # metres: the target's frame axes drawn on the page for pose goals
+TRAIL, TRAIL_STEP = 40, 0.005  # trail points kept, and the least effector move (m) that adds one
+# opaque, and a short trail: in software GL each transparent capsule costs about as much as a frame's worth of
+# pixels, 120 of them cost five frames (mjkin bench play)
+MARKERS = render.Overlay(point_size=0.03, point_rgba=(0.95, 0.2, 0.2, 1.0), trail_rgba=(0.1, 0.5, 0.95, 1.0))
+
+
+class Busy(MjkinError):
+    """Another client controls the playground for now."""
+
+
+def encode_jpeg(image: np.ndarray, quality: int = 80) -> bytes:
+    """JPEG bytes of an RGB image ``(H, W, 3)`` (imageio's Pillow plugin)."""
+    import imageio.v3 as iio
+
+    return bytes(iio.imwrite("<bytes>", image, extension=".jpg", quality=quality))
+
+
+def live_painter(tree: Tree, width: int, height: int) -> render.Painter:
+    """A painter for the live view: no multisampling, shadows or reflections.
+
+    In software GL (llvmpipe) 4x multisampling makes a 640x480 frame about three
+    times slower, shadows and reflections each cost as much again; exported videos
+    keep all three (the model's own settings are restored once the context exists).
+    """
+    quality = tree.model.vis.quality
+    samples, quality.offsamples = quality.offsamples, 0
+    try:
+        painter = render.Painter(tree, width, height)
+    finally:
+        quality.offsamples = samples
+    flags = painter.renderer.scene.flags
+    flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+    flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+    return painter
+
+
+def view_camera(tree: Tree, home: np.ndarray, samples: int = 64) -> mujoco.MjvCamera:
+    """A camera on the space the figure reaches from where it stands (random poses, the free root kept at home).
+
+    :func:`mjkin.render.default_camera` frames every sampled pose; the view is then
+    moved in to 70 % of that distance, as the far corners of the box are seldom reached.
+    """
+    qs = np.concatenate([home[None], tree.random_q(np.random.default_rng(0), samples)])
+    free = tree.layout.free_q.ravel().astype(int)
+    qs[:, free] = home[free]
+    cam = render.default_camera(tree, qs)
+    cam.distance *= 0.7
+    return cam
+
+
+class Playground:
+    """The state of one ``mjkin play`` session and its render thread (call :meth:`start`, then :meth:`close`)."""
+
+    def __init__(self, tree: Tree, width: int = 640, height: int = 480, fps: float = 30.0, lease: float = 5.0,
+                 out_dir: str | Path = ".", frames: Sequence[str] | None = None) -> None:
+        if not fps > 0 or not lease >= 0:
+            raise InputError(f"fps must be > 0 and lease >= 0, got {fps!r}, {lease!r}")
+        self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
+        self.out_dir = Path(out_dir)
+        home = core.initial_state(tree, frames)
+        self.camera = view_camera(tree, home.q)
+        self.view = core.View.of(self.camera, tree.model, width, height)
+        self.state = core.solve_state(tree, home)  # also compiles the solver before the first client comes
+        self._lock = threading.RLock()
+        self._wake = threading.Event()
+        self._closed = threading.Event()
+        self._frame_ready = threading.Condition()
+        self._version = 0
+        self._frame: tuple[int, int, bytes] = (-1, -1, b"")  # (state version, frame number, jpeg)
+        self._controller: str | None = None
+        self._lease_until = 0.0
+        self._recording: list[tuple[float, np.ndarray, np.ndarray]] | None = None
+        self._record_start = 0.0
+        self._error: BaseException | None = None
+        self._export = threading.Lock()  # held while a recording is written; close() waits for it
+        self._thread = threading.Thread(target=self._render_loop, name="mjkin-play-render")
+
+    # ----------------------------------------------------------- life cycle
+    def start(self) -> Playground:
+        """Start the render thread; returns self."""
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the render thread, wake every waiting stream, let a recording being written finish (idempotent)."""
+        self._closed.set()
+        self._wake.set()
+        with self._frame_ready:
+            self._frame_ready.notify_all()
+        if self._thread.is_alive():
+            self._thread.join()
+        with self._export:  # a video half-encoded when the process ends would leave its temporary file
+            pass
+
+    @property
+    def exporting(self) -> bool:
+        """A recording is being written."""
+        return self._export.locked()
+
+    @property
+    def closed(self) -> bool:
+        """The playground is shutting down."""
+        return self._closed.is_set()
+
+    # -------------------------------------------------------------- control
+    def _claim(self, client: str) -> None:
+        now = time.monotonic()
+        if self._controller not in (None, client) and now < self._lease_until:
+            raise Busy(f"another client controls the playground for {self._lease_until - now:.1f} s more; "
+                       "watch, or try again then")
+        self._controller, self._lease_until = client, now + self.lease
+
+    def _change(self, client: str, update: Callable[[core.State], core.State]) -> dict:
+        """Apply ``update`` to the state as ``client`` (under the lock); returns the new state as JSON."""
+        with self._lock:
+            self._claim(client)
+            self.state = update(self.state)
+            self._version += 1
+        self._wake.set()
+        return self.snapshot()
+
+    def apply(self, client: str, event: core.Event) -> dict:
+        """A drag, push or placement: targets move, IK follows (in step mode, frame by frame)."""
+        return self._change(client, lambda s: core.apply(self.tree, self.view, s, event))
+
+    def set_method(self, client: str, method: str) -> dict:
+        """Switch the IK method (and re-solve, unless in step mode)."""
+        return self._change(client, lambda s: self._settle(core.with_method(s, method)))
+
+    def set_goal(self, client: str, goal: str) -> dict:
+        """Switch the goal kind: position, pose or aim."""
+        return self._change(client, lambda s: self._settle(core.with_goal(s, goal)))
+
+    def set_frames(self, client: str, frames: Sequence[str]) -> dict:
+        """Choose the effector frames (sites or bodies)."""
+        return self._change(client, lambda s: self._settle(core.with_frames(self.tree, s, frames)))
+
+    def set_joint(self, client: str, joint: str, value: float) -> dict:
+        """Forward kinematics: move one joint; the targets follow the effectors."""
+        return self._change(client, lambda s: core.with_joint(self.tree, s, joint, value))
+
+    def set_step(self, client: str, on: bool) -> dict:
+        """Step mode on (one solver iteration per frame) or off (solve at once)."""
+        return self._change(client, lambda s: self._settle(replace(s, step=bool(on), iterations=0, stalled=False)))
+
+    def reset(self, client: str) -> dict:
+        """Back to the home pose with targets on the effectors (method, goal kind and mode kept)."""
+        def home(s: core.State) -> core.State:
+            fresh = core.initial_state(self.tree, list(s.targets))
+            return replace(fresh, method=s.method, goal=s.goal, step=s.step)
+        return self._change(client, home)
+
+    def _settle(self, state: core.State) -> core.State:
+        return state if state.step else core.solve_state(self.tree, state)
+
+    # ------------------------------------------------------------ recording
+    def record(self, client: str) -> dict:
+        """Start recording (the pose and targets at the frame rate)."""
+        with self._lock:
+            self._claim(client)
+            if self._recording is not None:
+                raise InputError("already recording; POST /stop first")
+            self._recording, self._record_start = [], time.monotonic()
+        self._wake.set()
+        return self.snapshot()
+
+    def stop(self, client: str) -> dict:
+        """Stop recording; write the trajectory script (JSON) and an mp4 beside it, atomically.
+
+        Returns ``{"path": script, "video": mp4, "frames": n}``.
+        """
+        with self._export:
+            with self._lock:
+                self._claim(client)
+                samples, self._recording = self._recording, None
+            if samples is None:
+                raise InputError("not recording; POST /record first")
+            if self.closed:
+                raise InputError("the playground is shutting down; the recording is not written")
+            return self._write(samples)
+
+    def _write(self, samples: list[tuple[float, np.ndarray, np.ndarray]]) -> dict:
+        if len(samples) < 2:
+            samples = samples + [samples[-1]] if samples else [(0.0, self.state.q, self._points(self.state))] * 2
+        times = np.array([s[0] for s in samples])
+        qs = np.array([s[1] for s in samples])
+        counts = {len(s[2]) for s in samples}
+        targets = np.array([s[2] for s in samples]) if len(counts) == 1 else None
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+        base = self.out_dir / f"mjkin-play-{self.tree.name or 'model'}-{stamp}"
+        frames = list(self.state.targets)
+        traj = motion.Trajectory(times=times - times[0], q=qs, fingerprint=motion.fingerprint(self.tree),
+                                 model=self.tree.name, site=frames[0], targets=targets,
+                                 meta={"play": {"frames": frames, "method": self.state.method,
+                                                "goal": self.state.goal}})
+        video_fps = 30.0
+        pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
+        overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
+        images = render.frames(self.tree, qs[pick], self.width, self.height, camera=self.camera, overlay=overlay)
+        video = render.write_video(images, base.with_suffix(".mp4"), video_fps)
+        script = traj.save(base.with_suffix(".json"))
+        return {"path": str(script), "video": str(video), "frames": len(samples)}
+
+    @property
+    def recording(self) -> bool:
+        """A recording is on."""
+        return self._recording is not None
+
+    # --------------------------------------------------------------- output
+    def _points(self, state: core.State) -> np.ndarray:
+        return np.array([np.asarray(t, float)[:3] for t in state.targets.values()]).reshape(-1, 3)
+
+    def snapshot(self) -> dict:
+        """The state as the JSON of ``GET /state``."""
+        with self._lock:
+            s, version, recording = self.state, self._version, self._recording is not None
+            controller = self._controller if time.monotonic() < self._lease_until else None
+        points = self._points(s)
+        screen = self.view.project(points)
+        rotations = spatial.quat_to_mat(np.array([np.asarray(t, float)[3:] for t in s.targets.values()]))
+        tips = self.view.project(points[:, None, :] + AXIS_LENGTH * np.swapaxes(rotations, -1, -2))  # (n, 3, 2)
+        return {"model": self.tree.name, "q": s.q.tolist(),
+                "targets": {f: np.asarray(t, float).tolist() for f, t in s.targets.items()},
+                "error": list(s.error), "iterations": s.iterations, "method": s.method, "goal": s.goal,
+                "status": s.status, "success": s.success, "stepping": core.needs_step(s),
+                "singular_values": list(s.singular), "manipulability": s.manipulability, "step": s.step,
+                "recording": recording, "controlled": controller is not None, "version": version,
+                "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
+                "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)}}
+
+    def info(self) -> dict:
+        """What the page needs once: methods, goal kinds, frames, sliders, image size."""
+        return {"model": self.tree.name, "methods": list(core.PANEL_METHODS), "goals": list(core.GOAL_KINDS),
+                "sites": [n for n in self.tree.names("site") if n],
+                "bodies": [n for n in self.tree.names("body")[1:] if n],
+                "joints": core.joint_sliders(self.tree), "width": self.width, "height": self.height,
+                "lease": self.lease, "fps": self.fps}
+
+    def frame(self, after: int = -1, timeout: float = 5.0) -> tuple[int, bytes]:
+        """The first frame numbered above ``after`` that shows the state as of this call: ``(number, jpeg)``.
+
+        Waits for the render thread; raises :class:`MjkinError` when it stops or times out.
+        """
+        deadline, want = time.monotonic() + timeout, self._version  # the state as of this request
+        with self._frame_ready:
+            while True:
+                if self._error is not None:
+                    raise MjkinError(f"rendering failed: {self._error}")
+                version, number, jpeg = self._frame
+                if number > after and version >= want:
+                    return number, jpeg
+                left = deadline - time.monotonic()
+                if self.closed or left <= 0:
+                    raise MjkinError("no frame: the playground is shutting down" if self.closed
+                                     else "no frame within the time limit")
+                self._frame_ready.wait(left)
+
+    def next_frame(self, after: int, timeout: float = 1.0) -> tuple[int, bytes] | None:
+        """For streams: the first frame numbered above ``after``, or None after ``timeout`` or at shutdown."""
+        with self._frame_ready:
+            self._frame_ready.wait_for(lambda: self._frame[1] > after or self.closed, timeout)
+            if self.closed or self._frame[1] <= after:
+                return None
+            return self._frame[1], self._frame[2]
+
+    # --------------------------------------------------------- render thread
+    def _render_loop(self) -> None:
+        trail: deque[np.ndarray] = deque(maxlen=TRAIL)
+        shown, number, period = -1, 0, 1.0 / self.fps
+        try:
+            painter = live_painter(self.tree, self.width, self.height)
+        except BaseException as e:  # no GL: requests report it instead of hanging
+            self._fail(e)
+            return
+        try:
+            while not self.closed:
+                tick = time.monotonic()
+                with self._lock:
+                    if core.needs_step(self.state):
+                        self.state = core.solve_state(self.tree, self.state, max_iters=1)
+                        self._version += 1
+                    state, version = self.state, self._version
+                    if self._recording is not None:
+                        self._recording.append((tick - self._record_start, state.q.copy(), self._points(state)))
+                    busy = core.needs_step(state) or self._recording is not None
+                if version != shown:
+                    tip = self.tree.pose(state.q, next(iter(state.targets)))[:3, 3]
+                    if not trail or np.linalg.norm(tip - trail[-1]) >= TRAIL_STEP:
+                        trail.append(tip)
+                    image = painter.draw(state.q, self.camera, self._points(state), np.array(trail), MARKERS)
+                    jpeg = encode_jpeg(image)
+                    number += 1
+                    with self._frame_ready:
+                        self._frame = (version, number, jpeg)
+                        self._frame_ready.notify_all()
+                    shown = version
+                if busy:
+                    self._closed.wait(max(0.0, period - (time.monotonic() - tick)))
+                else:
+                    self._wake.wait(1.0)
+                    self._wake.clear()
+        except BaseException as e:
+            self._fail(e)
+        finally:
+            painter.close()
+
+    def _fail(self, e: BaseException) -> None:
+        with self._frame_ready:
+            self._error = e
+            self._frame_ready.notify_all()

@@ -1,0 +1,246 @@
+"""The solve front door: time limits, what restarts may move, threads, pickling, one compiled layout."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+import mjkin
+from conftest import GYM_ASSETS, tree_of
+from mjkin import goals as G
+from mjkin.ik import kernel
+
+
+def pose_targets(tree, site, rng, n):
+    return tree.pose(tree.random_q(rng, n), site)
+
+
+# ------------------------------------------------------------------ timeout
+def test_timeout_stops_each_target_and_says_so(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 80)  # 80 targets: the threaded path
+    far = tree.qpos0
+    res = mjkin.solve(tree, G.Pose("ee", T=T), far, tol=1e-12, rot_tol=1e-12, timeout=1e-9)
+    assert set(res.status) == {"timeout"}
+    assert not res.success.any()
+    assert np.all(res.iterations <= 1)  # one pass at most before the clock is read
+    np.testing.assert_allclose(tree.clip(res.q), res.q, atol=1e-12)
+
+
+def test_generous_timeout_changes_nothing(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 20)
+    a = mjkin.solve(tree, G.Pose("ee", T=T), tol=1e-5, rot_tol=1e-5)
+    b = mjkin.solve(tree, G.Pose("ee", T=T), tol=1e-5, rot_tol=1e-5, timeout=60.0)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.status, b.status)
+
+
+@pytest.mark.parametrize("kwargs, text", [
+    ({"timeout": 0.0}, "timeout must be a positive"),
+    ({"timeout": float("nan")}, "timeout must be a positive"),
+    ({"timeout": 1.0, "method": "ccd"}, "timeout= works with the methods"),
+])
+def test_bad_timeout(kwargs, text):
+    tree = tree_of("planar_3link")
+    with pytest.raises(mjkin.InputError, match=text):
+        mjkin.solve(tree, G.Position("tip", (10.0, 5.0, 0.0)), **kwargs)
+
+
+# ------------------------------------------------ restarts move only what helps
+def test_restarts_leave_joints_that_cannot_help():
+    """pusher.xml: the object and goal slide joints are no ancestors of the arm's tip."""
+    tree = tree_of(GYM_ASSETS / "pusher.xml")
+    arm = {tree.names("joint")[j] for j in range(tree.njnt) if tree.names("joint")[j].startswith(("r_",))}
+    others = [j for j in range(tree.njnt) if tree.names("joint")[j] not in arm]
+    assert others, "pusher has object/goal joints"
+    q0 = tree.qpos0.copy()
+    res = mjkin.solve(tree, G.Position("tips_arm", kind="body", xyz=(5.0, 5.0, 5.0)), q0, restarts=6)
+    assert res.restarts == 6  # unreachable: every restart ran
+    for j in others:
+        a = tree.jnt_qadr[j]
+        assert res.q[a] == q0[a], tree.names("joint")[j]
+
+
+def test_restarts_keep_the_other_branches_of_a_tree():
+    tree = tree_of("primate")
+    q0 = tree.clip(tree.random_q(np.random.default_rng(3)))  # as solve starts: quaternions renormalised
+    left = tree.pose(q0, "left_hand")[:3, 3]
+    res = mjkin.solve(tree, [G.Position("left_hand", left + (0.0, 0.0, 5.0))], q0, restarts=4,
+                      joints=None, base="upper_torso")
+    moved = np.flatnonzero(res.q != q0)
+    hand_dofs = set(tree.body_dofs[tree.id("left_hand", "body")].tolist())
+    torso_dofs = set(tree.body_dofs[tree.id("upper_torso", "body")].tolist())
+    allowed_q = set()
+    for j in range(tree.njnt):
+        d = int(tree.jnt_dofadr[j])
+        if d in hand_dofs and d not in torso_dofs:
+            n = {0: 7, 1: 4}.get(int(tree.jnt_type[j]), 1)
+            allowed_q |= set(range(tree.jnt_qadr[j], tree.jnt_qadr[j] + n))
+    assert set(moved.tolist()) <= allowed_q
+
+
+def test_restarts_respect_joints_and_two_effectors(rng):
+    tree = tree_of("primate")
+    q0 = tree.qpos0.copy()
+    joints = ["left_shoulder", "left_elbow"]
+    far = tree.pose(q0, "left_hand")[:3, 3] + (0.0, 3.0, 0.0)
+    res = mjkin.solve(tree, [G.Position("left_hand", far), G.Position("right_hand", (0.0, -3.0, 0.0))], q0,
+                      joints=joints, restarts=3)
+    keep = np.ones(tree.nq, dtype=bool)
+    for name in joints:
+        j = tree.id(name, "joint")
+        n = {0: 7, 1: 4}.get(int(tree.jnt_type[j]), 1)
+        keep[tree.jnt_qadr[j]:tree.jnt_qadr[j] + n] = False
+    np.testing.assert_array_equal(res.q[keep], q0[keep])
+
+
+def test_root_keeps_its_pose_through_restarts_and_collision_retries():
+    tree = tree_of("primate")
+    q0 = tree.qpos0.copy()
+    foot = tree.pose(q0, "left_foot", kind="body")
+    hand = tree.pose(q0, "right_hand")[:3, 3] + (0.1, 0.0, 0.1)
+    for extra in ({"restarts": 4}, {"avoid_collisions": True}):
+        res = mjkin.solve(tree, G.Position("right_hand", hand), q0, root="left_foot", **extra)
+        np.testing.assert_allclose(tree.pose(res.q, "left_foot", kind="body"), foot, atol=1e-5)
+
+
+def test_collision_retries_move_only_what_helps():
+    tree = tree_of(GYM_ASSETS / "pusher.xml")
+    q0 = tree.qpos0.copy()
+    arm = [j for j in range(tree.njnt) if tree.names("joint")[j].startswith("r_")]
+    others = [int(tree.jnt_qadr[j]) for j in range(tree.njnt) if j not in arm]
+    tip = tree.pose(q0, "tips_arm", kind="body")[:3, 3]
+    res = mjkin.solve(tree, G.Position("tips_arm", kind="body", xyz=tip + (0.05, 0.0, -0.05)), q0,
+                      avoid_collisions=True)
+    np.testing.assert_array_equal(res.q[others], q0[others])
+
+
+# ------------------------------------------------------------------- analytic2
+@pytest.mark.parametrize("kwargs", [{"joints": ["shoulder"]}, {"restarts": 3}, {"max_iters": 5}, {"root": "link1"},
+                                    {"history": True}])
+def test_analytic2_rejects_options_it_cannot_honour(kwargs):
+    tree = tree_of("planar_2link")
+    with pytest.raises(mjkin.InputError, match="analytic2"):
+        mjkin.solve(tree, G.Position("tip", (1.0, 0.5, 0.0)), method="analytic2", **kwargs)
+
+
+# -------------------------------------------------------------- batch == loop
+def test_threaded_batch_equals_loop_of_single_solves(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 96)  # >= 64: split over threads
+    batch = mjkin.solve(tree, G.Pose("ee", T=T), tol=1e-5, rot_tol=1e-4)
+    for b in range(len(T)):
+        one = mjkin.solve(tree, G.Pose("ee", T=T[b]), tol=1e-5, rot_tol=1e-4)
+        np.testing.assert_array_equal(batch.q[b], one.q)
+        assert batch.status[b] == one.status and batch.iterations[b] == one.iterations
+
+
+def test_halving_reaches_goals_the_plain_step_overshoots():
+    """Seed 002 §4.6.3: a full pinv step from a near-singular start overshoots; halving retracts and lands."""
+    tree = tree_of("planar_3link")
+    q0 = np.array([0.0, 1e-3, 1e-3])
+    goal = G.Position("tip", (20.0, 12.0, 0.0))
+    plain = mjkin.solve(tree, goal, q0, method="pinv", max_iters=40, history=True)
+    halved = mjkin.solve(tree, goal, q0, method="pinv", max_iters=40, halving=True, history=True)
+    assert halved.success
+    err = halved.history.error[:, 0]
+    err = err[np.isfinite(err)]
+    assert np.all(np.diff(err) <= 1e-12)  # halving only accepts steps that lower the error
+    assert halved.iterations <= plain.iterations or not plain.success
+
+
+# ------------------------------------------------------- pickling and slicing
+def test_result_pickles_without_its_tree(rng):
+    tree = tree_of("arm7")
+    res = mjkin.solve(tree, G.Pose("ee", T=pose_targets(tree, "ee", rng, 3)))
+    data = pickle.dumps(res)
+    assert len(data) < 20_000  # the MjModel alone is over a megabyte
+    back = pickle.loads(data)
+    assert back.tree is None
+    np.testing.assert_array_equal(back.q, res.q)
+    with pytest.raises(mjkin.InputError, match="with_tree"):
+        back.singular_values()
+    np.testing.assert_allclose(back.with_tree(tree).singular_values(), res.singular_values())
+
+
+def test_goal_take_slices_targets(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 10)
+    R = T[:, :3, :3]
+    goals = [G.Pose("ee", T=T), G.Orientation("ee", quat=R), G.Rest(tree.qpos0, weight=0.1, priority=1)]
+    full = mjkin.solve(tree, goals)
+    part = mjkin.solve(tree, [g.take(3, 7) for g in goals])
+    np.testing.assert_array_equal(part.q, full.q[3:7])
+    assert goals[2].take(3, 7) is goals[2]  # unbatched: as it is
+
+
+# ---------------------------------------------------------------- threads
+def test_thread_setting(monkeypatch):
+    monkeypatch.delenv("MJKIN_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert mjkin.threads() == 3
+    monkeypatch.setenv("MJKIN_NUM_THREADS", "1")
+    assert mjkin.threads() == 1
+    mjkin.set_threads(5)
+    try:
+        assert mjkin.threads() == 5
+    finally:
+        mjkin.set_threads(None)
+    monkeypatch.setenv("MJKIN_NUM_THREADS", "zero")
+    with pytest.raises(mjkin.InputError, match="MJKIN_NUM_THREADS"):
+        mjkin.threads()
+    with pytest.raises(mjkin.InputError, match="positive integer"):
+        mjkin.set_threads(0)
+
+
+def test_one_thread_runs_the_batch_in_the_caller(monkeypatch, rng):
+    import threading
+
+    from mjkin import parallel
+
+    seen = set()
+    monkeypatch.setenv("MJKIN_NUM_THREADS", "1")
+    parallel.parallel_chunks(lambda lo, hi: seen.add(threading.get_ident()), 1000)
+    assert seen == {threading.get_ident()}
+
+
+# -------------------------------------------------- one compiled specialisation
+def test_batch_sizes_share_one_compiled_kernel(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 70)
+    mjkin.solve(tree, G.Pose("ee", T=T))
+    before = len(kernel.solve_batch.signatures)
+    for goal in (G.Pose("ee", T=T[0]), G.Pose("ee", T=T[:1]), G.Pose("ee", T=T[:5])):
+        mjkin.solve(tree, goal)
+    mjkin.solve(tree, G.Pose("ee", T=T[0]), restarts=0)
+    assert len(kernel.solve_batch.signatures) == before
+
+
+def test_repeated_calls_reuse_the_goal_structure(rng):
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 2)
+    a = G.compile_goals(tree, G.Pose("ee", T=T[0]))
+    b = G.compile_goals(tree, G.Pose("ee", T=T[1]))
+    assert a.kind is b.kind and a.lrot is b.lrot  # shared, only the targets re-encoded
+    assert not np.array_equal(a.data, b.data)
+    c = G.compile_goals(tree, G.Pose("ee", T=T[1], weight=2.0))
+    assert c.sqrt_w is not b.sqrt_w and c.sqrt_w[0] == np.sqrt(2.0)
+
+
+def test_spread_restart_starts_stratify_every_joint():
+    """Sobol starts put exactly one of 64 draws in each 1/64th of every joint's range (uniform draws do not)."""
+    from mjkin import qspace
+
+    tree = tree_of("arm7")
+    q = qspace.random(tree, 0, 64, spread=True)
+    np.testing.assert_allclose(tree.clip(q), q, atol=0)
+    lay = tree.layout
+    u = (q[:, lay.scalar_q] - lay.scalar_lo) / (lay.scalar_hi - lay.scalar_lo)
+    for column in u.T:
+        assert sorted(np.floor(column * 64).astype(int)) == list(range(64))
+    plain = qspace.random(tree, 0, 64)
+    v = (plain[:, lay.scalar_q] - lay.scalar_lo) / (lay.scalar_hi - lay.scalar_lo)
+    assert any(len(set(np.floor(c * 64).astype(int))) < 64 for c in v.T)
