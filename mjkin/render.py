@@ -317,7 +317,7 @@ class Painter:
     def camera(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
                points: NDArray[np.float64] | None = None) -> mujoco.MjvCamera | int:
         """A camera: as given, a model camera by name, or :func:`default_camera` for ``qs`` and ``points``."""
-        return self.cameras(camera, qs, points)[0]
+        return self.cameras(camera, qs, points, follow=False)[0]
 
     def cameras(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
                 points: NDArray[np.float64] | None = None, view: tuple[float, float] | None = None,
