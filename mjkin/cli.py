@@ -246,6 +246,18 @@ def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: 
     print(f"wrote {args.output} ({what}, {args.width}x{args.height})")
 
 
+def write_images(args: argparse.Namespace, images: np.ndarray, frame: int | None) -> None:
+    """Write rendered ``images (T, H, W, 3)`` to ``args.output``: a video, or ``frame`` (from check_output) only."""
+    from . import render
+
+    if frame is None:
+        render.write_video(images, args.output, args.fps)
+    else:
+        render.write_image(images[frame], args.output)
+    what = f"{len(images)} frame{'s' * (len(images) > 1)}" if frame is None else f"frame {frame} of {len(images)}"
+    print(f"wrote {args.output} ({what}, {images.shape[2]}x{images.shape[1]})")
+
+
 def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
                     smooth: float = 0.3) -> tuple[motion.Trajectory, np.ndarray]:
     """The demo on the bundled 7-DoF arm: its effector through five waypoints and home; returns it and the stops."""
@@ -259,19 +271,32 @@ def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
-    from . import render
+    """Render the showcase: the seeds' arm under three solvers, the 7-DoF arm's path, the primate's walk."""
+    from .showcase import scene_frames, showcase
 
     count = int(args.seconds * args.fps)
     if count < 2:
         raise InputError(f"--seconds x --fps must give at least 2 frames, got {count}")
-    frame = check_output(args, count)
-    tree = load("arm7")
-    traj, stops = demo_trajectory(tree, count, args.fps)
-    ok = traj.success if traj.success is not None else np.ones(len(traj.q), bool)
-    print(f"IK: {ok.mean():.0%} of {len(traj.q)} frames on target; largest joint step per frame "
-          f"{traj.jumps(tree).max():.3f} rad")
-    write_output(args, tree, traj.q, render.Overlay(points=stops[1:-1], trail="ee"), frame)
+    frame = check_output(args, sum(scene_frames(args.scene, args.seconds, args.fps).values()))
+    write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), frame)
+    return 0
+
+
+WALK_FRAMES_PER_STEP = 24
+
+
+def cmd_walk(args: argparse.Namespace) -> int:
+    """Render the primate walking (heel to toe, arms swinging), seen from the side by a tracking camera."""
+    from . import render
+
+    frame = check_output(args, args.steps * WALK_FRAMES_PER_STEP)  # a clear error before the work
+    tree = load("primate")
+    walk = motion.walk_cycle(tree, steps=args.steps, stride=args.stride, frames_per_step=WALK_FRAMES_PER_STEP,
+                             fps=args.fps)
+    ok = walk.success if walk.success is not None else np.ones(len(walk.q), bool)
+    print(f"walk: {args.steps} steps of {args.stride} m, {len(walk.q)} frames, feet on target in {ok.mean():.0%}")
+    write_images(args, render.frames(tree, walk.q, args.width, args.height, view=render.WALK_VIEW, follow=True),
+                 frame)
     return 0
 
 
@@ -328,6 +353,22 @@ def cmd_replay(args: argparse.Namespace) -> int:
     model = args.model or motion.Trajectory.load(args.script).model
     args.model, args.q = model, None
     return cmd_render(args)
+
+
+def cmd_workspace(args: argparse.Namespace) -> int:
+    """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
+    from .workspace import plot, workspace
+
+    tree = load(args.model)
+    sites = [n for n in tree.names("site") if n]
+    frame = args.frame or (sites[-1] if sites else tree.names("body")[-1])  # default: the last site, the tip
+    ws = workspace(tree, frame, args.samples)
+    shape = (f"planar annulus {ws.inner:.4g} <= r <= {ws.outer:.4g} about {np.round(ws.base, 4).tolist()}"
+             if ws.planar else f"{ws.inner:.4g} <= distance from the base <= {ws.outer:.4g}")
+    plot(ws, args.output, f"{tree.name} · {frame}: {args.samples} samples")
+    print(f"wrote {args.output}: {shape}; box {np.round(ws.lo, 4).tolist()} .. {np.round(ws.hi, 4).tolist()}; "
+          f"dexterous {ws.dexterous.mean():.0%} of the samples")
+    return 0
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -402,10 +443,17 @@ def build_parser() -> argparse.ArgumentParser:
                        help="for an image output: which frame, from 0, negative from the end (default -1, the last); "
                             "only that frame is rendered")
 
-    s = sub.add_parser("demo", help="render a scripted IK trajectory of the 7-DoF arm (the main job)")
+    s = sub.add_parser("demo", help="render the showcase video (the main job): seeds' arm, 7-DoF path, walk")
     video_options(s, "mjkin-demo.mp4")
-    s.add_argument("--seconds", type=positive_float, default=6.0, help="length of the motion (default 6)")
+    s.add_argument("--seconds", type=positive_float, default=15.0, help="length of the showcase (default 15)")
+    s.add_argument("--scene", default="all", choices=["all", "seeds", "arm", "walk"], help="one part only")
     s.set_defaults(run=cmd_demo)
+
+    s = sub.add_parser("walk", help="render the bundled primate walking, seen from the side")
+    video_options(s, "mjkin-walk.mp4")
+    s.add_argument("--steps", type=positive_int, default=4, help="steps (default 4)")
+    s.add_argument("--stride", type=positive_float, default=0.3, help="stride length in metres (default 0.3)")
+    s.set_defaults(run=cmd_walk)
 
     s = sub.add_parser("trajectory", help="solve a Cartesian path for a site and save the script (JSON)")
     s.add_argument("model", help=model_help)
@@ -436,6 +484,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", help="model (default: the one named in the script)")
     video_options(s, None)
     s.set_defaults(run=cmd_replay, deg=False, seed=None)
+
+    s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
+    s.add_argument("model", help=model_help)
+    s.add_argument("--frame", help="the site or body whose workspace is sampled (default: the model's last site)")
+    s.add_argument("--samples", type=positive_int, default=20_000, help="random configurations (default 20000)")
+    s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
+    s.set_defaults(run=cmd_workspace)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     bench.add_arguments(s)

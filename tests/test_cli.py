@@ -95,7 +95,7 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["demo", "-o", "/proc/x.mp4"], "folder '/proc' is not writable"),
     (["demo", "-o", "missing/x.mp4"], "folder 'missing' does not exist"),
     (["demo", "-o", "d.avi"], "output must end in .mp4"),
-    (["demo", "-o", "still.png", "--frame", "180"], "--frame must be in [-180, 179]"),
+    (["demo", "-o", "still.png", "--frame", "447"], "--frame must be in [-447, 446]"),  # 15 s, 30 fps
     (["replay", "{script}", "-o", "r.avi"], "output must end in .mp4"),
     (["replay", "{script}", "-o", "still.png", "--frame", "5"], "--frame must be in [-5, 4]"),
     (["replay", "{script}", "-o", "still.png", "--frame", "-6"], "--frame must be in [-5, 4]"),

@@ -19,7 +19,7 @@ from .kernel import STATUS_NAMES
 
 Array = NDArray[np.float64]
 
-METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
+METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach")
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
 # lm's initial μ (λ² = λ_min² + μ·cost) and largest joint step per iteration: on the TRAC-IK protocol
 # (3000 targets, mid-range start, 1e-5) 0.1 / 1.0 cut mean iterations against 0.01 / 0.5 on every real arm
@@ -230,8 +230,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
             error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
-            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar), or
-            ``"optimize"`` (SciPy, box and coupling constraints).
+            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar),
+            ``"optimize"`` (SciPy, box and coupling constraints), or ``"reach"``
+            (recursive reach; status ``"root_would_move"`` when the goal is out of the chain's ring).
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
         max_iters: iteration (CCD: sweep) limit of each run (the start and every
@@ -332,6 +333,10 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .ccd import solve_ccd
 
         result = solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, restart_q, patience)
+    elif name == "reach":
+        from .reach import solve_reach
+
+        result = solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
     else:
         extent = float(tree.model.stat.extent) or 1.0
         st = kernel.settings(tol, rot_tol, ((1e-5 if name == "lm" else 0.05) * extent) if damping is None else damping,
