@@ -27,18 +27,23 @@ import numpy as np
 
 import mjkin
 from mjkin import goals as G
-from mjkin.distributed import PoseSolver, RandomPoses, solve_many
+from mjkin.distributed import PoseSolver, random_poses, solve_many
 
 
-def dataset(out: str, n: int, chunk: int, workers: int, address: str | None) -> None:
-    """Write ``n`` solved random targets as Parquet shards under ``out``."""
+def dataset(out: str, n: int, chunk: int, workers: int | None, address: str | None) -> None:
+    """Write ``n`` solved random targets as Parquet shards under ``out``.
+
+    ``workers`` solver actors take a CPU each; by default all CPUs but one, which the
+    read tasks (that also make the targets) need: with none left the job waits forever.
+    """
     import ray
 
     ray.init(address=address, include_dashboard=False)
+    if workers is None:
+        workers = max(1, int(ray.cluster_resources().get("CPU", 1)) - 1)
     start = time.perf_counter()
     (ray.data.range(n, override_num_blocks=max(1, n // chunk))
-        .map_batches(RandomPoses, fn_constructor_kwargs=dict(model="arm7", frame="ee", seed=0),
-                     batch_size=chunk, concurrency=1, num_cpus=0.25)
+        .map_batches(random_poses, fn_kwargs=dict(model="arm7", frame="ee", seed=0), batch_size=chunk)
         .map_batches(PoseSolver, fn_constructor_kwargs=dict(model="arm7", frame="ee"),
                      batch_size=chunk, concurrency=workers, num_cpus=1)
         .write_parquet(out))
@@ -86,7 +91,7 @@ def main() -> None:
     d.add_argument("out", help="folder (or s3://... URL) for the shards")
     d.add_argument("--targets", type=int, default=100_000)
     d.add_argument("--chunk", type=int, default=20_000)
-    d.add_argument("--workers", type=int, default=2, help="solver actors (one CPU each)")
+    d.add_argument("--workers", type=int, help="solver actors (one CPU each); default all CPUs but one")
     d.add_argument("--address", help="Ray cluster to join ('auto': the local node's); default a new local one")
     m = sub.add_parser("measure", help="time mjkin.solve against solve_many on this machine")
     m.add_argument("--targets", type=int, default=200_000)

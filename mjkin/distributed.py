@@ -11,20 +11,23 @@ or datasets larger than memory.
 - :func:`render_many` renders trajectory scripts (``mjkin trajectory``,
   :meth:`mjkin.motion.Trajectory.save`) to clips, one per task, encoded in the
   worker.
-- :class:`RandomPoses` and :class:`PoseSolver` are Ray Data stages for datasets
+- :func:`random_poses` and :class:`PoseSolver` are Ray Data stages for datasets
   that do not fit in memory: targets are made in the workers, solved there and
   written as Parquet shards, never gathered on the driver::
 
       import ray
-      from mjkin.distributed import PoseSolver, RandomPoses
+      from mjkin.distributed import PoseSolver, random_poses
 
       n, chunk, workers = 100_000_000, 20_000, 64
       (ray.data.range(n, override_num_blocks=n // chunk)
-          .map_batches(RandomPoses, fn_constructor_kwargs=dict(model="arm7", frame="ee", seed=0),
-                       batch_size=chunk, concurrency=workers)
+          .map_batches(random_poses, fn_kwargs=dict(model="arm7", frame="ee", seed=0), batch_size=chunk)
           .map_batches(PoseSolver, fn_constructor_kwargs=dict(model="arm7", frame="ee", restarts=0),
                        batch_size=chunk, concurrency=workers, num_cpus=1)
           .write_parquet("s3://bucket/arm7-ik"))  # columns: id, position, quaternion, q, success, error
+
+  Leave a CPU free for the read tasks (which also make the targets):
+  with ``workers`` equal to the cluster's CPUs, Ray Data waits forever.
+  ``examples/ray_dataset.py`` runs this job on one machine.
 
 Both functions attach to a running cluster (``ray.init`` already called, or
 ``address=``) or start a local one. Workers import the mjkin installed on their
@@ -302,25 +305,19 @@ def render_many(model: Model, scripts: Sequence[str | os.PathLike[str]], out_dir
 
 
 # ----------------------------------------------------------------- Ray Data stages
-class RandomPoses:
-    """Ray Data stage: reachable random poses of ``frame`` for a batch of ids.
+def random_poses(batch: dict[str, NDArray], model: Model, frame: str, seed: int = 0) -> dict[str, NDArray]:
+    """Ray Data stage (a function, so it runs in the read tasks): reachable random poses of ``frame``.
 
     Input column ``id`` (as made by ``ray.data.range``); adds ``position (n, 3)``
     and ``quaternion (n, 4)`` (w, x, y, z): the frame's pose at random
     configurations within the limits, drawn from a generator seeded with
     ``(seed, first id of the batch)``.
     """
-
-    def __init__(self, model: Model, frame: str, seed: int = 0) -> None:
-        self.tree, self.frame, self.seed = _tree(model), frame, int(seed)
-        self.tree.frame(frame)  # an unknown name fails when the stage starts
-
-    def __call__(self, batch: dict[str, NDArray]) -> dict[str, NDArray]:
-        """The batch with its targets added."""
-        ids = np.asarray(batch["id"])
-        rng = np.random.default_rng([self.seed, int(ids[0]) if len(ids) else 0])
-        T = self.tree.pose(self.tree.random_q(rng, len(ids)), self.frame).reshape(-1, 4, 4)
-        return {**batch, "position": T[:, :3, 3], "quaternion": mat_to_quat(T[:, :3, :3])}
+    tree = _tree(model)
+    ids = np.asarray(batch["id"])
+    rng = np.random.default_rng([int(seed), int(ids[0]) if len(ids) else 0])
+    T = tree.pose(tree.random_q(rng, len(ids)), frame).reshape(-1, 4, 4)
+    return {**batch, "position": T[:, :3, 3], "quaternion": mat_to_quat(T[:, :3, :3])}
 
 
 class PoseSolver:

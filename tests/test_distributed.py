@@ -10,7 +10,7 @@ ray = pytest.importorskip("ray", reason='Ray is not installed (pip install "mjki
 import mjkin  # noqa: E402
 from mjkin import distributed, motion  # noqa: E402
 from mjkin import goals as G  # noqa: E402
-from mjkin.distributed import PoseSolver, RandomPoses, pose_matrices, render_many, solve_many  # noqa: E402
+from mjkin.distributed import PoseSolver, pose_matrices, random_poses, render_many, solve_many  # noqa: E402
 
 FIELDS = ("q", "success", "error", "iterations", "status", "goal_errors", "restarts")
 
@@ -144,10 +144,9 @@ def test_ray_data_pipeline_writes_parquet_equal_to_solve(arm, tmp_path):
 
     n, batch = 600, 200
     (ray.data.range(n, override_num_blocks=3)
-        .map_batches(RandomPoses, fn_constructor_kwargs=dict(model="arm7", frame="ee", seed=1),
-                     batch_size=batch, concurrency=1, num_cpus=0.5)
+        .map_batches(random_poses, fn_kwargs=dict(model="arm7", frame="ee", seed=1), batch_size=batch)
         .map_batches(PoseSolver, fn_constructor_kwargs=dict(model="arm7", frame="ee", restarts=0),
-                     batch_size=batch, concurrency=1, num_cpus=0.5)
+                     batch_size=batch, concurrency=1, num_cpus=1)
         .write_parquet(str(tmp_path / "ik")))
     assert len(list((tmp_path / "ik").glob("*.parquet"))) >= 2
     rows = ray.data.read_parquet(str(tmp_path / "ik")).take_batch(n + 1, batch_format="numpy")
