@@ -15,6 +15,9 @@ per machine (or node image).
     :func:`mjkin.distributed.solve_many` on a local cluster with the same cores,
     checks that both give the same answers bit for bit, and prints Ray's costs:
     start-up, a worker's start, and each chunk's round trip.
+
+``python examples/ray_dataset.py render OUT --clips 4 --frames 60``
+    Times clips rendered one after another here against :func:`mjkin.distributed.render_many`.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ import numpy as np
 
 import mjkin
 from mjkin import goals as G
-from mjkin.distributed import PoseSolver, random_poses, solve_many
+from mjkin import motion, render
+from mjkin.distributed import PoseSolver, random_poses, render_many, solve_many
 
 
 def dataset(out: str, n: int, chunk: int, workers: int | None, address: str | None) -> None:
@@ -83,6 +87,30 @@ def measure(n: int, chunk: int) -> None:
           f"({many / alone:.2f}x mjkin.solve); equal bit for bit: {same}")
 
 
+def clips(n: int, frames: int, out: str) -> None:
+    """Time ``n`` clips of ``frames`` frames rendered in a loop here, then by render_many on all cores."""
+    import ray
+
+    tree = mjkin.load("arm7")
+    scripts = []
+    for k in range(n):
+        q = np.linspace(tree.qpos0, tree.random_q(np.random.default_rng(k), 1)[0], frames)
+        traj = motion.Trajectory(np.arange(frames) / 30.0, q, motion.fingerprint(tree), model="arm7", site="ee")
+        scripts.append(traj.save(f"{out}/clip{k}.json"))
+    start = time.perf_counter()
+    for k, script in enumerate(scripts):
+        traj = motion.Trajectory.load(script, tree)
+        images = render.frames(tree, traj.q, 640, 480, overlay=render.Overlay(trail=traj.site))
+        render.write_video(images, f"{out}/loop{k}.mp4")
+    loop = time.perf_counter() - start
+    ray.init(num_cpus=len(os.sched_getaffinity(0)), include_dashboard=False, log_to_driver=False)
+    start = time.perf_counter()
+    render_many(tree, scripts, out, progress=False)
+    many = time.perf_counter() - start
+    print(f"{n} clips of {frames} frames (640x480 mp4): a loop {loop:.1f} s, render_many {many:.1f} s "
+          f"({loop / many:.2f}x faster)")
+
+
 def main() -> None:
     """Parse the command line and run one of the two jobs."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -96,11 +124,17 @@ def main() -> None:
     m = sub.add_parser("measure", help="time mjkin.solve against solve_many on this machine")
     m.add_argument("--targets", type=int, default=200_000)
     m.add_argument("--chunk", type=int, default=20_000)
+    r = sub.add_parser("render", help="time clips rendered in a loop against render_many on this machine")
+    r.add_argument("out", help="folder for the scripts and clips")
+    r.add_argument("--clips", type=int, default=4)
+    r.add_argument("--frames", type=int, default=60)
     args = p.parse_args()
     if args.job == "dataset":
         dataset(args.out, args.targets, args.chunk, args.workers, args.address)
-    else:
+    elif args.job == "measure":
         measure(args.targets, args.chunk)
+    else:
+        clips(args.clips, args.frames, args.out)
 
 
 if __name__ == "__main__":

@@ -113,6 +113,11 @@ def test_threads_per_worker_one_runs_one_solver_thread(arm):
     finally:
         for a in actors:
             ray.kill(a)
+    (both,) = distributed._actors(arm, None, 2, 10)  # one worker holds both CPUs
+    try:
+        assert ray.get(both.threads.remote()) == 2
+    finally:
+        ray.kill(both)
     with pytest.raises(mjkin.InputError, match="threads_per_worker=3 but the Ray cluster has 2 CPUs"):
         distributed._actors(arm, None, 3, 10)
 
