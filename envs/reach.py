@@ -3,206 +3,222 @@
 from __future__ import annotations
 
 import os
+import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 import mjkin
 from mjkin import goals as G
+from mjkin import spatial
 from mjkin.render import Overlay, Painter, default_camera
-from mjkin.scene import Scene
+
+from .task import ReachTask
 
 Array = NDArray[np.float64]
+
+
+def has_display() -> bool:
+    """Whether a window can be opened (X11 or Wayland)."""
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class ReachEnv(gym.Env):
     """Reach a random target with an arm's effector site.
 
     The configuration ``q`` is the arm's MuJoCo ``qpos``; every step the action
-    changes it through mjkin, the result is clipped into the joint limits,
-    written to MuJoCo for contacts, and observed.
+    changes it through mjkin, the result is clipped into the joint limits (an
+    unlimited hinge is wrapped into [-π, π]), written to MuJoCo for contacts,
+    and observed. One mjkin FK per step gives the effector for the observation,
+    the reward and ``info``.
 
     ## Action space
-    ``Box(-1, 1)``, scaled by ``step_size``:
+    ``Box(-1, 1, (n,), float32)``; values outside are clipped, then scaled:
 
-    | action_type | shape | meaning |
-    |---|---|---|
-    | ``"joint"`` | ``(nv,)`` | joint position change, ``step_size`` rad (or m) per unit |
-    | ``"cartesian"`` | ``(3,)`` | effector displacement in world axes, ``step_size`` m per unit, solved by mjkin IK |
+    | action_type | goal_type | n | meaning |
+    |---|---|---|---|
+    | ``"joint"`` | any | ``nv`` | joint position change, ``step_size`` rad (or m) per unit |
+    | ``"cartesian"`` | ``"position"`` | 3 | effector displacement, world axes, ``step_size`` m per unit |
+    | ``"cartesian"`` | ``"pose"`` | 6 | twist: displacement (``step_size`` m per unit), rotation vector |
+    | | | | (world axes, ``rot_step`` rad per unit); the new pose is solved by mjkin IK |
 
     ## Observation space
-    ``Box(-inf, inf, (nq + 9,))``, float64:
+    A goal ``g`` is the effector position ``[x, y, z]`` (``goal_type="position"``,
+    3 numbers) or its pose ``[x, y, z, qw, qx, qy, qz]`` (``"pose"``, 7 numbers,
+    ``qw >= 0``). With ``E = MjModel.stat.extent`` (arm7: 1.43 m, planar_3link:
+    30, panda: 1.2 m; ``env.unwrapped.extent``), float64 ``Box`` with these bounds:
 
-    | index | meaning |
-    |---|---|
-    | ``0 : nq`` | joint configuration ``q`` (qpos; unlimited hinges wrapped into [-π, π]) |
-    | ``nq : nq+3`` | effector position (world, m) |
-    | ``nq+3 : nq+6`` | target position (world, m) |
-    | ``nq+6 : nq+9`` | target minus effector |
+    | index | meaning | bounds |
+    |---|---|---|
+    | ``0 : nq`` | joint configuration ``q`` (qpos) | joint limits; unlimited hinges [-π, π]; unlimited slides ±10 E |
+    | next 3 or 7 | achieved goal: effector position (m) [and quaternion] | position ±4 E; qw [0, 1], qx..qz [-1, 1] |
+    | next 3 or 7 | desired goal (the target) | as the achieved goal |
+    | next 3 or 6 | target minus effector position [, rotation vector effector → target, world axes] | ±8 E [; ±π] |
+
+    With ``goal_conditioned=True`` the observation is instead a ``Dict`` as in
+    gymnasium-robotics: ``observation`` = ``q`` (bounds as above),
+    ``achieved_goal`` and ``desired_goal`` = the goals (bounds as above).
 
     ## Rewards
-    Dense (default): ``-distance + success_bonus · success - collision_penalty · in_collision``.
-    Sparse: ``success_bonus · success - 1 · (not success)``. The terms are in ``info``.
+    With ``d`` the position distance (m), ``θ`` the rotation angle to the
+    target's orientation (rad, 0 for position goals), ``success = d < success_tol
+    and θ < rot_tol`` and ``c = info["in_collision"]``:
+
+    - dense (default): ``-(d + (success_tol / rot_tol) θ) + success_bonus · success - collision_penalty · c``
+    - sparse: ``-1 + success - collision_penalty · c`` (−1 until the goal is met, then 0, as gymnasium-robotics)
+
+    ``env.unwrapped.compute_reward(achieved_goal, desired_goal, info)`` is that
+    function, vectorised over a leading batch axis (``info``: a dict, a dict of
+    arrays, or a list/array of dicts); ``step`` calls it, so replayed (HER)
+    transitions get the reward the env gave. ``info`` holds ``distance``,
+    ``is_success``, ``contacts`` (MuJoCo contacts, adjacent bodies excluded),
+    ``in_collision``, ``reward_distance`` (``-d``) and, for pose goals, ``angle``.
 
     ## Starting state
-    ``q`` is the model's first keyframe (else ``qpos0``) plus uniform noise of
-    ``start_noise`` rad, clipped into the limits; the target is the effector
-    position of a random in-limit configuration (always reachable) inside
-    ``target_region`` when given (``(low, high)`` boxes, resampled until inside).
+    ``q`` is the model's first keyframe (else ``qpos0``) moved by uniform noise in
+    ``[-start_noise, start_noise]`` rad (or m) per dof, clipped into the limits.
+    The target is the effector goal of a random in-limit configuration that is
+    free of contacts (so always reachable), inside ``target_region`` (``(low,
+    high)`` boxes, world m) when given and outside every obstacle; resampled
+    until so. ``reset(options={"q": q, "target": g})`` sets either instead (``q`` clipped into the limits;
+    ``options={"q": env.unwrapped.q}`` keeps the arm where it is for a new target).
 
     ## Episode end
-    ``terminated`` when the distance is below ``success_tol``; ``truncated`` by
-    the ``TimeLimit`` of the registration (``max_episode_steps``).
+    ``terminated`` when ``success``; ``truncated`` by the registration's
+    ``TimeLimit`` (``max_episode_steps=100``).
 
     ## Arguments
-    ``model`` (bundled name or path), ``site``, ``action_type``, ``step_size``,
-    ``success_tol`` (m), ``success_bonus``, ``sparse``, ``collision_penalty``,
-    ``obstacles`` (list of ``(center, radius)`` spheres: a target inside one is
-    resampled, and touching one counts as a collision), ``target_region``,
-    ``start_noise``, ``render_mode`` (``"rgb_array"``; ``"human"`` only with a
-    display), ``width``, ``height``.
+    | argument | default | meaning |
+    |---|---|---|
+    | ``model`` | per id | bundled model name, MJCF path or XML string |
+    | ``site`` | per id | the effector frame (site, else body) |
+    | ``action_type`` | ``"joint"`` | ``"joint"`` or ``"cartesian"`` |
+    | ``goal_type`` | ``"position"`` | ``"position"`` or ``"pose"`` |
+    | ``goal_conditioned`` | ``False`` | Dict observations and the goal-env methods' contract |
+    | ``step_size`` | 0.1 rad (joint), 0.05 E (cartesian) | scale of one action unit |
+    | ``rot_step`` | 0.1 | rad per unit of a cartesian pose action's rotation |
+    | ``success_tol`` | 0.02 E | position tolerance (m) |
+    | ``rot_tol`` | 0.1 | angle tolerance (rad) of pose goals |
+    | ``success_bonus`` | 1.0 | dense reward bonus on success |
+    | ``sparse`` | ``False`` | −1/0 rewards |
+    | ``collision_penalty`` | 0.0 | subtracted while in contact |
+    | ``obstacles`` | none | ``[(center, radius), ...]`` spheres added to the MuJoCo model (contacts, frames, penalty) |
+    | ``table`` | ``None`` | height (world z, m) of a table top added under the arm |
+    | ``target_region`` | anywhere | ``(low, high)`` box the targets are drawn in |
+    | ``start_noise`` | 0.1 | start noise around the keyframe |
+    | ``render_mode`` | ``None`` | ``"rgb_array"``; ``"human"``: a window where a display exists (else a warning) |
+    | ``width``, ``height`` | 480, 360 | frame size |
 
     ## Version history
-    v0: first version.
+    v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).
     """
 
-    # "human" is offered only where a display exists: gymnasium's checks open every listed mode
-    metadata = {"render_modes": ["rgb_array", "human"] if os.environ.get("DISPLAY") else ["rgb_array"],
-                "render_fps": 30}
+    # gym.make reads the class's modes: with "human" listed it never wraps the env in pygame's HumanRendering;
+    # an instance lists "human" only where a display exists (or it was asked for): gymnasium's checks open every
+    # listed mode
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
     def __init__(self, model: str = "arm7", site: str = "ee", action_type: str = "joint",
-                 step_size: float | None = None, success_tol: float | None = None, success_bonus: float = 1.0,
-                 sparse: bool = False, collision_penalty: float = 0.0,
-                 obstacles: list[tuple[Any, float]] | None = None,
-                 target_region: tuple[Any, Any] | None = None, start_noise: float = 0.1,
+                 goal_type: str = "position", goal_conditioned: bool = False, step_size: float | None = None,
+                 rot_step: float = 0.1, success_tol: float | None = None, rot_tol: float = 0.1,
+                 success_bonus: float = 1.0, sparse: bool = False, collision_penalty: float = 0.0,
+                 obstacles: Sequence[tuple[ArrayLike, float]] | None = None, table: float | None = None,
+                 target_region: tuple[ArrayLike, ArrayLike] | None = None, start_noise: float = 0.1,
                  render_mode: str | None = None, width: int = 480, height: int = 360) -> None:
-        if action_type not in ("joint", "cartesian"):
-            raise mjkin.InputError(f"action_type must be 'joint' or 'cartesian', not {action_type!r}")
         if render_mode not in (None, "rgb_array", "human"):
             raise mjkin.InputError(f"render_mode must be None, 'rgb_array' or 'human', not {render_mode!r}")
-        if render_mode == "human" and not os.environ.get("DISPLAY"):
-            raise mjkin.InputError("render_mode='human' needs a display; use render_mode='rgb_array' on a headless "
-                                   "machine")
-        self.tree = mjkin.load(model)
-        self.site = site
-        self.tree.frame(site)  # unknown names fail here, with the list of names
-        extent = float(self.tree.model.stat.extent) or 1.0
-        self.action_type = action_type
-        default_step = 0.1 if action_type == "joint" else 0.05 * extent
-        self.step_size = float(step_size if step_size is not None else default_step)
-        self.success_tol = float(success_tol if success_tol is not None else 0.02 * extent)
-        self.success_bonus, self.sparse, self.collision_penalty = float(success_bonus), bool(sparse), \
-            float(collision_penalty)
-        self.obstacles = [(np.asarray(c, dtype=np.float64), float(r)) for c, r in (obstacles or [])]
-        self.target_region = None if target_region is None else (np.asarray(target_region[0], dtype=np.float64),
-                                                                   np.asarray(target_region[1], dtype=np.float64))
-        self.start_noise = float(start_noise)
+        self.task = ReachTask(model, site, action_type, goal_type, step_size, rot_step, success_tol, rot_tol,
+                              success_bonus, sparse, collision_penalty, obstacles, table, target_region, start_noise,
+                              goal_conditioned)
+        t = self.task
+        self.tree, self.site, self.scene, self.home = t.tree, site, t.scene, t.home
+        self.action_type, self.goal_type, self.goal_conditioned = t.action_type, t.goal_type, t.goal_conditioned
+        self.step_size, self.success_tol, self.rot_tol, self.extent = t.step_size, t.success_tol, t.rot_tol, t.extent
+        self.action_space, self.observation_space = t.action_space, t.observation_space
         self.render_mode, self.width, self.height = render_mode, width, height
-        m = self.tree.model
-        self.home = m.key_qpos[0].copy() if m.nkey else self.tree.qpos0.copy()
-        self.scene = Scene(self.tree)
-        n_act = self.tree.nv if action_type == "joint" else 3
-        self.action_space = spaces.Box(-1.0, 1.0, (n_act,), dtype=np.float32)
-        lay = self.tree.layout
-        self._wrap = lay.scalar_q[lay.scalar_hinge & ~np.isfinite(lay.scalar_hi)]  # unlimited hinges
-        q_lo, q_hi = np.full(self.tree.nq, -1.0), np.full(self.tree.nq, 1.0)  # quaternions
-        q_lo[lay.scalar_q] = np.where(np.isfinite(lay.scalar_lo), lay.scalar_lo, -10 * extent)
-        q_hi[lay.scalar_q] = np.where(np.isfinite(lay.scalar_hi), lay.scalar_hi, 10 * extent)
-        q_lo[self._wrap], q_hi[self._wrap] = -np.pi, np.pi
-        q_lo[lay.free_q[:, :3].ravel()], q_hi[lay.free_q[:, :3].ravel()] = -10 * extent, 10 * extent
-        far = np.full(9, 4.0 * extent)
-        self.observation_space = spaces.Box(np.concatenate([q_lo, -far]), np.concatenate([q_hi, far]),
-                                            dtype=np.float64)
+        human = has_display() or render_mode == "human"
+        self.metadata = {**ReachEnv.metadata, "render_modes": ["rgb_array", "human"] if human else ["rgb_array"]}
+        if render_mode == "human" and not has_display():
+            warnings.warn("render_mode='human' needs a display; this machine has none, so nothing is shown "
+                          "(use render_mode='rgb_array' for frames)", stacklevel=2)
         self.q = self.home.copy()
-        self.target = np.zeros(3)
+        self.target = t.achieved(self.q[None])[0][0]
+        self._achieved, self._R = self.target.copy(), t.achieved(self.q[None])[1]  # R: (1, 3, 3) or None
         self._painter: Painter | None = None
         self._camera: Any = None
 
     # ------------------------------------------------------------------ state
     def effector(self, q: Array | None = None) -> Array:
-        """World position of the effector site at ``q`` (default: now)."""
-        return self.tree.pose(self.q if q is None else q, self.site)[:3, 3]
+        """World position ``(3,)`` of the effector site at ``q`` (default: now)."""
+        if q is None:
+            return self._achieved[:3].copy()
+        return self.task.achieved(self.tree.check_q(q).reshape(1, -1))[0][0, :3]
 
-    def _set(self, q: Array) -> None:
-        q = self.tree.clip(q)
-        q[self._wrap] = np.angle(np.exp(1j * q[self._wrap]))
-        self.q = q
+    def compute_reward(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
+        """The step reward for goals ``(..., 3|7)`` (see the class docstring); batched over leading axes."""
+        return self.task.compute_reward(achieved_goal, desired_goal, info)
 
-    def _obs(self, ee: Array) -> Array:
-        return np.concatenate([self.q, ee, self.target, self.target - ee])
+    def compute_terminated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
+        """Whether the goals are met, batched like :meth:`compute_reward`."""
+        return self.task.compute_terminated(achieved_goal, desired_goal, info)
 
-    def _sample_target(self) -> Array:
-        for _ in range(1000):
-            p = self.effector(self.tree.random_q(self.np_random))
-            inside = self.target_region is None or bool(np.all((p >= self.target_region[0])
-                                                               & (p <= self.target_region[1])))
-            clear = all(np.linalg.norm(p - c) > r for c, r in self.obstacles)
-            if inside and clear:
-                return p
-        raise mjkin.InputError("no reachable target found inside target_region and outside the obstacles")
+    def compute_truncated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
+        """Never by the goals (the time limit truncates), batched like :meth:`compute_reward`."""
+        return self.task.compute_truncated(achieved_goal, desired_goal, info)
 
-    def _touching_obstacle(self) -> bool:
-        if not self.obstacles:
-            return False
-        points = self.tree.fk(self.q)[1:, :3, 3]
-        return any(np.any(np.linalg.norm(points - c, axis=-1) < r) for c, r in self.obstacles)
+    def _observe(self) -> Any:
+        if self.goal_type == "position" and not self.goal_conditioned:  # the common case, without a batch axis
+            return np.concatenate((self.q, self._achieved, self.target, self.target - self._achieved))
+        obs = self.task.observe(self.q[None], self._achieved[None], self.target[None])
+        return {k: v[0] for k, v in obs.items()} if self.goal_conditioned else obs[0]
+
+    def _settle(self, q: Array) -> tuple[dict[str, Any], float]:
+        """Make ``q (1, nq)`` current: one FK for the effector, MuJoCo for contacts; ``info`` and the reward."""
+        achieved, R, _ = self.task.achieved(q)
+        self.q, self._achieved, self._R = q[0], achieved[0], R
+        out, reward = self.task.outcome(q, achieved, self.target[None])
+        distance = float(out["distance"][0])
+        info = {"distance": distance, "is_success": bool(out["is_success"][0]), "contacts": int(out["contacts"][0]),
+                "in_collision": bool(out["in_collision"][0]), "reward_distance": -distance}
+        if "angle" in out:
+            info["angle"] = float(out["angle"][0])
+        return info, float(reward[0])
 
     # ---------------------------------------------------------------- gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Array, dict]:
-        """Start an episode: a new target and a start near the home pose."""
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        """Start an episode: a start near the home pose and a new target, or those in ``options``."""
         super().reset(seed=seed)
-        noise = self.np_random.uniform(-self.start_noise, self.start_noise, self.tree.nv)
-        self._set(self.tree.integrate(self.home, noise))
-        self.target = self._sample_target()
-        self._camera = None
-        ee = self.effector()
-        return self._obs(ee), self._info(ee)
+        q, self.target = self.task.start(self.np_random, options)
+        info, _ = self._settle(q[None])
+        return self._observe(), info
 
-    def step(self, action: Any) -> tuple[Array, float, bool, bool, dict]:
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         """Apply an action (see the class docstring); bad actions raise and change nothing."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise mjkin.InputError(f"action has shape {a.shape}; expected {self.action_space.shape}")
         if not np.isfinite(a).all():
             raise mjkin.InputError("action contains NaN or inf")
-        a = np.clip(a, -1.0, 1.0) * self.step_size
-        if self.action_type == "joint":
-            self._set(self.tree.integrate(self.q, a))
-        else:
-            goal = G.Position(self.site, self.effector() + a)
-            self._set(mjkin.solve(self.tree, goal, q0=self.q, max_iters=30, restarts=0).q)
-        ee = self.effector()
-        info = self._info(ee)
-        reward = (self.success_bonus if info["is_success"] else -1.0) if self.sparse else \
-            -info["distance"] + self.success_bonus * info["is_success"]
-        reward -= self.collision_penalty * info["in_collision"]
-        info["reward_distance"] = -info["distance"]
-        return self._obs(ee), float(reward), bool(info["is_success"]), False, info
-
-    def _info(self, ee: Array) -> dict:
-        distance = float(np.linalg.norm(self.target - ee))
-        contacts = self.scene.contacts(self.q)
-        return {"distance": distance, "is_success": distance < self.success_tol, "contacts": len(contacts),
-                "in_collision": bool(contacts) or self._touching_obstacle()}
+        info, reward = self._settle(self.task.move(self.q[None], a[None], self._R, self._achieved[None]))
+        return self._observe(), reward, info["is_success"], False, info
 
     def render(self) -> NDArray[np.uint8] | None:
-        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window."""
-        if self.render_mode is None:
+        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window where one exists."""
+        if self.render_mode is None or (self.render_mode == "human" and not has_display()):
             return None
         if self._painter is None:
             self._painter = Painter(self.tree, self.width, self.height)
-        if self._camera is None:
-            self._camera = default_camera(self.tree, np.stack([self.home, self.q]), self.target[None])
-        obstacles = [c for c, _ in self.obstacles]
-        frame = self._painter.draw(self.q, self._camera, [self.target, *obstacles], overlay=Overlay(point_size=0.03))
+        if self._camera is None:  # one camera for the whole workspace, so consecutive episodes make one video
+            region = self.task.target_region
+            reach = self.task.achieved(self.tree.random_q(0, 64))[0][:, :3] if region is None else \
+                np.stack(region)  # where targets can be
+            self._camera = default_camera(self.tree, self.home[None], reach)
+        frame = self._painter.draw(self.q, self._camera, [self.target[:3]], overlay=Overlay(point_size=0.03))
         if self.render_mode == "human":  # pragma: no cover - needs a display
-            import matplotlib.pyplot as plt
-
-            plt.imshow(frame)
-            plt.pause(1.0 / self.metadata["render_fps"])
+            show(frame, self.metadata["render_fps"])
             return None
         return frame
 
@@ -212,10 +228,38 @@ class ReachEnv(gym.Env):
             self._painter.close()
             self._painter = None
 
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_painter"] = None  # a GL context does not pickle; the copy makes its own
+        return state
+
+
+def show(frame: NDArray[np.uint8], fps: float) -> None:  # pragma: no cover - needs a display
+    """Show a frame in a matplotlib window (warns once, shows nothing, when matplotlib is missing)."""
+    try:
+        import matplotlib.pyplot as plt
+    except ImportError:
+        warnings.warn("render_mode='human' needs matplotlib (pip install 'mjkin[plot]')", stacklevel=3)
+        return
+    plt.imshow(frame)
+    plt.pause(1.0 / fps)
+    plt.clf()
+
 
 def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
     """A scripted expert: the action that moves toward mjkin's IK solution for the current target."""
+    p, target = env.effector(), env.target
     if env.action_type == "cartesian":
-        return np.clip((env.target - env.effector()) / env.step_size, -1, 1).astype(np.float32)
-    res = mjkin.solve(env.tree, G.Position(env.site, env.target), q0=env.q, tol=0.1 * env.success_tol)
+        step = (target[:3] - p) / env.step_size
+        if env.goal_type == "pose":
+            R_t = spatial.quat_to_mat(target[3:])
+            R = spatial.quat_to_mat(env._achieved[3:])
+            step = np.concatenate([step, spatial.mat_to_rotvec(R_t @ R.T) / env.task.rot_step])
+        return np.clip(step, -1, 1).astype(np.float32)
+    if env.goal_type == "pose":
+        T = spatial.make_transform(spatial.quat_to_mat(target[3:]), target[:3])
+        goal: G.Goal = G.Pose(env.site, T)
+    else:
+        goal = G.Position(env.site, target)
+    res = mjkin.solve(env.tree, goal, q0=env.q, tol=0.1 * env.success_tol, rot_tol=0.1 * env.rot_tol)
     return np.clip(env.tree.difference(res.q, env.q) / env.step_size, -1, 1).astype(np.float32)

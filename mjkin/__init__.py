@@ -17,6 +17,7 @@ from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError,
 from .ik import Result, singular_values, solve  # noqa: E402
 from .parallel import set_threads, threads  # noqa: E402
 from .tree import Tree, bundled_models, load  # noqa: E402
+from .workspace import workspace  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -37,4 +38,5 @@ __all__ = [
     "solve",
     "spatial",
     "threads",
+    "workspace",
 ]

@@ -1,26 +1,52 @@
-"""Benchmarks: mjkin and its baseline side by side in one process, reported as ratios.
+"""``mjkin bench``: mjkin and the baseline a user would write, side by side in one process.
 
-Nothing here is asserted by tests: timings on shared machines are noisy. Each
-benchmark returns rows (dicts) and the CLI prints them as a table.
+Same inputs, same work, the same process; ratios > 1 mean mjkin is faster. Nothing
+here is asserted by tests (timings on shared machines are noisy): each benchmark
+returns a :class:`Report` whose rows the CLI prints and, with ``--json``, writes.
 """
 
 from __future__ import annotations
 
-import importlib.util
+import argparse
+import json
+import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import mujoco
 import numpy as np
 
+from .argtypes import positive_float, positive_int
+from .errors import InputError
+from .files import write_text
 from .progress import track
 from .tree import Tree, load
 
 Row = dict[str, object]
 Tables = dict[str, list[Row]]
+
+
+@dataclass(frozen=True)
+class Report:
+    """What a benchmark measured: titled tables of rows, and the settings it ran with.
+
+    ``published`` rows are figures quoted from elsewhere (with their source), printed
+    beside the measured ones and kept apart from them in the JSON.
+    """
+
+    tables: Tables
+    settings: dict[str, object] = field(default_factory=dict)
+    extra: dict[str, list[Row]] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, object]:
+        """``{"rows": [...], "settings": {...}, ...}``: every measured row, then the extras (e.g. published)."""
+        published = [id(r) for rows in self.extra.values() for r in rows]
+        rows = [{k: None if isinstance(v, float) and math.isnan(v) else v for k, v in r.items()}
+                for rows in self.tables.values() for r in rows if id(r) not in published]
+        return {"rows": rows, "settings": self.settings, **self.extra}
 
 
 def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 3) -> float:
@@ -59,49 +85,115 @@ def shared_model(relpath: str) -> Tree | None:
     return load(root / relpath)
 
 
+def format_table(rows: list[Row]) -> str:
+    """Rows as an aligned text table (floats with 3 significant digits, None as ``-``)."""
+    if not rows:
+        return "(no rows)"
+    cols = list(dict.fromkeys(c for r in rows for c in r))
+
+    def cell(v: object) -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, float):
+            return "nan" if math.isnan(v) else f"{v:.3g}" if abs(v) < 1e5 else f"{v:,.0f}"
+        return str(v)
+
+    cells = [[cell(r.get(c)) for c in cols] for r in rows]
+    widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(cols)]
+    line = "  ".join(c.rjust(w) for c, w in zip(cols, widths, strict=True))
+    body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in cells]
+    return "\n".join([line, "-" * len(line), *body])
+
+
+# ----------------------------------------------------------------------------------------------- FK
+
+FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "franka_emika_panda/panda_nohand.xml",
+             "g1": "unitree_g1/g1.xml"}
+
+
+def fk_models(names: Sequence[str] | None = None) -> list[tuple[str, Tree]]:
+    """Models of the FK benchmark: bundled ones by name, shared real robots when present, or MJCF paths."""
+    out = []
+    for name in names or FK_MODELS:
+        src = FK_MODELS.get(name, name)
+        if src in ("arm7", "primate") or Path(src).is_file():
+            out.append((name if name in FK_MODELS else Path(name).stem, load(src)))
+            continue
+        tree = shared_model(src) if name in FK_MODELS else None
+        if tree is not None:
+            out.append((name, tree))
+        elif names:
+            raise InputError(f"--models takes {', '.join(FK_MODELS)} or MJCF files; {name!r} is not available")
+    return out
+
+
 def mujoco_fk_loop(model: mujoco.MjModel, Q: np.ndarray) -> Callable[[], np.ndarray]:
-    """The baseline: a Python loop of ``mj_kinematics`` copying out every body pose."""
+    """The baseline: a Python loop of ``mj_kinematics`` copying out every body pose (what ``tree.fk`` returns)."""
     data = mujoco.MjData(model)
-    out = np.empty((len(Q), model.nbody, 12))
+    out = np.empty((len(Q), model.nbody, 4, 4))
+    out[..., 3, :] = [0.0, 0.0, 0.0, 1.0]
 
     def run() -> np.ndarray:
         for i, q in enumerate(Q):
             data.qpos[:] = q
             mujoco.mj_kinematics(model, data)
-            out[i, :, :3] = data.xpos
-            out[i, :, 3:] = data.xmat
+            out[i, :, :3, :3] = data.xmat.reshape(-1, 3, 3)
+            out[i, :, :3, 3] = data.xpos
         return out
 
     return run
 
 
-def fk_models() -> list[tuple[str, Tree]]:
-    """Models of the FK benchmark: the bundled 7-DoF arm and primate, and real robots when present."""
-    models = [("arm7", load("arm7")), ("primate", load("primate"))]
-    for name, rel in (("panda", "franka_emika_panda/panda_nohand.xml"), ("g1", "unitree_g1/g1.xml")):
-        tree = shared_model(rel)
-        if tree is not None:
-            models.append((name, tree))
-    return models
+def mujoco_site_pose(model: mujoco.MjModel, q: np.ndarray, site: int) -> Callable[[], np.ndarray]:
+    """The baseline of one pose: ``mj_kinematics`` and the site's pose read into a 4x4 from Python."""
+    data = mujoco.MjData(model)
+
+    def run() -> np.ndarray:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        T = np.eye(4)
+        T[:3, :3] = data.site_xmat[site].reshape(3, 3)
+        T[:3, 3] = data.site_xpos[site]
+        return T
+
+    return run
 
 
-def bench_fk(sizes: tuple[int, ...] = (1, 100, 10_000), seed: int = 0, min_time: float = 0.2) -> Tables:
-    """Batched FK throughput of mjkin vs a Python loop of ``mj_kinematics``."""
-    rows: list[Row] = []
+def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100, 10_000), seed: int = 0,
+             min_time: float = 0.2) -> Report:
+    """All body poses for a batch (``tree.fk``) and one site pose for one q (``tree.pose``), vs MuJoCo."""
+    if not sizes or min(sizes) < 1:
+        raise InputError(f"--batch sizes must be at least 1, got {list(sizes)}")
+    batched: list[Row] = []
+    single: list[Row] = []
     rng = np.random.default_rng(seed)
-    cases = [(n, t, B) for n, t in fk_models() for B in sizes]
+    cases = [(n, t, B) for n, t in fk_models(models) for B in sizes]
     for name, tree, B in track(cases, "bench fk"):
         Q = tree.random_q(rng, B)
         t_mjkin = seconds_per_call(lambda: tree.fk(Q), min_time)  # noqa: B023
         t_mj = seconds_per_call(mujoco_fk_loop(tree.model, Q), min_time)
-        rows.append({"model": name, "nbody": tree.nbody, "batch": B,
-                     "mjkin q/s": B / t_mjkin, "mujoco-loop q/s": B / t_mj,
-                     "mjkin us/q": 1e6 * t_mjkin / B, "mujoco us/q": 1e6 * t_mj / B,
-                     "ratio": t_mj / t_mjkin})
-    return {"batched FK: mjkin vs a Python loop of mj_kinematics (ratio > 1: mjkin faster)": rows}
+        batched.append({"model": name, "nbody": tree.nbody, "batch": B, "mjkin_us_per_q": 1e6 * t_mjkin / B,
+                        "mujoco_us_per_q": 1e6 * t_mj / B, "mjkin_q_per_s": B / t_mjkin,
+                        "mujoco_q_per_s": B / t_mj, "ratio": t_mj / t_mjkin})
+    for name, tree in fk_models(models):
+        if not tree.model.nsite:
+            continue
+        q, site = tree.random_q(rng), tree.model.nsite - 1
+        t_mjkin = seconds_per_call(lambda: tree.pose(q, tree.names("site")[site], "site"), min_time)  # noqa: B023
+        t_mj = seconds_per_call(mujoco_site_pose(tree.model, q, site), min_time)
+        single.append({"model": name, "site": tree.names("site")[site], "mjkin_us": 1e6 * t_mjkin,
+                       "mujoco_us": 1e6 * t_mj, "ratio": t_mj / t_mjkin})
+    return Report({"batched FK, every body pose: tree.fk(Q) vs a Python loop of mj_kinematics copying xpos/xmat "
+                   "(ratio > 1: mjkin faster)": batched,
+                   "one site pose for one q: tree.pose(q, site) vs mj_kinematics + reading site_xpos/site_xmat "
+                   "into a 4x4 (ratio > 1: mjkin faster)": single},
+                  {"sizes": list(sizes), "seed": seed, "timing": f"best of 3 runs of >= {min_time} s each"})
 
 
-def bench_seeds(out: Path | None = None) -> Tables:
+# -------------------------------------------------------------------------------------------- seeds
+
+
+def bench_seeds(out: Path | None = None) -> Report:
     """The seeds' examples (SEEDS.md §4): tables, and PNG figures in ``out`` when matplotlib is there."""
     from . import seeds
 
@@ -137,241 +229,267 @@ def bench_seeds(out: Path | None = None) -> Tables:
               "seed 3: two-link analytic IK (links 1.0, 0.7)": three}
     tables["figures"] = [{"file": str(f)} for f in files] or [{"file": "(matplotlib not installed: pip install "
                                                                       "'mjkin[plot]')"}]
-    return tables
+    return Report(tables)
 
 
-def format_table(rows: list[Row]) -> str:
-    """Rows as an aligned text table (floats with 3 significant digits)."""
-    if not rows:
-        return "(no rows)"
-    cols = list(rows[0])
-
-    def cell(v: object) -> str:
-        if isinstance(v, float):
-            return f"{v:.3g}" if abs(v) < 1e5 else f"{v:,.0f}"
-        return str(v)
-
-    cells = [[cell(r.get(c, "")) for c in cols] for r in rows]
-    widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(cols)]
-    line = "  ".join(c.rjust(w) for c, w in zip(cols, widths, strict=True))
-    body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in cells]
-    return "\n".join([line, "-" * len(line), *body])
+# ------------------------------------------------------------------------------------------- render
 
 
-IK_ARMS: tuple[tuple[str, str, str, Literal["site", "body"]], ...] = (  # name, model, frame, frame kind
-    ("arm7", "arm7", "ee", "site"),
-    ("panda", "franka_emika_panda/panda_nohand.xml", "attachment_site", "site"),
-    ("ur5e", "universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
-    ("iiwa14", "kuka_iiwa_14/iiwa14.xml", "attachment_site", "site"),
-    ("gen3", "kinova_gen3/gen3.xml", "pinch_site", "site"),
-    ("xarm7", "ufactory_xarm7/xarm7_nohand.xml", "attachment_site", "site"),
-)
+def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: int = 0,
+                 repeat: int = 3) -> Report:
+    """Frames/s of mjkin's render pipeline beside a bare ``mujoco.Renderer`` loop doing the same MuJoCo work.
 
-
-def pose_errors(T: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and rotation (rad) distances between poses ``(..., 4, 4)``."""
-    from .spatial import mat_to_quat, quat_distance
-
-    return (np.linalg.norm(T[..., :3, 3] - target[..., :3, 3], axis=-1),
-            quat_distance(mat_to_quat(T[..., :3, :3]), mat_to_quat(target[..., :3, :3])))
-
-
-def mujoco_dls(model: mujoco.MjModel, frame: str, kind: str, targets: np.ndarray, q0: np.ndarray, tol: float,
-               rot_tol: float, max_iters: int = 200, damping: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """The baseline: damped least squares on MuJoCo's own ``mj_kinematics`` + ``mj_jacSite``/``mj_jacBody``.
-
-    Returns reached poses ``(N, 4, 4)`` and seconds per solve ``(N,)``.
+    Both make a renderer, set each q, run ``mj_kinematics`` + ``mj_comPos`` + ``mj_camlight``
+    (what drawing needs), update the scene with the same camera and keep every frame.
     """
-    data = mujoco.MjData(model)
-    obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
-    i = mujoco.mj_name2id(model, obj, frame)
-    limited = model.jnt_limited.astype(bool) & (model.jnt_type > 1)
-    qa = model.jnt_qposadr[limited]
-    lo, hi = model.jnt_range[limited, 0], model.jnt_range[limited, 1]
-    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    cur, neg, diff, err = np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(6)
-    lam2 = damping ** 2 * np.eye(6)
-    reached, times = np.empty((len(targets), 4, 4)), np.empty(len(targets))
-    for n, T in enumerate(targets):
-        goal_q = np.zeros(4)
-        mujoco.mju_mat2Quat(goal_q, T[:3, :3].ravel())
-        start = time.perf_counter()
-        q = q0.copy()
-        for _ in range(max_iters + 1):
-            data.qpos[:] = q
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_comPos(model, data)
-            x = data.site_xpos[i] if kind == "site" else data.xpos[i]
-            R = data.site_xmat[i] if kind == "site" else data.xmat[i]
-            err[:3] = T[:3, 3] - x
-            mujoco.mju_mat2Quat(cur, R)
-            mujoco.mju_negQuat(neg, cur)
-            mujoco.mju_mulQuat(diff, goal_q, neg)
-            mujoco.mju_quat2Vel(err[3:], diff, 1.0)
-            if np.linalg.norm(err[:3]) <= tol and np.linalg.norm(err[3:]) <= rot_tol:
-                break
-            (mujoco.mj_jacSite if kind == "site" else mujoco.mj_jacBody)(model, data, jacp, jacr, i)
-            J = np.vstack([jacp, jacr])
-            dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
-            mujoco.mj_integratePos(model, q, dq, 1.0)
-            q[qa] = np.clip(q[qa], lo, hi)
-        times[n] = time.perf_counter() - start
-        reached[n, :3, :3] = R.reshape(3, 3)
-        reached[n, :3, 3] = x
-        reached[n, 3] = [0, 0, 0, 1]
-    return reached, times
-
-
-def mink_loop(model: mujoco.MjModel, frame: str, kind: str, targets: np.ndarray, q0: np.ndarray, tol: float,
-              rot_tol: float, max_iters: int = 200) -> tuple[np.ndarray, np.ndarray]:
-    """The same targets through mink (a QP per step, joint limits as constraints), as its examples set it up.
-
-    Returns reached poses ``(N, 4, 4)`` and seconds per solve ``(N,)``.
-    """
-    import mink
-
-    config = mink.Configuration(model)
-    task = mink.FrameTask(frame, kind, position_cost=1.0, orientation_cost=1.0, lm_damping=1.0)
-    limits = [mink.ConfigurationLimit(model)]
-    reached, times = np.empty((len(targets), 4, 4)), np.empty(len(targets))
-    for n, T in enumerate(targets):
-        start = time.perf_counter()
-        config.update(q0)
-        task.set_target(mink.SE3.from_matrix(T))
-        for _ in range(max_iters + 1):
-            reached[n] = config.get_transform_frame_to_world(frame, kind).as_matrix()
-            ep, er = pose_errors(reached[n], T)
-            if ep <= tol and er <= rot_tol:
-                break
-            config.integrate_inplace(mink.solve_ik(config, [task], 1.0, "daqp", limits=limits), 1.0)
-        times[n] = time.perf_counter() - start
-    return reached, times
-
-
-def bench_ik(n: int = 1000, seed: int = 0, tol: float = 1e-4, rot_tol: float = 1e-3) -> Tables:
-    """6-D pose IK on random reachable targets: mjkin (single and batched) vs a MuJoCo DLS loop (and mink)."""
-    from . import goals as G
-    from .ik import solve
-
-    rows: list[Row] = []
-    root = shared_models_dir()
-    has_mink = importlib.util.find_spec("mink") is not None
-    for name, src, frame, kind in track(IK_ARMS, "bench ik"):
-        path = src if src == "arm7" else (root / src if root else None)
-        if path is None or (src != "arm7" and not Path(path).is_file()):
-            continue
-        tree = load(path)
-        rng = np.random.default_rng(seed)
-        targets = tree.pose(tree.random_q(rng, n), frame, kind)
-        home = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
-        for warm in (targets[:2], targets[0]):  # compile both the batched and the single-target signatures
-            solve(tree, G.Pose(frame, T=warm, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
-        single = np.empty(n)
-        q_single = np.empty((n, tree.nq))
-        for k in range(n):
-            start = time.perf_counter()
-            q_single[k] = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=home, tol=tol, rot_tol=rot_tol).q
-            single[k] = time.perf_counter() - start
-        batched = np.inf
-        for _ in range(3):  # best of three, as seconds_per_call: the machine is shared
-            start = time.perf_counter()
-            res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=home, tol=tol, rot_tol=rot_tol)
-            batched = min(batched, time.perf_counter() - start)
-        reached, base = mujoco_dls(tree.model, frame, kind, targets, home, tol, rot_tol)
-        runs = [("mjkin", tree.pose(q_single, frame, kind), single, n / single.sum()),
-                ("mjkin batched", tree.pose(res.q, frame, kind), None, n / batched),
-                ("mujoco DLS loop", reached, base, n / base.sum())]
-        if has_mink:
-            by_mink, t_mink = mink_loop(tree.model, frame, kind, targets, home, tol, rot_tol)
-            runs.append(("mink", by_mink, t_mink, n / t_mink.sum()))
-        for label, T, times, rate in runs:
-            ep, er = pose_errors(T, targets)
-            rows.append({"arm": name, "solver": label, "success %": 100 * ((ep <= tol) & (er <= rot_tol)).mean(),
-                         "median ms": "-" if times is None else 1e3 * float(np.median(times)),
-                         "p95 ms": "-" if times is None else 1e3 * float(np.percentile(times, 95)),
-                         "solves/s": rate,
-                         "median vs baseline": "-" if times is None else float(np.median(base) / np.median(times)),
-                         "solves/s vs baseline": rate / (n / base.sum())})
-    if not has_mink:
-        rows.append({"arm": "-", "solver": "mink: not installed (pip install 'mjkin[bench]')"})
-    return {f"{n} random reachable 6-D poses from the home keyframe, success at {tol:g} m / {rot_tol:g} rad "
-            "(speed vs baseline > 1: mjkin faster)": rows}
-
-
-def bench_render(n: int = 60, width: int = 640, height: int = 480, seed: int = 0) -> Tables:
-    """Frames/s of mjkin's render pipeline (markers, trail) beside a bare ``mujoco.Renderer`` loop."""
     from .render import Overlay, default_camera, frames
 
+    if frames_n < 1 or width < 1 or height < 1:
+        raise InputError(f"--frames, --width and --height must be positive, got {frames_n}, {width}, {height}")
     rows: list[Row] = []
-    for name in ("arm7", "primate"):
+    for name in track(("arm7", "primate"), "bench render"):
         tree = load(name)
-        qs = tree.random_q(np.random.default_rng(seed), n)
+        qs = tree.random_q(np.random.default_rng(seed), frames_n)
         site = tree.names("site")[0]
         cam = default_camera(tree, qs)
 
-        def pipeline(overlay: Overlay | None) -> float:
+        def pipeline(overlay: Overlay | None, qs: np.ndarray = qs) -> float:
             start = time.perf_counter()
             frames(tree, qs, width, height, camera=cam, overlay=overlay)  # noqa: B023
-            return n / (time.perf_counter() - start)
+            return len(qs) / (time.perf_counter() - start)
 
-        plain = pipeline(None)
+        def bare_loop(qs: np.ndarray = qs) -> float:
+            model, data = tree.model, mujoco.MjData(tree.model)  # noqa: B023
+            model.vis.global_.offwidth = max(width, model.vis.global_.offwidth)
+            model.vis.global_.offheight = max(height, model.vis.global_.offheight)
+            start = time.perf_counter()
+            out = np.empty((len(qs), height, width, 3), dtype=np.uint8)
+            with mujoco.Renderer(model, height, width) as r:
+                for t, q in enumerate(qs):
+                    data.qpos[:] = q
+                    mujoco.mj_kinematics(model, data)
+                    mujoco.mj_comPos(model, data)
+                    mujoco.mj_camlight(model, data)
+                    r.update_scene(data, cam)  # noqa: B023
+                    out[t] = r.render()
+            return len(qs) / (time.perf_counter() - start)
+
+        pipeline(None, qs[:1])  # first contexts and shaders, untimed
+        bare_loop(qs[:1])
+        bare = plain = 0.0
+        for _ in range(repeat):  # interleaved, best of each: software GL on a shared machine is noisy
+            bare, plain = max(bare, bare_loop()), max(plain, pipeline(None))
         marked = pipeline(Overlay(points=np.full((3, 3), 0.2), trail=site))
-        model, data = tree.model, mujoco.MjData(tree.model)
-        start = time.perf_counter()
-        with mujoco.Renderer(model, height, width) as r:
-            for q in qs:
-                data.qpos[:] = q
-                mujoco.mj_forward(model, data)
-                r.update_scene(data, cam)
-                r.render()
-        bare = n / (time.perf_counter() - start)
-        rows.append({"model": name, "size": f"{width}x{height}", "bare Renderer frames/s": bare,
-                     "mjkin frames/s": plain, "overhead %": 100 * (bare / plain - 1),
-                     "with markers + trail frames/s": marked})
-    return {"offscreen rendering: mjkin's pipeline vs a bare mujoco.Renderer loop (same frames and camera; "
-            "markers and trail add drawing work of their own)": rows}
+        rows.append({"model": name, "size": f"{width}x{height}", "mujoco_frames_per_s": bare,
+                     "mjkin_frames_per_s": plain, "ratio": plain / bare, "with_markers_trail_frames_per_s": marked})
+    return Report({"offscreen rendering: mjkin.render.frames vs a bare mujoco.Renderer loop (same frames, camera "
+                   "and MuJoCo calls; ratio > 1: mjkin faster; markers and trail add drawing of their own)": rows},
+                  {"frames": frames_n, "width": width, "height": height, "seed": seed,
+                   "timing": f"best of {repeat} interleaved runs each", "MUJOCO_GL": os.environ.get("MUJOCO_GL")})
 
 
-def bench_env(steps: int = 2000, seed: int = 0) -> Tables:
-    """Environment steps per second (random actions) beside gymnasium's MuJoCo ``Reacher-v5``."""
+# ---------------------------------------------------------------------------------------------- env
+
+
+def env_steps_per_s(env: object, steps: int, seed: int) -> float:
+    """Steps/s of ``env`` (single or vector) under random actions, resetting a single env when it ends.
+
+    The actions are drawn before the clock starts, and a few untimed steps first
+    load (or compile) whatever the env's first step needs.
+    """
+    import gymnasium as gym
+
+    space = env.action_space  # type: ignore[attr-defined]
+    space.seed(seed)
+    actions = [space.sample() for _ in range(steps)]
+    vector = isinstance(env, gym.vector.VectorEnv)
+    env.reset(seed=seed)  # type: ignore[attr-defined]
+    for a in actions[:3]:
+        env.step(a)  # type: ignore[attr-defined]
+    env.reset(seed=seed)  # type: ignore[attr-defined]
+    start = time.perf_counter()
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)  # type: ignore[attr-defined]
+        if not vector and (term or trunc):
+            env.reset()  # type: ignore[attr-defined]
+    elapsed = time.perf_counter() - start
+    env.close()  # type: ignore[attr-defined]
+    return steps * (env.num_envs if vector else 1) / elapsed  # type: ignore[attr-defined]
+
+
+def bench_env(steps: int = 2000, num_envs: int = 256, seed: int = 0) -> Report:
+    """Env steps/s (random actions, no rendering) of mjkin's envs beside gymnasium's ``Reacher-v5``, one process.
+
+    With the native vector env (``vectorization_mode="vector_entry_point"``), also the
+    total steps/s of ``num_envs`` mjkin envs against one ``Reacher-v5``.
+    """
     import gymnasium as gym
 
     import mjkin.envs  # noqa: F401  (registers the ids)
 
-    def rate(env: gym.Env) -> float:
-        env.reset(seed=seed)
-        env.action_space.seed(seed)
-        start = time.perf_counter()
-        for _ in range(steps):
-            _, _, term, trunc, _ = env.step(env.action_space.sample())
-            if term or trunc:
-                env.reset()
-        elapsed = time.perf_counter() - start
-        env.close()
-        return steps / elapsed
-
+    if steps < 1 or num_envs < 1:
+        raise InputError(f"--steps and --num-envs must be at least 1, got {steps}, {num_envs}")
     try:
-        reacher = rate(gym.make("Reacher-v5"))
+        reacher = env_steps_per_s(gym.make("Reacher-v5"), steps, seed)
     except Exception as e:  # gymnasium's MuJoCo envs missing: report, do not fail
-        reacher = float("nan")
-        print(f"Reacher-v5 unavailable: {e}")
-    rows: list[Row] = [{"env": "Reacher-v5 (gymnasium)", "action": "torque", "steps/s": reacher, "ratio": 1.0}]
+        reacher, note = float("nan"), f"Reacher-v5 unavailable: {' '.join(str(e).split())}"
+    else:
+        note = "measured in this process"
+    rows: list[Row] = [{"env": "Reacher-v5 (gymnasium)", "action": "torque", "envs": 1, "steps_per_s": reacher,
+                        "ratio": 1.0}]
     for env_id in ("mjkin/Reach-v0", "mjkin/PlanarReach-v0"):
         for action in ("joint", "cartesian"):
-            r = rate(gym.make(env_id, action_type=action))
-            rows.append({"env": env_id, "action": action, "steps/s": r, "ratio": r / reacher})
-    return {f"environment steps per second, {steps} random steps (ratio vs Reacher-v5)": rows}
+            r = env_steps_per_s(gym.make(env_id, action_type=action), steps, seed)
+            rows.append({"env": env_id, "action": action, "envs": 1, "steps_per_s": r, "ratio": r / reacher})
+    try:
+        vec = gym.make_vec("mjkin/Reach-v0", num_envs=num_envs, vectorization_mode="vector_entry_point")
+    except Exception as e:  # the native vector env is not there (yet)
+        vec_note = f"no native vector env: {' '.join(str(e).split())[:120]}"
+    else:
+        r = env_steps_per_s(vec, max(1, steps // 10), seed)
+        rows.append({"env": "mjkin/Reach-v0 (make_vec, vector_entry_point)", "action": "joint",
+                     "envs": num_envs, "steps_per_s": r, "ratio": r / reacher})
+        vec_note = f"{max(1, steps // 10)} vector steps of {num_envs} envs, total env steps/s"
+    return Report({f"environment steps per second, {steps} random steps, no rendering (ratio vs one Reacher-v5 "
+                   "in this process)": rows},
+                  {"steps": steps, "num_envs": num_envs, "seed": seed, "Reacher-v5": note, "vector": vec_note})
 
 
-BENCHMARKS: dict[str, Callable[[], Tables]] = {"fk": bench_fk, "ik": bench_ik, "seeds": bench_seeds,
-                                               "render": bench_render, "env": bench_env}
+# ---------------------------------------------------------------------------------------------- CLI
 
 
-def bench_play() -> Tables:
-    """Frame rate and drag-to-new-frame latency of ``mjkin play`` (see :mod:`mjkin.play.bench`)."""
-    from .play.bench import measure
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.cli.build_parser`)."""
+    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
+                                help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
-    return measure()
+    def common(s: argparse.ArgumentParser) -> None:
+        s.add_argument("--json", metavar="FILE", help="also write the rows and settings to this .json file")
+        s.add_argument("--seed", type=int, default=0, help="seed of the random configurations (default 0)")
+
+    s = sub.add_parser("fk", help="batched FK and one pose, beside mj_kinematics from Python")
+    s.add_argument("--models", nargs="+", metavar="NAME|PATH", help=f"models (default: {', '.join(FK_MODELS)})")
+    s.add_argument("--batch", nargs="+", type=positive_int, default=[1, 100, 10_000], metavar="B",
+                   help="batch sizes (default 1 100 10000)")
+    common(s)
+
+    s = sub.add_parser("ik", help="6-D pose IK beside MuJoCo DLS and mink; --protocol trac-ik for TRAC-IK's")
+    s.add_argument("--models", nargs="+", metavar="NAME|PATH",
+                   help="arms by name (arm7, panda, ur5e, iiwa14, gen3, xarm7) or MJCF files (frame: last site, "
+                        "else last body); default all available (trac-ik: the five real arms)")
+    s.add_argument("--protocol", choices=["default", "trac-ik"], default="default",
+                   help="default: home start, --tol/--rot-tol; trac-ik: mid-range start, 1e-5 m / 1e-5 rad, 5 ms")
+    s.add_argument("--targets", type=positive_int, help="targets per model (default 1000; trac-ik 10000)")
+    s.add_argument("--tol", type=positive_float, help="position tolerance, m (default 1e-4; trac-ik 1e-5)")
+    s.add_argument("--rot-tol", type=positive_float, help="rotation tolerance, rad (default 1e-3; trac-ik 1e-5)")
+    s.add_argument("--iters", type=positive_int, default=200,
+                   help="iteration budget of the single-start rows (mjkin-single-start, mujoco-dls, mink; default 200)")
+    s.add_argument("--time-limit", type=positive_float, default=0.005,
+                   help="trac-ik: seconds per solve (default 0.005)")
+    common(s)
+
+    s = sub.add_parser("realtime", help="6-D IK per frame for chains of 2..128 DoF and trees, warm and cold")
+    s.add_argument("--dofs", nargs="+", type=positive_int, default=[2, 4, 8, 16, 32, 64, 128], metavar="N",
+                   help="chain sizes (default 2 4 8 16 32 64 128)")
+    s.add_argument("--frames", type=positive_int, default=120, help="frames of the target path (default 120)")
+    s.add_argument("--plot", metavar="FILE.png", help="also draw the cost against DoF into this .png")
+    common(s)
+
+    s = sub.add_parser("render", help="mjkin's render pipeline beside a bare mujoco.Renderer loop")
+    s.add_argument("--frames", type=positive_int, default=60, help="frames per model (default 60)")
+    s.add_argument("--width", type=positive_int, default=640, help="frame width, pixels (default 640)")
+    s.add_argument("--height", type=positive_int, default=480, help="frame height, pixels (default 480)")
+    common(s)
+
+    s = sub.add_parser("env", help="env steps/s beside gymnasium's Reacher-v5 (and the native vector env)")
+    s.add_argument("--steps", type=positive_int, default=2000, help="random steps per env (default 2000)")
+    s.add_argument("--num-envs", type=positive_int, default=256, help="envs in the vector env (default 256)")
+    common(s)
+
+    s = sub.add_parser("play", help="the playground's frame rate and drag-to-frame latency over HTTP")
+    common(s)
+
+    s = sub.add_parser("seeds", help="the seeds' examples as tables, and their figures")
+    s.add_argument("--out", default="mjkin-seeds", help="folder for the figures (default mjkin-seeds)")
+    common(s)
+
+    s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
+    common(s)
 
 
-BENCHMARKS["play"] = bench_play
+ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
+
+
+def _writable(path: str | None, suffix: str, option: str) -> None:
+    if path is None:
+        return
+    p = Path(path)
+    if p.suffix.lower() != suffix:
+        raise InputError(f"{option} must name a {suffix} file, got {path!r}")
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir() or not os.access(folder, os.W_OK):
+        raise InputError(f"{option}: folder {str(folder)!r} does not exist or is not writable")
+
+
+def run(args: argparse.Namespace) -> Report:
+    """Run the benchmark ``args.which`` with its options (outputs are checked before any work)."""
+    _writable(args.json, ".json", "--json")
+    _writable(getattr(args, "plot", None), ".png", "--plot")
+    if args.which == "fk":
+        return bench_fk(args.models, args.batch, args.seed)
+    if args.which == "ik":
+        from .bench_ik import bench_ik, bench_trac_ik
+
+        if args.protocol == "trac-ik":
+            return bench_trac_ik(args.models, args.targets or 10_000, args.tol or 1e-5, args.rot_tol or 1e-5,
+                                 args.time_limit, args.seed)
+        return bench_ik(args.models, args.targets or 1000, args.tol or 1e-4, args.rot_tol or 1e-3, args.iters,
+                        args.seed)
+    if args.which == "realtime":
+        from .bench_realtime import bench_realtime
+
+        return bench_realtime(args.dofs, args.frames, args.seed, args.plot)
+    if args.which == "render":
+        return bench_render(args.frames, args.width, args.height, args.seed)
+    if args.which == "env":
+        return bench_env(args.steps, args.num_envs, args.seed)
+    if args.which == "play":
+        from .play.bench import measure
+
+        return Report(measure())
+    return bench_seeds(Path(args.out))
+
+
+def main(args: argparse.Namespace) -> int:
+    """``mjkin bench ...``: run, print every table, write ``--json`` atomically."""
+    _writable(args.json, ".json", "--json")
+    if args.which == "all":
+        defaults = argparse.ArgumentParser()
+        add_arguments(defaults)
+        runs = [defaults.parse_args([name, "--seed", str(args.seed)]) for name in ALL]
+    else:
+        runs = [args]
+    out = {}
+    for one in runs:
+        report = run(one)
+        for title, rows in report.tables.items():
+            print(f"== mjkin bench {one.which}: {title}")
+            print(format_table(rows))
+            print()
+        if report.settings:
+            print("settings: " + "; ".join(f"{k}: {v}" for k, v in report.settings.items()))
+        out[one.which] = report.as_json()
+    if args.json:
+        data = out if args.which == "all" else out[args.which]
+        write_text(args.json, json.dumps(data, indent=1, default=_plain) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _plain(v: object) -> object:
+    """Return numpy scalars and arrays as plain JSON values."""
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")

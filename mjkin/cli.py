@@ -1,6 +1,8 @@
-"""The ``mjkin`` command: inspect models, compute FK, benchmark.
+"""The ``mjkin`` command: inspect models, compute FK and IK, render, benchmark.
 
-Every user mistake ends as one line on stderr and exit status 2, never a traceback.
+Every argument and output path is checked before any IK or rendering starts,
+and every user mistake ends as one line on stderr and exit status 2, never a
+traceback.
 """
 
 from __future__ import annotations
@@ -9,29 +11,87 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
+from importlib import metadata
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import bench, motion, progress, spatial
+from .argtypes import positive_float, positive_int
 from .errors import InputError, MjkinError
-from .goals import Rest
+from .files import check_writable
+from .goals import Goal, Orientation, Position, Rest
+from .ik.solve import METHODS, solve
 from .qspace import HINGE, JOINT_NAMES
 from .tree import Tree, bundled_models, load
 
+if TYPE_CHECKING:
+    from .render import Overlay
+
 Command = Callable[[argparse.Namespace], int]
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+MAX_SIDE = 8192  # largest --width/--height: MuJoCo's offscreen buffer is raised to it, GL allows 16384 at least
+MAX_VIDEO_BYTES = 4 * 2**30  # rendered frames are held in memory until the video is encoded
 
-def parse_q(text: str, tree: Tree, degrees: bool = False) -> np.ndarray:
-    """A configuration from ``"0.1 0.2 ..."`` or ``"0.1,0.2,..."``; ``degrees`` converts hinge values."""
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (no usage dump) with exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        """Print ``mjkin <command>: error: message`` and exit 2."""
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def keyframes(tree: Tree) -> dict[str, np.ndarray]:
+    """The model's named keyframes (``<key name=...>``): name → qpos."""
+    m = tree.model
+    return {m.key(i).name: m.key_qpos[i].copy() for i in range(m.nkey) if m.key(i).name}
+
+
+def parse_q(text: str, tree: Tree, degrees: bool = False, seed: int | None = None, what: str = "--q") -> np.ndarray:
+    """A configuration from numbers (``"0.1 0.2 ..."`` or ``"0.1,0.2,..."``), a keyframe name, or ``random``.
+
+    ``random`` draws inside the joint limits (seeded by ``seed``); ``degrees``
+    converts the hinge values of numbers.
+    """
+    word = text.strip()
+    keys = keyframes(tree)
+    if word in keys:
+        return keys[word]
+    if word == "random":
+        return tree.random_q(np.random.default_rng(seed))
     try:
         q = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"--q must be {tree.nq} numbers separated by spaces or commas, got {text!r}") from None
-    q = tree.check_q(q, "--q")
+        names = f", or a keyframe name ({', '.join(keys)})" if keys else " (the model has no named keyframes)"
+        raise InputError(f"{what} must be {tree.nq} numbers separated by spaces or commas, 'random'{names}; "
+                         f"got {text!r}") from None
+    q = tree.check_q(q, what)
     if degrees:
         hinge = tree.jnt_qadr[tree.jnt_type == HINGE]
         q[hinge] = np.radians(q[hinge])
     return q
+
+
+def outside_limits(tree: Tree, q: np.ndarray) -> str | None:
+    """One line naming the joints of ``q (nq,)`` outside their limits and the ranges, or None."""
+    clipped = tree.clip(q)
+    names = tree.names("joint")
+    parts = []
+    for j in range(tree.njnt):
+        a = int(tree.jnt_qadr[j])
+        kind = JOINT_NAMES[int(tree.jnt_type[j])]
+        width = {"free": 7, "ball": 4}.get(kind, 1)
+        if kind == "free" or np.allclose(clipped[a:a + width], q[a:a + width], rtol=0, atol=1e-12):
+            continue
+        lo, hi = tree.jnt_range[j]
+        name = names[j] or f"#{j}"
+        if kind == "ball":
+            parts.append(f"joint {name} turns beyond its {hi:.4g} rad cone")
+        else:
+            parts.append(f"joint {name} = {q[a]:.4g} is outside its range [{lo:.4g}, {hi:.4g}]")
+    return "; ".join(parts) or None
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -68,10 +128,15 @@ def describe(tree: Tree) -> str:
 def cmd_fk(args: argparse.Namespace) -> int:
     """Print world poses of bodies and sites (or one frame) for a configuration."""
     tree = load(args.model)
-    q = tree.qpos0.copy() if args.q is None else parse_q(args.q, tree, args.deg)
-    frames = tree.kinematics(q)
+    q = tree.qpos0.copy() if args.q is None else parse_q(args.q, tree, args.deg, args.seed)
+    problem = outside_limits(tree, q)
+    if problem and args.clip:
+        q = tree.clip(q)
+    elif problem:
+        print(f"mjkin: warning: {problem}; FK of --q as given (--clip clips it into the limits)", file=sys.stderr)
     kinds = [tree.frame(args.frame)] if args.frame else (
         [("body", i) for i in range(1, tree.nbody)] + [("site", i) for i in range(tree.model.nsite)])
+    frames = tree.kinematics(q)
     out = []
     for kind, i in kinds:
         T = frames.pose(kind, i)
@@ -87,6 +152,30 @@ def cmd_fk(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_ik(args: argparse.Namespace) -> int:
+    """Solve IK for one frame: a position, and an orientation when ``--quat`` is given; print q and errors."""
+    tree = load(args.model)
+    tree.frame(args.frame)  # a clear error for an unknown name
+    q0 = tree.qpos0.copy() if args.q0 is None else parse_q(args.q0, tree, args.deg, args.seed, "--q0")
+    goals: list[Goal] = [Position(args.frame, _vec(args.pos, "--pos"))]
+    if args.quat is not None:
+        goals.append(Orientation(args.frame, _numbers(args.quat, 4, "--quat", "w,x,y,z")))
+    res = solve(tree, goals, q0=q0, method=args.method, tol=args.tol, rot_tol=args.rot_tol,
+                seed=0 if args.seed is None else args.seed)
+    report = {"q": res.q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
+              "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
+              "method": res.method}
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(f"{'success' if res.success else 'failed'}: {res.status} after {report['iterations']} iterations, "
+              f"{report['restarts']} restarts ({res.method})")
+        print(f"position error {res.error[0]:.3g} m, rotation error {res.error[1]:.3g} rad"
+              + ("" if args.quat is not None else " (not a goal)"))
+        print("q " + " ".join(f"{v:.6f}" for v in res.q))
+    return 0
+
+
 def _points(text: str) -> np.ndarray:
     try:
         pts = np.array([[float(v) for v in p.replace(",", " ").split()] for p in text.split(";") if p.strip()])
@@ -98,28 +187,75 @@ def _points(text: str) -> np.ndarray:
 
 
 def _vec(text: str, what: str) -> np.ndarray:
-    pts = _points(text)
-    if len(pts) != 1:
-        raise InputError(f"{what} must be one point 'x,y,z', got {text!r}")
-    return pts[0]
+    return _numbers(text, 3, what, "x,y,z")
 
 
-def _video_or_image(args: argparse.Namespace, images: np.ndarray) -> None:
-    """Write ``images (T, H, W, 3)`` to ``args.output``: a video, or frame ``args.frame`` as an image."""
+def _numbers(text: str, n: int, what: str, form: str) -> np.ndarray:
+    try:
+        v = np.array([float(x) for x in text.replace(",", " ").split()])
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (n,) or not np.isfinite(v).all():
+        raise InputError(f"{what} must be {n} finite numbers {form}, got {text!r}")
+    return v
+
+
+def check_output(args: argparse.Namespace, count: int | None) -> int | None:
+    """Check ``args.output``, the frame size and, once ``count`` frames are known, ``--frame``, before any work.
+
+    Returns the frame index to write for an image output, None for a video (or while ``count`` is None).
+    """
+    from .render import VIDEO_SUFFIXES
+
+    path = check_writable(args.output, VIDEO_SUFFIXES + IMAGE_SUFFIXES)
+    for side in ("width", "height"):
+        if getattr(args, side) > MAX_SIDE:
+            raise InputError(f"--{side} must be at most {MAX_SIDE} pixels, got {getattr(args, side)}")
+    if count is None:
+        return None
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        if not -count <= args.frame < count:
+            raise InputError(f"--frame must be in [{-count}, {count - 1}] (-1 = the last) for {count} "
+                             f"frame{'s' * (count > 1)}, got {args.frame}")
+        return args.frame % count
+    need = count * args.width * args.height * 3
+    if need > MAX_VIDEO_BYTES:
+        raise InputError(f"{count} frames of {args.width}x{args.height} need {need / 2**30:.1f} GiB of memory "
+                         f"(at most {MAX_VIDEO_BYTES // 2**30} GiB): lower --width/--height or the frame count")
+    return None
+
+
+def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: Overlay, frame: int | None) -> None:
+    """Render ``qs (T, nq)`` to ``args.output``: every frame as a video, or only ``frame`` as an image.
+
+    The camera frames every pose either way, so a still matches the same frame of the video.
+    """
     from . import render
 
-    path = args.output
-    if path.lower().endswith(render.VIDEO_SUFFIXES):
-        render.write_video(images, path, args.fps)
-        what = f"{len(images)} frame{'s' * (len(images) > 1)}"
-    elif path.lower().endswith((".png", ".jpg", ".jpeg")):
-        if not -len(images) <= args.frame < len(images):
-            raise InputError(f"--frame must be in [{-len(images)}, {len(images) - 1}] (-1 = last), got {args.frame}")
-        render.write_image(images[args.frame], path)
-        what = f"frame {args.frame % len(images)} of {len(images)}"
+    if frame is None:
+        render.write_video(render.frames(tree, qs, args.width, args.height, overlay=overlay), args.output, args.fps)
+        what = f"{len(qs)} frame{'s' * (len(qs) > 1)}"
     else:
-        raise InputError(f"output must end in .mp4, .gif or .png, got {path!r}")
-    print(f"wrote {path} ({what}, {images.shape[2]}x{images.shape[1]})")
+        points = np.asarray(overlay.points, dtype=np.float64)
+        with render.Painter(tree, args.width, args.height) as painter:
+            trail = tree.pose(qs[:frame + 1], overlay.trail)[:, :3, 3] if overlay.trail else None
+            image = painter.draw(qs[frame], painter.camera(None, qs, points),
+                                 points[frame] if points.ndim == 3 else points, trail, overlay)
+        render.write_image(image, args.output)
+        what = f"frame {frame} of {len(qs)}"
+    print(f"wrote {args.output} ({what}, {args.width}x{args.height})")
+
+
+def write_images(args: argparse.Namespace, images: np.ndarray, frame: int | None) -> None:
+    """Write rendered ``images (T, H, W, 3)`` to ``args.output``: a video, or ``frame`` (from check_output) only."""
+    from . import render
+
+    if frame is None:
+        render.write_video(images, args.output, args.fps)
+    else:
+        render.write_image(images[frame], args.output)
+    what = f"{len(images)} frame{'s' * (len(images) > 1)}" if frame is None else f"frame {frame} of {len(images)}"
+    print(f"wrote {args.output} ({what}, {images.shape[2]}x{images.shape[1]})")
 
 
 def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
@@ -135,26 +271,42 @@ def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Render a scripted IK trajectory of the 7-DoF arm reaching through waypoints."""
+    """Render the showcase: the seeds' arm under three solvers, the 7-DoF arm's path, the primate's walk."""
+    from .showcase import scene_frames, showcase
+
+    count = int(args.seconds * args.fps)
+    if count < 2:
+        raise InputError(f"--seconds x --fps must give at least 2 frames, got {count}")
+    frame = check_output(args, sum(scene_frames(args.scene, args.seconds, args.fps).values()))
+    write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), frame)
+    return 0
+
+
+WALK_FRAMES_PER_STEP = 24
+
+
+def cmd_walk(args: argparse.Namespace) -> int:
+    """Render the primate walking (heel to toe, arms swinging), seen from the side by a tracking camera."""
     from . import render
 
-    tree = load("arm7")
-    traj, stops = demo_trajectory(tree, int(args.seconds * args.fps), args.fps)
-    ok = traj.success if traj.success is not None else np.ones(len(traj.q), bool)
-    print(f"IK: {ok.mean():.0%} of {len(traj.q)} frames on target; largest joint step per frame "
-          f"{traj.jumps(tree).max():.3f} rad")
-    overlay = render.Overlay(points=stops[1:-1], trail="ee")
-    images = render.frames(tree, traj.q, args.width, args.height, overlay=overlay)
-    _video_or_image(args, images)
+    frame = check_output(args, args.steps * WALK_FRAMES_PER_STEP)  # a clear error before the work
+    tree = load("primate")
+    walk = motion.walk_cycle(tree, steps=args.steps, stride=args.stride, frames_per_step=WALK_FRAMES_PER_STEP,
+                             fps=args.fps)
+    ok = walk.success if walk.success is not None else np.ones(len(walk.q), bool)
+    print(f"walk: {args.steps} steps of {args.stride} m, {len(walk.q)} frames, feet on target in {ok.mean():.0%}")
+    write_images(args, render.frames(tree, walk.q, args.width, args.height, view=render.WALK_VIEW, follow=True),
+                 frame)
     return 0
 
 
 def cmd_trajectory(args: argparse.Namespace) -> int:
     """Solve a Cartesian path for a site frame by frame and save it as a script."""
+    check_writable(args.output, (".json",), "--output")
     tree = load(args.model)
     tree.frame(args.site)  # a clear error before any work
     q0 = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
-    q0 = parse_q(args.q0, tree, args.deg) if args.q0 else q0
+    q0 = parse_q(args.q0, tree, args.deg, args.seed, "--q0") if args.q0 else q0
     here = tree.pose(q0, args.site)[:3, 3]
     if args.path == "circle":
         center = _vec(args.center, "--center") if args.center else here
@@ -181,34 +333,47 @@ def cmd_render(args: argparse.Namespace) -> int:
     """Render a configuration or a script to an image or a video."""
     from . import render
 
+    check_output(args, None)  # the path and sizes now; the frame index once the frame count is known
     tree = load(args.model)
     if args.script:
         traj = motion.Trajectory.load(args.script, tree)
         qs, points, trail = traj.q, traj.targets, traj.site
     else:
-        qs = (parse_q(args.q, tree, args.deg) if args.q else tree.qpos0.copy())[None]
+        qs = (parse_q(args.q, tree, args.deg, args.seed) if args.q else tree.qpos0.copy())[None]
         points, trail = None, None
+    frame = check_output(args, len(qs))
     overlay = render.Overlay(points=np.zeros((0, 3)) if points is None else points, trail=trail)
-    _video_or_image(args, render.frames(tree, qs, args.width, args.height, overlay=overlay))
+    write_output(args, tree, qs, overlay, frame)
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Replay a recorded script (no IK) to a video."""
+    check_output(args, None)
     model = args.model or motion.Trajectory.load(args.script).model
     args.model, args.q = model, None
     return cmd_render(args)
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    """Run benchmarks and print their tables."""
-    names = list(bench.BENCHMARKS) if args.which == "all" else [args.which]
-    for name in names:
-        for title, rows in bench.BENCHMARKS[name]().items():
-            print(f"== mjkin bench {name}: {title}")
-            print(bench.format_table(rows))
-            print()
+def cmd_workspace(args: argparse.Namespace) -> int:
+    """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
+    from .workspace import plot, workspace
+
+    tree = load(args.model)
+    sites = [n for n in tree.names("site") if n]
+    frame = args.frame or (sites[-1] if sites else tree.names("body")[-1])  # default: the last site, the tip
+    ws = workspace(tree, frame, args.samples)
+    shape = (f"planar annulus {ws.inner:.4g} <= r <= {ws.outer:.4g} about {np.round(ws.base, 4).tolist()}"
+             if ws.planar else f"{ws.inner:.4g} <= distance from the base <= {ws.outer:.4g}")
+    plot(ws, args.output, f"{tree.name} · {frame}: {args.samples} samples")
+    print(f"wrote {args.output}: {shape}; box {np.round(ws.lo, 4).tolist()} .. {np.round(ws.hi, 4).tolist()}; "
+          f"dexterous {ws.dexterous.mean():.0%} of the samples")
     return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """Run a benchmark, print its tables, and write them with ``--json``."""
+    return bench.main(args)
 
 
 def cmd_play(args: argparse.Namespace) -> int:
@@ -227,12 +392,27 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     return 0
 
 
+def _version() -> str:
+    try:
+        return metadata.version("mjkin")
+    except metadata.PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``mjkin`` command."""
     models = ", ".join(bundled_models())
-    p = argparse.ArgumentParser(prog="mjkin", description="Kinematics for articulated figures in MJCF.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = Parser(prog="mjkin", description="Kinematics for articulated figures in MJCF.")
+    p.add_argument("--version", action="version", version=f"mjkin {_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     model_help = f"MJCF/URDF file or a bundled model name ({models})"
+
+    def q_options(s: argparse.ArgumentParser, flag: str, default: str, where: argparse._ActionsContainer,
+                  seed_help: str = "") -> None:
+        where.add_argument(flag, help=f"configuration (qpos): nq numbers, a keyframe name (e.g. home) or 'random' "
+                                      f"(inside the joint limits); default {default}")
+        s.add_argument("--deg", action="store_true", help=f"hinge values in {flag} are degrees")
+        s.add_argument("--seed", type=int, help=f"seed for {flag} random{seed_help} (default: a new draw each run)")
 
     s = sub.add_parser("info", help="outline a model's bodies, joints and sites")
     s.add_argument("model", help=model_help)
@@ -240,47 +420,71 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("fk", help="world poses of bodies and sites for a configuration")
     s.add_argument("model", help=model_help)
-    s.add_argument("--q", help="configuration (qpos), nq numbers; default qpos0")
-    s.add_argument("--deg", action="store_true", help="hinge values in --q are degrees")
+    q_options(s, "--q", "qpos0", s)
+    s.add_argument("--clip", action="store_true",
+                   help="clip --q into the joint limits (default: use it as given and warn on stderr)")
     s.add_argument("--frame", help="print only this site or body")
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(run=cmd_fk)
 
-    def video_options(s: argparse.ArgumentParser, default: str | None) -> None:
-        s.add_argument("-o", "--output", default=default, required=default is None, help="file: .mp4, .gif or .png")
-        s.add_argument("--width", type=int, default=640)
-        s.add_argument("--height", type=int, default=480)
-        s.add_argument("--fps", type=float, default=30.0)
-        s.add_argument("--frame", type=int, default=-1, help="for an image output: which frame (default -1, the last)")
+    s = sub.add_parser("ik", help="solve IK: put a site or body at a position (and orientation)")
+    s.add_argument("model", help=model_help)
+    s.add_argument("--frame", required=True, help="the site or body to place")
+    s.add_argument("--pos", required=True, help="target position x,y,z in metres, world frame")
+    s.add_argument("--quat", help="target orientation w,x,y,z, world frame (default: position only)")
+    q_options(s, "--q0", "qpos0", s, " and for the IK restarts (those default to seed 0)")
+    s.add_argument("--method", choices=METHODS, default="auto", help="IK method (default auto, the most robust)")
+    s.add_argument("--tol", type=positive_float, default=1e-6, help="position tolerance in metres (default 1e-6)")
+    s.add_argument("--rot-tol", type=positive_float, default=1e-5,
+                   help="rotation tolerance in radians (default 1e-5)")
+    s.add_argument("--json", action="store_true",
+                   help="print JSON: q, success, error [m, rad], iterations, status, restarts, method")
+    s.set_defaults(run=cmd_ik)
 
-    s = sub.add_parser("demo", help="render a scripted IK trajectory of the 7-DoF arm (the main job)")
+    def video_options(s: argparse.ArgumentParser, default: str | None) -> None:
+        s.add_argument("-o", "--output", default=default, required=default is None,
+                       help="file: .mp4 or .gif (video), .png or .jpg (one frame)" + (f"; default {default}" if default
+                                                                                          else ""))
+        s.add_argument("--width", type=positive_int, default=640, help=f"pixels, at most {MAX_SIDE} (default 640)")
+        s.add_argument("--height", type=positive_int, default=480, help=f"pixels, at most {MAX_SIDE} (default 480)")
+        s.add_argument("--fps", type=positive_float, default=30.0, help="frames per second (default 30)")
+        s.add_argument("--frame", type=int, default=-1,
+                       help="for an image output: which frame, from 0, negative from the end (default -1, the last); "
+                            "only that frame is rendered")
+
+    s = sub.add_parser("demo", help="render the showcase video (the main job): seeds' arm, 7-DoF path, walk")
     video_options(s, "mjkin-demo.mp4")
-    s.add_argument("--seconds", type=float, default=6.0)
+    s.add_argument("--seconds", type=positive_float, default=15.0, help="length of the showcase (default 15)")
+    s.add_argument("--scene", default="all", choices=["all", "seeds", "arm", "walk"], help="one part only")
     s.set_defaults(run=cmd_demo)
+
+    s = sub.add_parser("walk", help="render the bundled primate walking, seen from the side")
+    video_options(s, "mjkin-walk.mp4")
+    s.add_argument("--steps", type=positive_int, default=4, help="steps (default 4)")
+    s.add_argument("--stride", type=positive_float, default=0.3, help="stride length in metres (default 0.3)")
+    s.set_defaults(run=cmd_walk)
 
     s = sub.add_parser("trajectory", help="solve a Cartesian path for a site and save the script (JSON)")
     s.add_argument("model", help=model_help)
     s.add_argument("--site", required=True, help="the site (or body) that follows the path")
-    s.add_argument("--path", choices=["circle", "line", "waypoints"], required=True)
+    s.add_argument("--path", choices=["circle", "line", "waypoints"], required=True, help="the shape of the path")
     s.add_argument("--center", help="circle centre x,y,z (default: the site at the start)")
-    s.add_argument("--radius", type=float, default=0.1)
-    s.add_argument("--normal", default="0,0,1", help="circle plane normal x,y,z")
+    s.add_argument("--radius", type=positive_float, default=0.1, help="circle radius in metres (default 0.1)")
+    s.add_argument("--normal", default="0,0,1", help="circle plane normal x,y,z (default 0,0,1)")
     s.add_argument("--start", help="line start x,y,z (default: the site at the start)")
     s.add_argument("--end", help="line end x,y,z")
     s.add_argument("--points", help="waypoints 'x,y,z; x,y,z; ...' (from the site at the start)")
-    s.add_argument("--frames", type=int, default=90)
-    s.add_argument("--fps", type=float, default=30.0)
-    s.add_argument("--q0", help="start configuration (default: the first keyframe, else qpos0)")
-    s.add_argument("--deg", action="store_true", help="hinge values in --q0 are degrees")
+    s.add_argument("--frames", type=positive_int, default=90, help="number of frames, at least 2 (default 90)")
+    s.add_argument("--fps", type=positive_float, default=30.0, help="frames per second of the script (default 30)")
+    q_options(s, "--q0", "the first keyframe, else qpos0", s)
     s.add_argument("-o", "--output", required=True, help="script file (.json)")
     s.set_defaults(run=cmd_trajectory)
 
     s = sub.add_parser("render", help="render a configuration or a script to .png/.mp4/.gif")
     s.add_argument("model", help=model_help)
     group = s.add_mutually_exclusive_group()
-    group.add_argument("--q", help="configuration (qpos); default qpos0")
+    q_options(s, "--q", "qpos0", group)
     group.add_argument("--script", help="trajectory script from 'mjkin trajectory'")
-    s.add_argument("--deg", action="store_true", help="hinge values in --q are degrees")
     video_options(s, None)
     s.set_defaults(run=cmd_render)
 
@@ -288,10 +492,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("script", help="trajectory script (.json)")
     s.add_argument("--model", help="model (default: the one named in the script)")
     video_options(s, None)
-    s.set_defaults(run=cmd_replay, deg=False)
+    s.set_defaults(run=cmd_replay, deg=False, seed=None)
+
+    s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
+    s.add_argument("model", help=model_help)
+    s.add_argument("--frame", help="the site or body whose workspace is sampled (default: the model's last site)")
+    s.add_argument("--samples", type=positive_int, default=20_000, help="random configurations (default 20000)")
+    s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
+    s.set_defaults(run=cmd_workspace)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
-    s.add_argument("which", choices=[*bench.BENCHMARKS, "all"])
+    bench.add_arguments(s)
     s.set_defaults(run=cmd_bench)
 
     s = sub.add_parser("play", help="the playground in a browser: drag a target, watch each IK method work")
@@ -310,7 +521,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mjkin`` console command."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a usage error already printed as one line
+        return e.code if isinstance(e.code, int) else 2
     progress.enable(True)
     try:
         return int(args.run(args))

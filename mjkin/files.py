@@ -1,14 +1,45 @@
-"""Atomic file writes: a temporary file in the same folder, then a rename."""
+"""Atomic file writes (a temporary file in the same folder, then a rename), and checking a path before the work."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from .errors import MjkinIOError
+from .errors import InputError, MjkinIOError
+
+
+def check_writable(path: str | os.PathLike[str], suffixes: Sequence[str] = (), what: str = "output") -> Path:
+    """Check, before any work, that ``path`` can be written: suffix, folder, permission.
+
+    ``suffixes`` (e.g. ``(".mp4", ".png")``, case-insensitive) are the allowed
+    endings, any when empty. The folder's permission is probed by creating and
+    removing a temporary file there, so read-only mounts and ``/proc`` are caught
+    as well as missing folders; nothing is left behind.
+
+    Raises:
+        InputError: the suffix is not allowed, or ``path`` is a folder.
+        MjkinIOError: the folder does not exist or cannot be written.
+    """
+    target = Path(path)
+    if suffixes and target.suffix.lower() not in suffixes:
+        raise InputError(f"{what} must end in {', '.join(suffixes)}; got {str(target)!r}")
+    if target.is_dir():
+        raise InputError(f"{what} {str(target)!r} is a folder; give a file name")
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} does not exist")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{target.name}.", dir=folder)
+    except OSError as e:  # /proc answers "no such file": say only that it is not writable
+        reason = "" if e.errno == errno.ENOENT else f" ({e.strerror or e})"
+        raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} is not writable{reason}") from None
+    os.close(fd)
+    os.unlink(probe)
+    return target
 
 
 @contextlib.contextmanager

@@ -164,18 +164,16 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
 
 def forward(tree: Tree, q: Array) -> Frames:
     """World frames of all bodies for ``q (..., nq)`` (already validated)."""
-    p = tree.plan
     batch = q.shape[:-1]
-    qf = np.ascontiguousarray(q.reshape(-1, tree.nq))
+    qf = np.ascontiguousarray(q.reshape(-1, q.shape[-1]))
     B = qf.shape[0]
-    rot = np.empty((B, tree.nbody, 3, 3))
-    pos = np.empty((B, tree.nbody, 3))
-    n_inner = int(np.count_nonzero(p.jnt_inner >= 0))
+    arrays = fk_arrays(tree)
+    nbody, n_inner = len(arrays[0]), tree.__dict__["_fk_n_inner"]
+    rot = np.empty((B, nbody, 3, 3))
+    pos = np.empty((B, nbody, 3))
     inner_rot = np.empty((B, n_inner, 3, 3))
     inner_pos = np.empty((B, n_inner, 3))
-    fk_kernel(qf, p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
-              p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
-              rot, pos, inner_rot, inner_pos)
+    fk_kernel(qf, *arrays, rot, pos, inner_rot, inner_pos)  # type: ignore[call-arg]  # the 14 arrays of fk_arrays
     return Frames(tree, batch, rot, pos, inner_rot, inner_pos)
 
 
@@ -328,6 +326,7 @@ def fk_arrays(tree: Tree) -> tuple:
         k = kinematic_arrays(tree)
         cached = (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                   k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0)
+        object.__setattr__(tree, "_fk_n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
         object.__setattr__(tree, "_fk_arrays", cached)
     return cached
 

@@ -87,17 +87,57 @@ def circle(center: ArrayLike, radius: float, n: int, normal: ArrayLike = (0, 0, 
     return np.asarray(center, float) + radius * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b)
 
 
-def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None) -> Array:
-    """``n`` points through ``points (K, 3)`` piecewise linearly, at ``times`` (default: by distance)."""
+def min_jerk(u: ArrayLike) -> Array:
+    """Minimum-jerk timing ``10u³ − 15u⁴ + 6u⁵`` of ``u`` in [0, 1]: no speed or acceleration at either end."""
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    return np.clip(u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 0.0, 1.0)  # rounding may pass 1 by an ulp
+
+
+def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None, corner: float = 0.0,
+              ease: bool = False) -> Array:
+    """``n`` points ``(n, 3)`` through ``points (K, 3)``.
+
+    By default piecewise linear at constant speed (or at ``times``, one per point).
+    ``corner > 0`` rounds every inner corner with a parabolic arc that leaves the
+    straight line ``corner`` (at most half a segment) before the waypoint and rejoins
+    it as far after; ``ease`` times the whole path with :func:`min_jerk` (at rest at
+    both ends, no jump in speed anywhere).
+    """
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or not np.isfinite(p).all():
         raise InputError(f"waypoints need at least two finite 3-D points, got shape {p.shape}")
+    if not (np.isfinite(corner) and corner >= 0):
+        raise InputError(f"corner must be a radius >= 0, got {corner!r}")
+    if times is not None and (corner > 0 or ease):
+        raise InputError("waypoints: give times, or corner/ease (timed by the path's length), not both")
+    if corner > 0:
+        p = _rounded(p, corner)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]) if times is None \
         else np.asarray(times, float)
     if len(s) != len(p) or np.any(np.diff(s) <= 0):
         raise InputError("waypoint times must increase strictly, one per point")
-    q = np.linspace(s[0], s[-1], _count(n))
+    u = np.linspace(0.0, 1.0, _count(n))
+    q = s[0] + (min_jerk(u) if ease else u) * (s[-1] - s[0])
     return np.stack([np.interp(q, s, p[:, k]) for k in range(3)], -1)
+
+
+def _rounded(p: Array, corner: float, per_arc: int = 24) -> Array:
+    """A dense polyline through ``p (K, 3)`` with each inner corner replaced by a quadratic Bézier arc."""
+    out = [p[0]]
+    for i in range(1, len(p) - 1):
+        a, b = p[i] - p[i - 1], p[i + 1] - p[i]
+        la, lb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+        r = min(corner, 0.5 * la, 0.5 * lb)
+        if r <= 0 or la == 0 or lb == 0:
+            out.append(p[i])
+            continue
+        start, end = p[i] - r * a / la, p[i] + r * b / lb
+        t = np.linspace(0.0, 1.0, per_arc)[:, None]
+        out.extend((1 - t) ** 2 * start + 2 * t * (1 - t) * p[i] + t ** 2 * end)
+    out.append(p[-1])
+    dense = np.array(out)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(dense, axis=0), axis=1) > 1e-12])
+    return dense[keep]
 
 
 def _count(n: int) -> int:
@@ -138,23 +178,56 @@ class Trajectory:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], tree: Tree | None = None) -> Trajectory:
-        """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch)."""
+        """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch).
+
+        Raises:
+            MjkinIOError: the file is missing, unreadable, or not JSON.
+            InputError: a key is missing, or a value has the wrong type or shape (the message names it).
+        """
+        name = repr(str(path))
         try:
             doc = json.loads(Path(path).read_text())
         except FileNotFoundError:
-            raise MjkinIOError(f"trajectory file not found: {str(path)!r}") from None
+            raise MjkinIOError(f"trajectory file not found: {name}") from None
         except (OSError, ValueError) as e:
-            raise MjkinIOError(f"cannot read trajectory {str(path)!r}: {e}") from None
+            raise MjkinIOError(f"cannot read trajectory {name}: {e}") from None
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-            raise MjkinIOError(f"{str(path)!r} is not an mjkin trajectory (no \"format\": \"{FORMAT}\")")
-        traj = cls(times=np.asarray(doc["times"], float), q=np.asarray(doc["qpos"], float),
-                   fingerprint=str(doc["fingerprint"]), model=str(doc.get("model", "")), site=doc.get("site"),
-                   targets=None if doc.get("targets") is None else np.asarray(doc["targets"], float),
-                   success=None if doc.get("success") is None else np.asarray(doc["success"], bool),
-                   meta=dict(doc.get("meta") or {}))
+            raise MjkinIOError(f"{name} is not an mjkin trajectory (no \"format\": \"{FORMAT}\")")
+
+        def numbers(key: str, ndim: int, what: str, dtype: type = float) -> NDArray:
+            if key not in doc:
+                raise InputError(f"trajectory {name} has no {key!r} ({what}); keys needed: times, qpos, fingerprint")
+            a: NDArray | None
+            try:
+                a = np.asarray(doc[key], dtype=dtype)
+            except (TypeError, ValueError):
+                a = None
+            if a is None or a.ndim != ndim or (dtype is float and not np.isfinite(a).all()):
+                raise InputError(f"trajectory {name}: {key!r} must be {what} (finite numbers)")
+            return a
+
+        times = numbers("times", 1, "a list of T times in seconds")
+        q = numbers("qpos", 2, "a list of T configurations, each a list of nq numbers")
+        fp = doc.get("fingerprint")
+        if not isinstance(fp, str):
+            raise InputError(f"trajectory {name}: 'fingerprint' must be a string (from the model it was recorded on)")
+        if len(times) != len(q) or len(q) == 0:
+            raise InputError(f"trajectory {name}: 'times' ({len(times)}) and 'qpos' ({len(q)}) must have the same "
+                             "number of frames, at least one")
+        targets = None if doc.get("targets") is None else numbers("targets", 3, "per frame a list of x,y,z points")
+        success = None if doc.get("success") is None else numbers("success", 1, "one true/false per frame", bool)
+        if targets is not None and (len(targets) != len(q) or targets.shape[-1] != 3):
+            raise InputError(f"trajectory {name}: 'targets' must hold x,y,z points for each of the {len(q)} frames")
+        if success is not None and len(success) != len(q):
+            raise InputError(f"trajectory {name}: 'success' must hold one true/false for each of the {len(q)} frames")
+        model, site, meta = doc.get("model", ""), doc.get("site"), doc.get("meta") or {}
+        if not isinstance(model, str) or not (site is None or isinstance(site, str)) or not isinstance(meta, dict):
+            raise InputError(f"trajectory {name}: 'model' and 'site' must be strings (or site null), 'meta' an object")
+        traj = cls(times=times, q=q, fingerprint=fp, model=model, site=site, targets=targets, success=success,
+                   meta=dict(meta))
         if tree is not None:
             if traj.fingerprint != fingerprint(tree):
-                raise InputError(f"trajectory {str(path)!r} was recorded on model {traj.model!r} "
+                raise InputError(f"trajectory {name} was recorded on model {traj.model!r} "
                                  f"(fingerprint {traj.fingerprint}), not on {tree.name!r} ({fingerprint(tree)})")
             tree.check_q(traj.q, "trajectory qpos")
         return traj
@@ -192,40 +265,123 @@ def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = Non
                       site=site, targets=pts[:, None, :], success=ok)
 
 
+TOE_OFF, HEEL_STRIKE = 0.15, 0.85  # parts of a step spent rolling onto the toe, and down from the heel
+
+
+def sole_points(tree: Tree, foot: str) -> tuple[Array, Array]:
+    """Toe and heel ``(3,)`` of a foot body, in its frame: the front and back of its geoms' boxes, at the sole."""
+    m = tree.model
+    body = tree.id(foot, "body")
+    corners = []
+    for g in np.flatnonzero(m.geom_bodyid == body):
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+        local = m.geom_aabb[g, :3] + signs * m.geom_aabb[g, 3:]
+        corners.append(local @ spatial.quat_to_mat(spatial.quat_normalize(m.geom_quat[g])).T + m.geom_pos[g])
+    if not corners:
+        raise InputError(f"foot {foot!r} has no geom to stand on")
+    c = np.concatenate(corners)
+    y, z = 0.5 * (c[:, 1].min() + c[:, 1].max()), c[:, 2].min()
+    return np.array([c[:, 0].max(), y, z]), np.array([c[:, 0].min(), y, z])
+
+
+def _pitched(T: Array, pivot: Array, angle: float) -> Array:
+    """Pose ``T (4, 4)`` turned by ``angle`` about the world y axis through the world point ``pivot``."""
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    out = T.copy()
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = pivot + R @ (T[:3, 3] - pivot)
+    return out
+
+
+def swing_foot(start: Array, end: Array, s: float, toe: Array, heel: Array, height: float, toe_off: float,
+               heel_strike: float) -> Array:
+    """The swinging foot's pose at step phase ``s`` in [0, 1], from flat pose ``start`` to flat pose ``end``.
+
+    Heel to toe: until :data:`TOE_OFF` it rolls onto its toe (the toe stays where it
+    is, the heel rises to ``toe_off`` rad), then it travels in an arc ``height`` high
+    while turning toe-up, lands on its heel (``heel_strike`` rad) at :data:`HEEL_STRIKE`
+    and rolls down flat about the heel. ``toe`` and ``heel`` are in the foot's frame.
+    """
+    toe_w = start[:3, :3] @ toe + start[:3, 3]
+    heel_w = end[:3, :3] @ heel + end[:3, 3]
+    if s <= TOE_OFF:
+        return _pitched(start, toe_w, toe_off * float(min_jerk(s / TOE_OFF)))
+    if s >= HEEL_STRIKE:
+        return _pitched(end, heel_w, -heel_strike * (1.0 - float(min_jerk((s - HEEL_STRIKE) / (1 - HEEL_STRIKE)))))
+    a, b = _pitched(start, toe_w, toe_off), _pitched(end, heel_w, -heel_strike)
+    u = float(min_jerk((s - TOE_OFF) / (HEEL_STRIKE - TOE_OFF)))
+    T = _pitched(start, start[:3, 3], toe_off + (-heel_strike - toe_off) * u)  # the turn, about its own origin
+    T[:3, 3] = (1 - u) * a[:3, 3] + u * b[:3, 3]
+    T[2, 3] += height * np.sin(np.pi * (s - TOE_OFF) / (HEEL_STRIKE - TOE_OFF))
+    return T
+
+
 def walk_cycle(tree: Tree, steps: int = 4, stride: float = 0.3, step_height: float = 0.06, frames_per_step: int = 24,
                fps: float = 30.0, feet: tuple[str, str] = ("left_foot", "right_foot"), pelvis: str = "lower_torso",
                knees: tuple[str, str] = ("left_knee", "right_knee"), knee_bend: float = 0.7,
-               crouch: float = 0.06, tol: float = 1e-4) -> Trajectory:
+               crouch: float = 0.04, sway: float = 0.03, lean: float = 0.08, hip_drop: float = 0.06,
+               bob: float = 0.015, arm_swing: float = 0.35, waist: str | None = "waist",
+               shoulders: tuple[str, str] | None = ("left_shoulder", "right_shoulder"),
+               elbows: tuple[str, str] | None = ("left_elbow", "right_elbow"), toe_off: float = 0.35,
+               heel_strike: float = 0.25, tol: float = 1e-4) -> Trajectory:
     """A walk (seeds 002/004): feet placed by IK, the planted foot switching every step.
 
-    In each step one foot is planted — it is the IK root (``root=``), held where
-    it stands while the free pelvis joint and the legs move — and the other
-    swings forward by ``stride`` along an arc ``step_height`` high. The pelvis
-    follows the midpoint of the feet, upright and ``crouch`` lower than standing; the swinging knee follows the
-    curve ``θ(s) = knee_bend · sin(π s)`` (a low-priority rest goal), the rest of
-    the body stays near its rest pose. Returns the frames, solved warm-started.
+    In each step one foot is planted — it is the IK root (``root=``), held where it
+    stands while the free pelvis joint and the legs move — and the other swings
+    forward by ``stride`` heel to toe (:func:`swing_foot`: rolls onto its toe, an arc
+    ``step_height`` high, lands on its heel). The pelvis moves forward at a steady
+    pace between the feet, ``crouch`` lower than standing, bobbing ``bob`` (highest
+    over the planted foot) and swaying toward the planted foot: aimed ``sway`` m
+    sideways (as far as legs without ankle roll allow), its free side dropping
+    ``hip_drop`` rad, the upper body (joint ``waist``) leaning ``lean`` rad; the arms
+    swing ``arm_swing`` rad opposite to the legs, elbows a little bent; the swinging
+    knee follows ``θ(s) = knee_bend · sin(π s)``. Arms, knees and the rest of the
+    body are low-priority rest goals. Frames are solved warm-started; ``success``
+    marks frames whose feet are on target. ``shoulders``/``elbows`` None: no arm swing.
     """
     if steps < 1 or frames_per_step < 2:
         raise InputError("walk_cycle needs steps >= 1 and frames_per_step >= 2")
+    if not (np.isfinite(stride) and stride > 0):
+        raise InputError(f"stride must be a positive length, got {stride!r}")
     q = tree.qpos0.copy()
     foot_T = {f: tree.pose(q, f, "body") for f in feet}
+    soles = {f: sole_points(tree, f) for f in feet}
     T_pelvis = tree.pose(q, pelvis, "body")
-    T_pelvis[2, 3] -= crouch
     knee_q = [tree.jnt_qadr[tree.id(k, "joint")] for k in knees]
+    arm_q = None if shoulders is None else [tree.jnt_qadr[tree.id(j, "joint")] for j in shoulders]
+    elbow_q = None if elbows is None else [tree.jnt_qadr[tree.id(j, "joint")] for j in elbows]
+    waist_q = None if waist is None else int(tree.jnt_qadr[tree.id(waist, "joint")])
     out, ok = [], []
+    arm_end = 0.0
     for k in range(steps):
-        planted, swing = feet[k % 2], feet[1 - k % 2]
+        side = k % 2
+        planted, swing = feet[side], feet[1 - side]
         start = foot_T[swing].copy()
         end = start.copy()
         end[0, 3] = foot_T[planted][0, 3] + 0.5 * stride if k else start[0, 3] + 0.5 * stride
+        arm_start, arm_end = -arm_end, arm_swing * (0.5 if k == 0 else 1.0)  # same-side arm: front to back
+        toward = np.sign(foot_T[planted][1, 3] - T_pelvis[1, 3])
         for f in range(1, frames_per_step + 1):
             s = f / frames_per_step
-            T = start.copy()
-            T[:3, 3] = (1 - s) * start[:3, 3] + s * end[:3, 3] + [0.0, 0.0, step_height * np.sin(np.pi * s)]
+            T = swing_foot(start, end, s, *soles[swing], step_height, toe_off, heel_strike)
             P = T_pelvis.copy()
-            P[0, 3] = 0.5 * (T[0, 3] + foot_T[planted][0, 3])
+            P[0, 3] = 0.5 * (start[0, 3] + s * (end[0, 3] - start[0, 3]) + foot_T[planted][0, 3])
+            P[1, 3] += toward * sway * np.sin(np.pi * s)
+            P[2, 3] -= crouch + bob * 0.5 * (1 + np.cos(2 * np.pi * s))
+            roll = toward * hip_drop * np.sin(np.pi * s)  # about x: the free side (away from the planted foot) drops
+            P[:3, :3] = spatial.quat_to_mat(spatial.quat_from_axis_angle([1.0, 0.0, 0.0], roll)) @ T_pelvis[:3, :3]
             rest = tree.qpos0.copy()
-            rest[knee_q[1 - k % 2]] = knee_bend * np.sin(np.pi * s)
+            if waist_q is not None:  # the upper body leans over the planted foot, against the hip drop
+                rest[waist_q:waist_q + 4] = spatial.quat_from_axis_angle([1.0, 0.0, 0.0],
+                                                                        -toward * (lean + hip_drop) * np.sin(np.pi * s))
+            rest[knee_q[1 - side]] = knee_bend * np.sin(np.pi * s)
+            if arm_q is not None:
+                a = arm_start + (arm_end - arm_start) * 0.5 * (1 - np.cos(np.pi * s))
+                for j, angle in ((1 - side, a), (side, -a)):  # positive about y swings an arm back
+                    rest[arm_q[j]:arm_q[j] + 4] = spatial.quat_from_axis_angle([0.0, 1.0, 0.0], angle)
+                    if elbow_q is not None:
+                        rest[elbow_q[j]] = 0.25 + 0.3 * max(0.0, -angle)
             goals = [G.Pose(swing, kind="body", T=T), G.Position(pelvis, P[:3, 3], kind="body", priority=1),
                      G.Orientation(pelvis, P[:3, :3], kind="body", priority=1), G.Rest(q_rest=rest, priority=2)]
             res = solve(tree, goals, q0=q, root=planted, tol=tol, restarts=0)
@@ -234,5 +390,6 @@ def walk_cycle(tree: Tree, steps: int = 4, stride: float = 0.3, step_height: flo
             ok.append(bool(res.goal_errors[0, 0] <= tol and res.goal_errors[1, 0] <= tol))  # feet on target
         foot_T[swing] = end
     return Trajectory(times=np.arange(len(out)) / fps, q=np.array(out), fingerprint=fingerprint(tree),
-                      model=tree.name, site=None, success=np.array(ok), meta={"walk": {"steps": steps,
-                                                                                  "stride": stride}})
+                      model=tree.name, site=None, success=np.array(ok),
+                      meta={"walk": {"steps": steps, "stride": stride, "frames_per_step": frames_per_step,
+                                     "feet": list(feet), "toe_off": TOE_OFF, "heel_strike": HEEL_STRIKE}})

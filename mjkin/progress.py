@@ -1,27 +1,87 @@
-"""Progress bars for long CLI work: shown on a terminal, silent in tests and pipes."""
+"""Progress bars for long CLI work, and a note while numba compiles: shown on a terminal, silent in tests and pipes.
+
+The first run compiles mjkin's kernels (about a minute for the IK path; later
+runs load them from the disk cache). numba announces every real compilation
+(a cache miss, never a cache hit) as a ``"numba:compile"`` event; while enabled,
+the first such event prints :data:`COMPILING` once, so a bar that sits at 0 %
+is explained. Bars show no rate or ETA until their first item is done, since
+that item may include the compilation and would make the estimate for the rest
+hours long; then the clock starts afresh.
+"""
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 from typing import TypeVar
+
+from numba.core import event
 
 T = TypeVar("T")
 
+COMPILING = "compiling kernels (first run only, about a minute)..."
+
 _enabled = False
+_said = False  # COMPILING was printed in this process
+
+
+def shown() -> bool:
+    """Progress is enabled (the CLI) and stderr is a terminal."""
+    return _enabled and sys.stderr.isatty()
+
+
+def compiling_notice() -> bool:
+    """Print :data:`COMPILING` on stderr once per process, when :func:`shown`; True if it printed now."""
+    global _said
+    if _said or not shown():
+        return False
+    _said = True
+    from tqdm import tqdm
+
+    tqdm.write(f"mjkin: {COMPILING}", file=sys.stderr)  # above any bar being drawn
+    return True
+
+
+class _CompileListener(event.Listener):
+    def on_start(self, event: event.Event) -> None:
+        compiling_notice()
+
+    def on_end(self, event: event.Event) -> None:
+        pass
+
+
+_listener = _CompileListener()
 
 
 def enable(on: bool = True) -> None:
-    """Let :func:`track` draw bars (the CLI turns this on when stderr is a terminal)."""
+    """Let :func:`track` draw bars and the compile notice print (the CLI turns this on; stderr must be a TTY)."""
     global _enabled
+    if bool(on) != _enabled:
+        (event.register if on else event.unregister)("numba:compile", _listener)
     _enabled = bool(on)
 
 
-def track(items: Iterable[T], desc: str, total: int | None = None) -> Iterator[T]:
-    """Iterate over ``items``, with a tqdm bar on stderr when enabled and stderr is a TTY."""
-    if _enabled and sys.stderr.isatty():
-        from tqdm import tqdm
+_END = object()
 
-        yield from tqdm(items, desc=desc, total=total, leave=False, dynamic_ncols=True)
-    else:
+
+def track(items: Iterable[T], desc: str, total: int | None = None) -> Iterator[T]:
+    """Iterate over ``items``, with a tqdm bar on stderr when :func:`shown`.
+
+    The bar says ``[starting]`` until the caller has finished the first item;
+    rate and ETA are measured from then on.
+    """
+    if not shown():
         yield from items
+        return
+    from tqdm import tqdm
+
+    if total is None and isinstance(items, Sized):
+        total = len(items)
+    it = iter(items)
+    with tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True,
+              bar_format="{desc}: {n_fmt}/{total_fmt} [starting]"):
+        first = next(it, _END)
+        if first is _END:
+            return
+        yield first  # type: ignore[misc]
+    yield from tqdm(it, desc=desc, total=total, initial=1, leave=False, dynamic_ncols=True)

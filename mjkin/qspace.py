@@ -76,7 +76,7 @@ def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
     if not all_finite(a.reshape(-1)):
         raise InputError(f"{name} contains NaN or inf")
     quats = tree.layout.quats
-    if quats.size and (np.square(a[..., quats]).sum(-1) < 1e-18).any():
+    if quats.size and _zero_quaternion(np.ascontiguousarray(a).reshape(-1, a.shape[-1]), quats):
         raise InputError(f"{name} has a zero quaternion for a ball or free joint; use (1, 0, 0, 0) for no rotation")
     return a
 
@@ -90,6 +90,19 @@ def all_finite(a: Array) -> bool:
     return True
 
 
+@njit
+def _zero_quaternion(q: Array, quats: Index) -> bool:
+    """Whether any quaternion ``q[b, quats[i]]`` of ``q (B, nq)`` is (nearly) zero."""
+    for b in range(q.shape[0]):
+        for i in range(quats.shape[0]):
+            n = 0.0
+            for k in range(4):
+                n += q[b, quats[i, k]] ** 2
+            if n < 1e-18:
+                return True
+    return False
+
+
 def _rng(rng: np.random.Generator | int | None) -> np.random.Generator:
     return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
@@ -100,13 +113,16 @@ def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
-def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | None = None) -> Array:
+def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | None = None,
+           spread: bool = False) -> Array:
     """Configurations inside the joint limits: ``(n, nq)``, or ``(nq,)`` when ``n`` is None.
 
     Limited hinges and slides are uniform in their range; unlimited hinges
     uniform in ``qpos0 ± π``; unlimited slides and free positions within
     ``±1 m`` of ``qpos0``; ball and free rotations uniform (within the cone of a
-    limited ball joint).
+    limited ball joint). ``spread`` draws the hinges and slides from a scrambled
+    Sobol sequence instead: as uniform, but with no clusters or gaps, so a few
+    IK restarts cover the joint space better.
     """
     g, lay = _rng(rng), tree.layout
     shape = (1 if n is None else int(n),)
@@ -116,7 +132,13 @@ def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | No
     base = tree.qpos0[lay.scalar_q]
     lo = np.where(np.isfinite(lo), lo, base - half)
     hi = np.where(np.isfinite(hi), hi, base + half)
-    q[:, lay.scalar_q] = g.uniform(lo, hi, shape + lo.shape)
+    if spread and len(lo) and shape[0]:
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(d=len(lo), scramble=True, seed=g).random_base2(int(np.ceil(np.log2(shape[0]))))
+        q[:, lay.scalar_q] = lo + u[:shape[0]] * (hi - lo)
+    else:
+        q[:, lay.scalar_q] = g.uniform(lo, hi, shape + lo.shape)
     nb = len(lay.ball_q)
     if nb:
         quat = random_quat(g, shape + (nb,))

@@ -1,7 +1,7 @@
 """The seeds' reproducible examples (SEEDS.md §4), as data, tables and figures.
 
 1. The three-link planar arm (lengths 15, 10, 5, start ``[π/8, π/4, π/4]``):
-   pseudoinverse, transpose and CCD walk the tip to ``(-20, 5)``; toward the
+   pseudoinverse, transpose, CCD and recursive reach bring the tip to ``(-20, 5)``; toward the
    unreachable ``(-35, 5)`` the plain pseudoinverse's joint steps blow up as the
    arm straightens while damped least squares stays smooth and ends stretched.
    Each solver step is one animation frame; the goal is approached at most
@@ -31,14 +31,15 @@ REACHABLE, UNREACHABLE = np.array([-20.0, 5.0, 0.0]), np.array([-35.0, 5.0, 0.0]
 FRAMES = 20
 GOAL_STEP = 3.0  # seed units the tip is asked to move per frame
 DAMPING = 5.0  # λ of the damped method (a sixth of the arm's reach)
-METHODS: dict[str, dict] = {"pinv": {}, "dls": {"damping": DAMPING}, "transpose": {}, "ccd": {}}
+METHODS: dict[str, dict] = {"pinv": {}, "dls": {"damping": DAMPING}, "transpose": {}, "ccd": {}, "reach": {}}
+WHOLE_MOVES = ("ccd", "reach")  # methods whose iteration is a whole sweep or pass, not a clamped step
 
 
 def three_link(method: str, goal: Array, frames: int = FRAMES) -> Result:
     """One seed-1 run: ``frames`` steps of ``method`` from :data:`START`, with history."""
     tree = load("planar_3link")
     opts: dict = dict(METHODS[method])
-    if method != "ccd":
+    if method not in WHOLE_MOVES:
         opts["goal_step"] = GOAL_STEP
     return solve(tree, G.Position("tip", goal), q0=START, method=method, max_iters=frames, history=True,
                  patience=frames + 1, tol=1e-6, **opts)
@@ -102,7 +103,7 @@ def draw_strip(tree: Tree, runs: dict[str, Result], frames: list[int], goal: Arr
 
 
 def plot_errors(runs: dict[str, Result], path: Path, title: str) -> None:
-    """Tip error against iteration for each method (log scale)."""
+    """Tip error against iteration, one line per run (log scale)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -141,4 +142,10 @@ def figures(out: Path) -> list[Path]:
         with atomic_path(out / f"seed1_{label}_error.png") as tmp:
             plot_errors(runs, tmp, f"goal {goal[:2]}")
         written += [out / f"seed1_{label}_frames.png", out / f"seed1_{label}_error.png"]
+    for method in METHODS:  # one convergence plot per method: both goals, error against iteration
+        runs = {f"goal {g[:2]}": three_link(method, g, frames=60) for g in (REACHABLE, UNREACHABLE)}
+        unit = {"ccd": "sweep", "reach": "pass"}.get(method, "step")
+        with atomic_path(out / f"seed1_convergence_{method}.png") as tmp:
+            plot_errors(runs, tmp, f"{method}: tip error per {unit}")
+        written.append(out / f"seed1_convergence_{method}.png")
     return written

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .errors import InputError
+
 Array = NDArray[np.float64]
 
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -132,8 +134,8 @@ def quat_to_rotvec(q: ArrayLike) -> Array:
     q = q * np.where(q[..., :1] < 0.0, -1.0, 1.0)
     w, v = q[..., 0], q[..., 1:]
     n = np.linalg.norm(v, axis=-1)
-    small = n < 1e-8
-    scale = np.where(small, 2.0 / np.where(w > 0, w, 1.0), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n))
+    # atan2(n, w) / n is exact to rounding for any n > 0, however small; n = 0 means v = 0 and no rotation
+    scale = np.where(n > 0.0, 2.0 * np.arctan2(n, w) / np.where(n > 0.0, n, 1.0), 2.0)
     return scale[..., None] * v
 
 
@@ -186,64 +188,94 @@ def orthonormalize(R: ArrayLike) -> Array:
     return U @ Vt
 
 
-def _basic(axis: int, angle: Array) -> Array:
-    e = np.zeros(angle.shape + (3,))
-    e[..., axis] = 1.0
-    return axis_angle_to_mat(e, angle)
+def _parse_seq(seq: str) -> tuple[tuple[int, int, int], bool]:
+    """Axis indices of an Euler sequence in extrinsic order, and whether it was intrinsic."""
+    if (not isinstance(seq, str) or len(seq) != 3 or not (seq.islower() or seq.isupper())
+            or any(c not in _AXES for c in seq.lower())):
+        raise InputError(f"Euler sequence {seq!r}: expected three of x/y/z, lower case = extrinsic, upper = intrinsic")
+    i, j, k = (_AXES[c] for c in seq.lower())
+    if i == j or j == k:
+        raise InputError(f"Euler sequence {seq!r}: consecutive axes must differ, e.g. 'xyz' or 'zxz'")
+    intrinsic = seq.isupper()
+    return ((k, j, i) if intrinsic else (i, j, k)), intrinsic
 
 
-def _parse_seq(seq: str) -> tuple[list[int], bool]:
-    if len(seq) != 3 or not (seq.islower() or seq.isupper()) or any(c not in _AXES for c in seq.lower()):
-        raise ValueError(f"Euler sequence {seq!r}: expected three of x/y/z, lower case = extrinsic, upper = intrinsic")
-    axes = [_AXES[c] for c in seq.lower()]
-    if axes[0] == axes[1] or axes[1] == axes[2]:
-        raise ValueError(f"Euler sequence {seq!r}: consecutive axes must differ")
-    return axes, seq.isupper()
-
-
-def euler_to_mat(angles: ArrayLike, seq: str = "xyz") -> Array:
-    """Rotation matrix of Euler angles ``(..., 3)``.
+def euler_to_quat(angles: ArrayLike, seq: str = "xyz") -> Array:
+    """Unit quaternion ``(..., 4)`` of Euler angles ``(..., 3)`` in radians.
 
     ``seq`` follows SciPy: upper case (``"XYZ"``) is intrinsic, rotating about
     the moving axes (``R = Rx(a) Ry(b) Rz(c)``); lower case (``"xyz"``) is
     extrinsic, about the fixed axes (``R = Rz(c) Ry(b) Rx(a)``).
     """
-    axes, intrinsic = _parse_seq(seq)
+    (i, j, k), intrinsic = _parse_seq(seq)
     a = _f(angles)
-    Rs = [_basic(ax, a[..., k]) for k, ax in enumerate(axes)]
-    return Rs[0] @ Rs[1] @ Rs[2] if intrinsic else Rs[2] @ Rs[1] @ Rs[0]
+    if intrinsic:  # intrinsic "XYZ" is extrinsic "zyx" with the angles reversed
+        a = a[..., ::-1]
+    eye = np.eye(3)
+    q = [quat_from_axis_angle(eye[ax], a[..., n]) for n, ax in enumerate((i, j, k))]
+    return quat_mul(q[2], quat_mul(q[1], q[0]))
+
+
+def euler_to_mat(angles: ArrayLike, seq: str = "xyz") -> Array:
+    """Rotation matrix ``(..., 3, 3)`` of Euler angles ``(..., 3)``; ``seq`` as in :func:`euler_to_quat`."""
+    return quat_to_mat(euler_to_quat(angles, seq))
+
+
+_LOCK = 1e-14  # half-angle pair norm (relative) below which gimbal lock is declared: costs < 1e-13 rad
+
+
+def quat_to_euler(q: ArrayLike, seq: str = "xyz") -> Array:
+    """Euler angles ``(..., 3)`` of unit quaternions ``(..., 4)``, inverse of :func:`euler_to_quat`.
+
+    Angles follow SciPy's ranges: the middle one in ``[-π/2, π/2]`` (Tait–Bryan,
+    e.g. ``"xyz"``) or ``[0, π]`` (proper Euler, e.g. ``"zxz"``), the others in
+    ``[-π, π]``. At gimbal lock only the sum or difference of the outer angles
+    is defined and, as in SciPy, the third angle is set to zero.
+
+    The angles are read directly from the quaternion (the half-angle sums and
+    differences are each ``atan2`` of a pair of components; Bernardes & Viollet,
+    PLoS ONE 2022), so the result reproduces the rotation to rounding error
+    right up to gimbal lock, where angles taken from matrix entries lose
+    accuracy.
+    """
+    (i, j, k), intrinsic = _parse_seq(seq)
+    q = _f(q)
+    w = q[..., 0]
+    v = [q[..., 1 + n] for n in range(3)]
+    proper = i == k
+    m = 3 - i - j if proper else k  # the axis that is neither i nor j
+    s = 1.0 if (i, j, m) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
+    if proper:  # q = (cB cos(G+A), cB sin(G+A) e_i + sB cos(G-A) e_j + s sB sin(G-A) e_m), halves A, B, G
+        a, b, c, d = w, v[i], v[j], s * v[m]
+    else:  # the same form after a quarter turn about e_j: B -> B + π/4
+        a, b, c, d = w - v[j], v[i] + s * v[k], v[j] + w, s * v[k] - v[i]
+    n_ab, n_cd = np.hypot(a, b), np.hypot(c, d)
+    mid = 2.0 * np.arctan2(n_cd, n_ab)
+    hs, hd = np.arctan2(b, a), np.arctan2(d, c)  # (G + A) and (G - A), up to the sign s for Tait-Bryan
+    # At gimbal lock one of hs, hd is undefined: choose it so that the third angle the caller sees is zero
+    # (extrinsic: the last angle G, i.e. hd = -hs; intrinsic: the extrinsic first angle A, i.e. hd = hs).
+    flip = 1.0 if intrinsic else -1.0
+    hd = np.where(n_cd < _LOCK * n_ab, flip * hs, hd)
+    hs = np.where(n_ab < _LOCK * n_cd, flip * hd, hs)
+    first = hs - hd
+    third = (hs + hd) * (1.0 if proper else s)
+    if not proper:
+        mid = mid - 0.5 * np.pi
+    out = np.stack([_wrap(first), mid, _wrap(third)], -1)
+    return out[..., ::-1] if intrinsic else out
 
 
 def mat_to_euler(R: ArrayLike, seq: str = "xyz") -> Array:
-    """Euler angles ``(..., 3)`` of rotation matrices, inverse of :func:`euler_to_mat`.
+    """Euler angles ``(..., 3)`` of rotation matrices ``(..., 3, 3)``, inverse of :func:`euler_to_mat`.
 
-    The middle angle is in ``[-π/2, π/2]`` (Tait–Bryan) or ``[0, π]`` (proper
-    Euler); at gimbal lock the third angle is set to zero.
+    Goes through :func:`mat_to_quat`; ranges and gimbal lock as in :func:`quat_to_euler`.
     """
-    axes, intrinsic = _parse_seq(seq)
-    R = _f(R)
-    if not intrinsic:  # extrinsic xyz == intrinsic ZYX with the angles reversed
-        return mat_to_euler(R, seq[::-1].upper())[..., ::-1]
-    i, j, k = axes
-    proper = i == k
-    m = 3 - i - j if proper else k
-    s = 1.0 if (i, j, m) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
-    if proper:
-        b = np.arctan2(np.hypot(R[..., i, j], R[..., i, m]), R[..., i, i])
-        a = np.arctan2(R[..., j, i], -s * R[..., m, i])
-        c = np.arctan2(R[..., i, j], s * R[..., i, m])
-        lock = np.sin(b) < 1e-12  # below this, dropping the direction of b costs < 1e-12
-    else:
-        b = np.arctan2(s * R[..., i, k], np.hypot(R[..., i, i], R[..., i, j]))
-        a = np.arctan2(-s * R[..., j, k], R[..., k, k])
-        c = np.arctan2(-s * R[..., i, j], R[..., i, i])
-        lock = np.cos(b) < 1e-12
-    if np.any(lock):  # only a ± c is defined: set c = 0, then R = R_i(a) R_j(b)
-        M = R @ np.swapaxes(_basic(j, b), -1, -2)
-        p, q = (i + 1) % 3, (i + 2) % 3
-        a = np.where(lock, np.arctan2(M[..., q, p], M[..., p, p]), a)
-        c = np.where(lock, 0.0, c)
-    return np.stack([a, b, c], -1)
+    return quat_to_euler(mat_to_quat(R), seq)
+
+
+def _wrap(x: Array) -> Array:
+    """Angles in ``[-2π, 2π]`` brought into ``[-π, π]``."""
+    return np.where(x > np.pi, x - 2.0 * np.pi, np.where(x < -np.pi, x + 2.0 * np.pi, x))
 
 
 # ------------------------------------------------------------- rigid transforms

@@ -3,14 +3,26 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 import mjkin
 from mjkin.bench import shared_models_dir
+
+# Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
+# depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not
+# committed). Wall-clock time is never a test criterion here (numba compiles on first use): no deadline, no
+# too-slow health check.
+_TIMELESS = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow]}
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True, **_TIMELESS)
+# parent "default": Hypothesis itself may already have loaded its own "ci" profile when it detects CI
+settings.register_profile("dev", parent=settings.get_profile("default"), **_TIMELESS)
+settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
 FD_TOL = 1e-6  # finite-difference checks (central differences, step 1e-6)
@@ -37,6 +49,29 @@ def model_id(p: Path) -> str:
 
 
 ALL_MODELS = bundled() + gym_assets() + shared()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def mujoco_log(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """Where MuJoCo writes its warnings during the tests: a temporary file, not ``MUJOCO_LOG.TXT`` in the cwd.
+
+    Compiling some models warns (gymnasium's half_cheetah.xml uses the deprecated ``settotalmass``), and MuJoCo
+    appends every warning to ``MjLogConfig.logfile``, by default ``MUJOCO_LOG.TXT`` in the working folder. MuJoCo
+    before 4.0 has no ``MjLogConfig``: there a log the tests created in the working folder is removed at the end.
+    """
+    log = tmp_path_factory.mktemp("mujoco") / "MUJOCO_LOG.TXT"
+    config = mujoco.MjLogConfig.get() if hasattr(mujoco, "MjLogConfig") else None
+    left = Path("MUJOCO_LOG.TXT").resolve()
+    there = left.exists()
+    if config is not None:
+        default, config.logfile = config.logfile, str(log)
+        config.set()
+    yield log
+    if config is not None:
+        config.logfile = default
+        config.set()
+    elif not there:
+        left.unlink(missing_ok=True)
 
 
 @pytest.fixture

@@ -1,32 +1,270 @@
-"""Benchmarks report what they measured: small runs, checked for content, never for speed."""
+"""Benchmarks report what they measured: small runs, checked for content and honesty, never for speed."""
 
 from __future__ import annotations
 
 import importlib.util
+import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import mjkin
-from mjkin.bench import bench_ik, mink_loop, pose_errors
+from mjkin import bench, build, cli
+from mjkin.bench_ik import (
+    TRAC_IK_SOURCE,
+    Run,
+    arms,
+    bench_ik,
+    bench_trac_ik,
+    frame_errors,
+    mid_range,
+    mink_ik,
+    mujoco_dls,
+    row,
+)
+from mjkin.spatial import axis_angle_to_mat
+
+HAS_MINK = importlib.util.find_spec("mink") is not None
+ARM7 = arms(["arm7"])[0]
 
 
-def test_bench_ik_reports_mjkin_beside_its_baseline():
-    (rows,) = bench_ik(n=8).values()
-    arms = {r["arm"] for r in rows} - {"-"}
-    assert "arm7" in arms
-    for arm in arms:
-        by = {r["solver"]: r for r in rows if r["arm"] == arm}
-        assert {"mjkin", "mjkin batched", "mujoco DLS loop"} <= set(by)
-        assert by["mjkin"]["success %"] == by["mjkin batched"]["success %"] == 100.0
-        assert by["mujoco DLS loop"]["solves/s vs baseline"] == 1.0
+def easy_targets(n: int = 4, spread: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Configurations near home and their poses (targets a single start reaches)."""
+    q = ARM7.home + spread * np.random.default_rng(0).standard_normal((n, ARM7.tree.nq))
+    q = ARM7.tree.clip(q)
+    return q, ARM7.tree.pose(q, ARM7.frame, ARM7.kind)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("mink") is None, reason="mink is the optional bench extra")
-def test_mink_baseline_reaches_easy_targets():
-    tree = mjkin.load("arm7")
-    home = tree.model.key_qpos[0]
-    near = tree.pose(home + 0.05 * np.random.default_rng(0).standard_normal((5, 7)), "ee")
-    reached, times = mink_loop(tree.model, "ee", "site", near, home, 1e-4, 1e-3)
-    ep, er = pose_errors(reached, near)
-    assert (ep <= 1e-4).all() and (er <= 1e-3).all() and (times > 0).all()
+def test_bench_ik_rows_name_every_solver_with_the_json_columns():
+    report = bench_ik(["arm7"], targets=6, mink=False)
+    (rows,) = report.tables.values()
+    by = {r["solver"]: r for r in rows}
+    assert set(by) == {"mjkin", "mjkin-single-start", "mujoco-dls"}
+    for r in rows:
+        assert r["model"] == "arm7"
+        assert {"success", "median_ms", "p95_ms", "iterations_mean", "restarts_mean", "batched_per_s"} <= set(r)
+        assert 0.0 <= r["success"] <= 100.0 and r["median_ms"] > 0 and r["p95_ms"] >= r["median_ms"]
+    assert by["mjkin"]["success"] == by["mjkin"]["batched_success"] == 100.0
+    assert by["mjkin-single-start"]["restarts_mean"] == 0.0
+    assert by["mujoco-dls"]["batched_per_s"] is None and by["mjkin"]["batched_per_s"] > 0
+    assert report.settings["iters"] == 200 and report.settings["targets"] == 6
+
+
+def test_single_start_rows_keep_the_iteration_budget():
+    report = bench_ik(["arm7"], targets=5, iters=3, mink=False)
+    (rows,) = report.tables.values()
+    for r in rows:
+        if r["solver"] != "mjkin":
+            assert r["iterations_mean"] <= 3, r
+            assert r["restarts_mean"] == 0.0
+
+
+def test_success_is_recounted_by_mujoco_not_taken_from_the_solver():
+    q, targets = easy_targets()
+    right = Run(q, np.full(len(q), 1e-3), np.ones(len(q)), np.zeros(len(q)))
+    assert row(ARM7, "oracle", right, targets, 1e-9, 1e-9)["success"] == 100.0
+    wrong = Run(q[::-1].copy(), right.seconds, right.iterations, right.restarts)  # answers swapped
+    assert row(ARM7, "liar", wrong, targets, 1e-4, 1e-3)["success"] == 0.0
+    nudged = q.copy()
+    nudged[0, 0] += 1e-3  # one answer slightly off: counted as one failure
+    assert row(ARM7, "close", Run(nudged, *list(vars(right).values())[1:]), targets, 1e-5, 1e-5)["success"] == 75.0
+
+
+@given(angle=st.floats(1e-8, 3.1), axis=st.integers(0, 2), pos=st.floats(0.0, 0.5))
+def test_recheck_measures_distances_exactly(angle, axis, pos):
+    q, targets = easy_targets(1)
+    moved = targets.copy()
+    moved[0, :3, :3] = targets[0, :3, :3] @ axis_angle_to_mat(np.eye(3)[axis], angle)
+    moved[0, :3, 3] += [pos, 0.0, 0.0]
+    ep, er = frame_errors(ARM7.tree.model, ARM7.frame, ARM7.kind, q, moved)
+    assert ep[0] == pytest.approx(pos, abs=1e-12)
+    assert er[0] == pytest.approx(angle, rel=1e-7, abs=1e-12)
+
+
+def test_mujoco_dls_reaches_easy_targets_and_stops_at_its_budget():
+    q, targets = easy_targets()
+    run = mujoco_dls(ARM7, targets, ARM7.home, 1e-6, 1e-6, max_iters=200)
+    assert row(ARM7, "dls", run, targets, 1e-6, 1e-6)["success"] == 100.0
+    short = mujoco_dls(ARM7, targets, ARM7.home, 1e-12, 1e-12, max_iters=2)
+    assert (short.iterations == 2).all() and (short.seconds > 0).all()
+
+
+@pytest.mark.skipif(not HAS_MINK, reason="mink is the optional bench extra")
+def test_mink_reaches_easy_targets_by_its_own_error_and_stops_at_its_budget():
+    q, targets = easy_targets(3)
+    run = mink_ik(ARM7, targets, ARM7.home, 1e-5, 1e-5, max_iters=200)
+    assert row(ARM7, "mink", run, targets, 1e-5, 1e-5)["success"] == 100.0
+    assert (run.iterations >= 1).all() and (run.seconds > 0).all()
+    assert (mink_ik(ARM7, targets, ARM7.home, 1e-12, 1e-12, max_iters=2).iterations == 2).all()
+
+
+def test_models_take_names_and_files(tmp_path):
+    path = mjkin.bundled_models()["arm7"]
+    (arm,) = arms([str(path)])
+    assert (arm.name, arm.frame, arm.kind) == ("arm7", "ee", "site")
+    renamed = tmp_path / "two.xml"  # the last site is the frame, whatever its name
+    renamed.write_text(build.planar_chain([1.0, 0.5]).replace('<site name="ee"', '<site name="hand"'))
+    assert arms([str(renamed)])[0].frame == "hand"
+    with pytest.raises(mjkin.InputError, match="neither"):
+        arms(["no_such_arm"])
+
+
+def test_mid_range_is_the_middle_of_every_limited_joint():
+    tree = ARM7.tree
+    q = mid_range(tree)
+    for j in range(tree.njnt):
+        lo, hi = tree.jnt_range[j]
+        assert q[tree.jnt_qadr[j]] == pytest.approx(0.5 * (lo + hi) if tree.jnt_limited[j] else tree.qpos0[j])
+
+
+def test_trac_ik_protocol_rows_and_published_figures_kept_apart(tmp_path):
+    report = bench_trac_ik(["arm7"], targets=4)
+    (rows,) = report.tables.values()
+    assert [r["solver"] for r in rows] == ["mjkin single", "mjkin batched"]
+    assert all(r["mean_ms"] > 0 and 0 <= r["success"] <= 100 for r in rows)
+    assert report.settings["tol_m"] == report.settings["rot_tol_rad"] == 1e-5
+    assert report.settings["start"].startswith("mid-range")
+    assert report.extra == {"published": []}  # TRAC-IK published no arm7 figure
+
+
+def test_trac_ik_time_limit_counts_when_applied_after_the_fact(monkeypatch):
+    from mjkin import bench_ik
+
+    monkeypatch.setattr(bench_ik, "has_timeout", lambda: False)
+    (rows,) = bench_trac_ik(["arm7"], targets=3, time_limit=1e-9).tables.values()
+    single = rows[0]
+    assert single["solver"] == "mjkin single" and single["over_limit"] == 3 and single["success"] == 0.0
+    assert single["success_no_limit"] == 100.0 and single["over_limit_cpu"] == 3
+
+
+def test_trac_ik_passes_the_time_limit_to_solve_when_it_takes_one(monkeypatch):
+    from mjkin import bench_ik
+
+    seen = []
+    real = bench_ik.solve
+
+    def bounded(*args, timeout=None, **kwargs):
+        seen.append(timeout)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bench_ik, "has_timeout", lambda: True)
+    monkeypatch.setattr(bench_ik, "solve", bounded)
+    report = bench_trac_ik(["arm7"], targets=2, time_limit=0.004)
+    assert seen and set(seen) == {0.004}
+    assert report.settings["time limit"] == "mjkin.solve(timeout=...)"
+    assert all(r["timeouts"] == 0 and "over_limit" not in r for r in next(iter(report.tables.values())))
+
+
+def test_trac_ik_published_rows_are_labelled_and_not_measured(tmp_path, monkeypatch):
+    from mjkin import bench_ik
+
+    monkeypatch.setattr(bench_ik, "arms", lambda names, default=(): [bench_ik.Arm("panda", ARM7.tree, "ee", "site")])
+    report = bench_trac_ik(["panda"], targets=2)
+    doc = report.as_json()
+    assert {r["solver"] for r in doc["rows"]} == {"mjkin single", "mjkin batched"}
+    assert {r["solver"] for r in doc["published"]} == {"TRAC-IK (published)", "KDL (published)"}
+    assert all(r["source"] == TRAC_IK_SOURCE and "not measured here" in r["source"] for r in doc["published"])
+    assert len(report.tables) == 2 and TRAC_IK_SOURCE in report.tables
+
+
+def test_cli_writes_the_json_schema(tmp_path, capsys):
+    out = tmp_path / "ik.json"
+    assert cli.main(["bench", "ik", "--models", "arm7", "--targets", "3", "--iters", "50", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert set(doc) >= {"rows", "settings"} and doc["settings"]["iters"] == 50
+    for r in doc["rows"]:
+        assert {"model", "solver", "success", "median_ms", "p95_ms", "iterations_mean", "restarts_mean",
+                "batched_per_s"} <= set(r)
+    assert "mjkin-single-start" in capsys.readouterr().out
+    assert [p.name for p in tmp_path.iterdir()] == ["ik.json"]  # written atomically, nothing left behind
+
+
+@pytest.mark.parametrize("argv", [
+    ["bench", "ik", "--targets", "0"],
+    ["bench", "ik", "--tol", "-1"],
+    ["bench", "ik", "--models", "no_such_arm"],
+    ["bench", "ik", "--json", "/no/such/folder/x.json"],
+    ["bench", "ik", "--json", "out.txt"],
+    ["bench", "realtime", "--plot", "out.jpg"],
+])
+def test_cli_rejects_bad_settings_before_any_work(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        raise SystemExit(cli.main(argv))
+    assert e.value.code == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_fk_baselines_do_the_same_work_as_mjkin():
+    tree = ARM7.tree
+    Q = tree.random_q(np.random.default_rng(1), 3)
+    np.testing.assert_allclose(bench.mujoco_fk_loop(tree.model, Q)(), tree.fk(Q), atol=1e-10)
+    site = tree.model.nsite - 1
+    np.testing.assert_allclose(bench.mujoco_site_pose(tree.model, Q[0], site)(),
+                               tree.pose(Q[0], tree.names("site")[site], "site"), atol=1e-10)
+    report = bench.bench_fk(["arm7"], sizes=[2], min_time=1e-3)
+    batched, single = report.tables.values()
+    assert [r["batch"] for r in batched] == [2] and single[0]["model"] == "arm7"
+    assert all(r["ratio"] > 0 for r in batched + single)
+
+
+def test_realtime_reports_chains_and_trees_warm_and_cold(tmp_path):
+    pytest.importorskip("matplotlib")
+    plot = tmp_path / "rt.png"
+    before = mjkin.threads()
+    report = bench.run(cli.build_parser().parse_args(
+        ["bench", "realtime", "--dofs", "2", "6", "--frames", "3", "--plot", str(plot)]))
+    assert mjkin.threads() == before and report.settings["threads"].startswith("mjkin.set_threads(1)")
+    rows, largest = report.tables.values()
+    models = {(r["model"], r["start"]) for r in rows}
+    assert {("chain 2", "warm"), ("chain 6", "cold")} <= models
+    assert any(m.startswith("primate") for m, _ in models) and any(m.startswith("4-arm") for m, _ in models)
+    assert {r["dof"] for r in rows if str(r["model"]).startswith("chain")} == {2, 6}
+    assert [r["rate"] for r in largest] == ["60 Hz", "1 kHz"] and largest[0]["largest_measured"] == 6
+    for r in largest:  # every chain up to N fits, so N itself fits
+        for clock in ("wall", "cpu"):
+            assert r[f"all_up_to_{clock}"] is None or r[f"largest_dof_{clock}"] >= r[f"all_up_to_{clock}"]
+    assert plot.stat().st_size > 1000 and [p.name for p in tmp_path.iterdir()] == ["rt.png"]
+
+
+def test_render_bench_compares_the_same_frames():
+    (rows,) = bench.bench_render(frames_n=2, width=64, height=48).tables.values()
+    assert [r["model"] for r in rows] == ["arm7", "primate"]
+    for r in rows:
+        assert r["size"] == "64x48" and r["ratio"] == pytest.approx(r["mjkin_frames_per_s"] / r["mujoco_frames_per_s"])
+
+
+def test_env_bench_measures_reacher_beside_reach():
+    report = bench.bench_env(steps=5, num_envs=2)
+    (rows,) = report.tables.values()
+    envs = [r["env"] for r in rows]
+    assert envs[0] == "Reacher-v5 (gymnasium)" and "mjkin/Reach-v0" in envs
+    reacher = rows[0]["steps_per_s"]
+    for r in rows:
+        assert r["ratio"] == pytest.approx(r["steps_per_s"] / reacher)
+
+
+def test_report_json_drops_nan_and_keeps_published_apart():
+    pub = [{"model": "x", "solver": "quoted"}]
+    report = bench.Report({"measured": [{"a": float("nan")}], "quoted": pub}, {"s": 1}, {"published": pub})
+    assert report.as_json() == {"rows": [{"a": None}], "settings": {"s": 1}, "published": pub}
+
+
+def test_mjkin_solve_still_meets_what_bench_ik_counts():
+    q, targets = easy_targets(2)
+    res = mjkin.solve(ARM7.tree, mjkin.goals.Pose(ARM7.frame, T=targets), q0=ARM7.home, tol=1e-5, rot_tol=1e-5)
+    ep, er = frame_errors(ARM7.tree.model, ARM7.frame, ARM7.kind, res.q, targets)
+    assert (ep <= 1e-5).all() and (er <= 1e-5).all() and res.success.all()
+
+
+def test_every_bench_option_has_help():
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert sub.help and all(c.help for c in sub._choices_actions)
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            assert action.help, f"mjkin bench {name} {'/'.join(action.option_strings)} has no help"

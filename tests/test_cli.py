@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import importlib.metadata
 import json
 import subprocess
 import sys
@@ -10,7 +12,8 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin.cli import main
+from mjkin import motion
+from mjkin.cli import build_parser, main
 
 
 def test_info_outlines_the_tree(capsys):
@@ -54,3 +57,193 @@ def test_console_script_exits_2_without_traceback(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mjkin.cli", "info", str(bad)], capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.startswith("mjkin: error: cannot compile model") and "Traceback" not in r.stderr
+
+
+# ------------------------------------------------------------------ checks before work
+@pytest.fixture
+def script(tmp_path):
+    """A 5-frame script of the planar 2-link arm (no IK), written into the test's folder."""
+    tree = mjkin.load("planar_2link")
+    q = np.linspace([0.0, 0.0], [1.0, -1.0], 5)
+    tips = tree.pose(q, "tip")[:, :3, 3]
+    traj = motion.Trajectory(times=np.arange(5) / 30, q=q, fingerprint=motion.fingerprint(tree),
+                             model="planar_2link", site="tip", targets=tips[:, None, :])
+    return traj.save(tmp_path / "five.json")
+
+
+def bad_script(tmp_path, **change):
+    doc = json.loads((tmp_path / "five.json").read_text())
+    for key, value in change.items():
+        if value is None:
+            del doc[key]
+        else:
+            doc[key] = value
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    return str(tmp_path / "bad.json")
+
+
+BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
+    (["demo", "--width", "-5"], "--width: must be > 0"),
+    (["demo", "--width", "100000", "--height", "100000"], "--width must be at most 8192"),
+    (["demo", "--width", "8192", "--height", "8192"], "GiB of memory"),
+    (["demo", "--height", "0"], "--height: must be > 0"),
+    (["demo", "--width", "6.5"], "--width: must be a whole number"),
+    (["demo", "--fps", "-5"], "--fps: must be a finite number > 0"),
+    (["demo", "--fps", "0"], "--fps: must be a finite number > 0"),
+    (["demo", "--fps", "inf"], "--fps: must be a finite number > 0"),
+    (["demo", "--seconds", "0.01"], "at least 2 frames"),
+    (["demo", "-o", "/proc/x.mp4"], "folder '/proc' is not writable"),
+    (["demo", "-o", "missing/x.mp4"], "folder 'missing' does not exist"),
+    (["demo", "-o", "d.avi"], "output must end in .mp4"),
+    (["demo", "-o", "still.png", "--frame", "447"], "--frame must be in [-447, 446]"),  # 15 s, 30 fps
+    (["replay", "{script}", "-o", "r.avi"], "output must end in .mp4"),
+    (["replay", "{script}", "-o", "still.png", "--frame", "5"], "--frame must be in [-5, 4]"),
+    (["replay", "{script}", "-o", "still.png", "--frame", "-6"], "--frame must be in [-5, 4]"),
+    (["render", "planar_2link", "--script", "{script}", "-o", "r.gif", "--frame", "x"], "--frame: invalid int"),
+    (["render", "planar_2link", "-o", "still.png", "--frame", "1"], "--frame must be in [-1, 0] (-1 = the last) for 1"),
+    (["replay", "{script}", "-o", "."], "output must end in"),
+    (["trajectory", "planar_2link", "--site", "tip", "--path", "line", "--end", "0,1,0", "-o", "t.txt"],
+     "--output must end in .json"),
+    (["trajectory", "planar_2link", "--site", "tip", "--path", "line", "--end", "0,1,0", "-o", "t.json",
+      "--frames", "0"], "--frames: must be > 0"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "1,2"], "--pos must be 3 finite numbers x,y,z"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "1,2,nan"], "--pos must be 3 finite numbers"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--quat", "1,0,0"], "--quat must be 4 finite numbers"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--quat", "0,0,0,0"], "zero quaternion"),
+    (["ik", "arm7", "--frame", "hand", "--pos", "0.3,0,0.5"], "unknown site or body 'hand'"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--tol", "-1"], "--tol: must be a finite number > 0"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--method", "magic"], "--method: invalid choice"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--q0", "hme"], "a keyframe name (home)"),
+    (["fk", "planar_2link", "--q", "home"], "(the model has no named keyframes)"),
+]
+
+BAD_SCRIPTS = [  # changes to a good script, text in the one line
+    ({"times": None}, "has no 'times'"),
+    ({"qpos": None}, "has no 'qpos'"),
+    ({"fingerprint": None}, "'fingerprint' must be a string"),
+    ({"times": "soon"}, "'times' must be a list of T times"),
+    ({"qpos": [[0.0, 0.0], [1.0]]}, "'qpos' must be a list of T configurations"),
+    ({"qpos": [[0.0, "a"]] * 5}, "'qpos' must be a list of T configurations"),
+    ({"times": [0.0, 1.0]}, "'times' (2) and 'qpos' (5) must have the same number of frames"),
+    ({"targets": [[[0.0, 0.0]]] * 5}, "'targets' must hold x,y,z points for each of the 5 frames"),
+    ({"success": [True]}, "'success' must hold one true/false for each of the 5 frames"),
+    ({"qpos": [[0.0, 0.0, 0.0]] * 5}, "this model needs (..., 2)"),
+]
+
+
+def one_line_exit_2(argv, text, capsys, folder, keep=()):
+    """The CLI exits 2 with ``text`` in one stderr line, no traceback, and leaves no file behind."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert text in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert sorted(p.name for p in folder.iterdir()) == sorted(keep)
+
+
+@pytest.mark.parametrize("argv, text", BEFORE_WORK)
+def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkeypatch, script):
+    monkeypatch.chdir(tmp_path)
+    # IK and rendering must not start: make them fail loudly if they do
+    monkeypatch.setattr("mjkin.cli.demo_trajectory", lambda *a, **k: pytest.fail("IK ran before the checks"))
+    monkeypatch.setattr("mjkin.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
+    argv = [a.format(script=script) for a in argv]
+    one_line_exit_2(argv, text, capsys, tmp_path, keep=["five.json"])
+
+
+@pytest.mark.parametrize("change, text", BAD_SCRIPTS)
+@pytest.mark.parametrize("command", ["replay", "render"])
+def test_bad_scripts_give_one_line(command, change, text, capsys, tmp_path, monkeypatch, script):
+    monkeypatch.chdir(tmp_path)
+    bad = bad_script(tmp_path, **change)
+    argv = ["replay", bad, "--model", "planar_2link"] if command == "replay" else \
+        ["render", "planar_2link", "--script", bad]
+    one_line_exit_2(argv + ["-o", "out.mp4"], text, capsys, tmp_path, keep=["five.json", "bad.json"])
+
+
+def test_script_with_the_format_but_no_keys(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "t.json").write_text('{"format": "mjkin-trajectory"}')
+    one_line_exit_2(["replay", "t.json", "-o", "r.mp4"], "has no 'times'", capsys, tmp_path, keep=["t.json"])
+
+
+def test_version_comes_from_the_package(capsys):
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"mjkin {importlib.metadata.version('mjkin')}"
+
+
+def test_every_option_of_every_command_has_help():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert {c.dest for c in sub._choices_actions} == set(sub.choices)  # every command has a help line
+    assert all(c.help for c in sub._choices_actions)
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            assert action.help, f"mjkin {name} {'/'.join(action.option_strings) or action.dest} has no help"
+
+
+# ------------------------------------------------------------------ ik, keyframes, random, limits
+def test_ik_json_reaches_the_target(capsys):
+    pos, quat = [0.4, 0.2, 0.5], [0.0, 1.0, 0.0, 0.0]
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", ",".join(map(str, pos)), "--quat", "0,1,0,0",
+                 "--q0", "home", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["success"] is True and out["status"] == "converged"
+    assert set(out) >= {"q", "success", "error", "iterations", "status"} and out["iterations"] > 0
+    T = mjkin.load("arm7").pose(out["q"], "ee")
+    np.testing.assert_allclose(T[:3, 3], pos, atol=1e-6)
+    assert mjkin.spatial.quat_distance(mjkin.spatial.mat_to_quat(T[:3, :3]), quat) < 1e-5
+    assert max(out["error"]) < 1e-5
+
+
+def test_ik_unreachable_is_not_an_error(capsys):
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "3,0,0.5", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["success"] is False and out["status"] != "converged" and out["error"][0] > 1.0
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "3,0,0.5", "--method", "dls"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("failed:") and "position error" in text
+
+
+def test_q_accepts_keyframe_names_and_seeded_random(capsys):
+    tree = mjkin.load("arm7")
+    assert main(["fk", "arm7", "--q", "home", "--json"]) == 0
+    np.testing.assert_array_equal(json.loads(capsys.readouterr().out)["q"], tree.model.key_qpos[0])
+    qs = []
+    for _ in range(2):
+        assert main(["fk", "arm7", "--q", "random", "--seed", "7", "--json"]) == 0
+        qs.append(json.loads(capsys.readouterr().out)["q"])
+    assert qs[0] == qs[1]
+    np.testing.assert_array_equal(tree.clip(qs[0]), qs[0])  # inside the limits
+    assert main(["fk", "arm7", "--q", "random", "--seed", "8", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["q"] != qs[0]
+
+
+def test_fk_outside_limits_warns_or_clips(capsys):
+    q = "5 0 0 0 0 0 0"
+    assert main(["fk", "arm7", "--q", q, "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err.count("\n") == 1 and "joint j1 = 5 is outside its range [-2.96, 2.96]" in err and "--clip" in err
+    assert json.loads(out)["q"][0] == 5.0  # FK of q as given
+    assert main(["fk", "arm7", "--q", q, "--json", "--clip"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and json.loads(out)["q"][0] == pytest.approx(2.96)
+    assert main(["fk", "arm7", "--q", "2 0 0 0 0 0 0"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_image_output_renders_only_the_frame_asked_for(tmp_path, monkeypatch, script, capsys):
+    from mjkin import render
+
+    drawn = []
+    draw = render.Painter.draw
+    monkeypatch.setattr(render.Painter, "draw", lambda self, q, *a, **k: drawn.append(q) or draw(self, q, *a, **k))
+    out = tmp_path / "still.png"
+    assert main(["replay", str(script), "-o", str(out), "--frame", "2", "--width", "64", "--height", "48"]) == 0
+    assert len(drawn) == 1 and "frame 2 of 5" in capsys.readouterr().out
+    # the same image as frame 2 of the whole video (camera framed over all poses, trail up to frame 2)
+    tree = mjkin.load("planar_2link")
+    traj = motion.Trajectory.load(script)
+    video = render.frames(tree, traj.q, 64, 48, overlay=render.Overlay(points=traj.targets, trail="tip"))
+    import imageio.v2 as imageio
+
+    np.testing.assert_array_equal(imageio.imread(out), video[2])

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import imageio.v3 as imageio
+import mujoco
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import mjkin
-from conftest import tree_of
-from mjkin import motion, render
+from conftest import GYM_ASSETS, bundled, model_id, tree_of
+from mjkin import build, motion, render
 from mjkin.cli import demo_trajectory, main
 from mjkin.scene import Scene
 
@@ -194,16 +197,152 @@ def test_ik_can_avoid_collisions():
     assert not blocked.success and blocked.status == "collision"
 
 
-def test_walk_cycle_keeps_the_planted_foot_fixed():
+# ------------------------------------------------------------------ framing
+FRAMED = bundled() + [GYM_ASSETS / f"{name}.xml" for name in ("humanoid", "ant", "pusher", "reacher")]
+BAND = 0.05  # no figure pixel within this fraction of the image of any edge
+
+
+def figure_mask(painter: render.Painter, q: np.ndarray, camera: mujoco.MjvCamera) -> np.ndarray:
+    """Pixels ``(H, W)`` where MuJoCo's segmentation rendering shows a geom of the figure."""
+    r = painter.renderer
+    r.enable_segmentation_rendering()
+    try:
+        r.update_scene(painter.scene.set(q), camera)
+        seg = r.render()
+    finally:
+        r.disable_segmentation_rendering()
+    ids = render.figure_geoms(painter.tree.model)
+    return (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & np.isin(seg[..., 0], ids)
+
+
+def assert_framed(mask: np.ndarray, what: str) -> None:
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    assert len(xs) > 0, f"{what}: the figure is not in the image"
+    bx, by = int(np.ceil(BAND * w)), int(np.ceil(BAND * h))
+    assert xs.min() >= bx and xs.max() < w - bx and ys.min() >= by and ys.max() < h - by, (
+        f"{what}: figure pixels x {xs.min()}..{xs.max()} of {w}, y {ys.min()}..{ys.max()} of {h}")
+
+
+@pytest.mark.parametrize("src", FRAMED, ids=model_id)
+def test_default_camera_keeps_every_geom_inside_the_margin(src):
+    tree = tree_of(src)
+    qs = np.vstack([tree.qpos0, tree.random_q(np.random.default_rng(7), 3)])
+    with render.Painter(tree, **SMALL) as painter:
+        for k, q in enumerate(qs):  # a still of each pose
+            assert_framed(figure_mask(painter, q, render.default_camera(tree, q[None])), f"pose {k}")
+        video = render.default_camera(tree, qs)  # one shot for a video of all poses
+        for k, q in enumerate(qs):
+            assert_framed(figure_mask(painter, q, video), f"video frame {k}")
+        look = render.default_camera(tree, qs[:1]).lookat
+        corners = render.geom_corners(tree, qs[0]).reshape(-1, 3)
+        assert np.all(look >= corners.min(0) - 1e-9) and np.all(look <= corners.max(0) + 1e-9)  # at the figure
+
+
+def test_planar_chains_are_seen_along_their_joint_axis():
+    for name in ("planar_2link", "planar_3link", "planar_prismatic"):
+        tree = tree_of(name)
+        np.testing.assert_allclose(np.abs(render.planar_axis(tree)), [0, 0, 1], atol=1e-12)
+        cam = render.default_camera(tree, tree.qpos0[None])
+        assert cam.elevation == -90.0  # looking down the z axes of the hinges
+    for name in ("arm7", "ball_chain", "primate"):
+        assert render.planar_axis(tree_of(name)) is None
+    side = mjkin.load(build.planar_chain([1.0, 0.5]).replace('axis="0.0 0.0 1.0"', 'axis="0.0 1.0 0.0"'))
+    np.testing.assert_allclose(np.abs(render.planar_axis(side)), [0, 1, 0], atol=1e-12)
+    cam = render.default_camera(side, side.qpos0[None])  # hinged about y: seen from the side, world x to the right
+    assert cam.elevation == 0.0 and render._basis(cam.azimuth, cam.elevation)[1] @ [1, 0, 0] > 0.99
+
+
+def test_tracking_camera_follows_a_walker_smoothly():
     tree = tree_of("primate")
-    n = 24
-    walk = motion.walk_cycle(tree, steps=3, stride=0.3, frames_per_step=n)
-    assert walk.success.all() and len(walk.q) == 3 * n
-    for k in range(3):
-        planted, swing = ("left_foot", "right_foot")[k % 2], ("left_foot", "right_foot")[1 - k % 2]
-        P = tree.pose(walk.q[k * n:(k + 1) * n], planted, "body")
-        np.testing.assert_allclose(P, np.broadcast_to(P[0], P.shape), atol=1e-5)  # this step's root stays put
-        S = tree.pose(walk.q[k * n:(k + 1) * n], swing, "body")[:, :3, 3]
-        assert S[-1, 0] > S[0, 0] + 0.1 and S[n // 2, 2] > S[0, 2] + 0.03  # forward, lifted mid-step
-    pelvis = tree.pose(walk.q, "lower_torso", "body")[:, 0, 3]
-    assert pelvis[-1] > 0.3 and np.all(np.diff(pelvis[::n // 2]) > 0)  # the body walks forward
+    T = 40
+    qs = np.repeat(tree.qpos0[None], T, axis=0)
+    qs[:, 0] = np.linspace(0.0, 4.0, T)  # the whole figure travels 4 m along x
+    cams = render.camera_path(tree, qs, aspect=SMALL["width"] / SMALL["height"])
+    looks = np.array([c.lookat for c in cams])
+    assert looks[-1, 0] - looks[0, 0] > 2.0  # it follows
+    assert len({c.distance for c in cams}) == 1  # at a fixed distance (no zoom pumping)
+    assert np.abs(np.diff(looks, 2, axis=0)).max() < 0.05  # smoothly
+    with render.Painter(tree, **SMALL) as painter:
+        for k in (0, T // 2, T - 1):
+            assert_framed(figure_mask(painter, qs[k], cams[k]), f"frame {k}")
+    still = render.camera_path(tree, qs[:1].repeat(T, 0))
+    assert len({tuple(c.lookat) for c in still}) == 1  # a figure that stays gets a still shot
+
+
+# ------------------------------------------------------------------ overlays
+@given(st.integers(0, 5000), st.integers(2, 300))
+def test_trail_keeps_a_bounded_number_of_points(t, m):
+    idx = render.trail_indices(t, m)
+    assert idx[0] == 0 and idx[-1] == t and np.all(np.diff(idx) > 0)
+    assert len(idx) <= m + 1
+    assert len(idx) == t + 1 or len(idx) >= m // 2  # decimated only as much as needed
+
+
+def test_overlay_geoms_per_frame_do_not_grow_with_the_video(monkeypatch):
+    tree = tree_of("planar_2link")
+    T = 600
+    qs = np.stack([np.linspace(0, 6, T), np.sin(np.linspace(0, 20, T))], -1)
+    added = []
+    draw = render.Painter.draw
+
+    def counting(self, *args, **kwargs):
+        image = draw(self, *args, **kwargs)
+        added.append(self.added)
+        return image
+
+    monkeypatch.setattr(render.Painter, "draw", counting)
+    overlay = render.Overlay(points=np.zeros((2, 3)), trail="tip", trail_points=32)
+    render.frames(tree, qs, 32, 24, overlay=overlay)
+    assert len(added) == T and max(added) <= 2 + 32  # 2 markers + at most 32 trail segments
+    assert added[-1] >= 2 + 16  # and the trail is still there at the end
+
+
+def test_markers_and_trail_cast_no_shadow():
+    tree = tree_of("arm7")
+    q = tree.model.key_qpos[0]
+    marker, trail = np.array([[0.3, 0.3, 0.9]]), np.array([[0.3, -0.3, 0.9], [0.3, 0.0, 1.0]])
+    cam = render.default_camera(tree, q[None], marker)
+    ov = render.Overlay(point_size=0.06, trail_width=8.0)
+    with render.Painter(tree, 320, 240) as painter:
+        plain, marked = painter.draw(q, cam).astype(int), painter.draw(q, cam, marker, trail, ov)
+    fwd, _, up = render._basis(cam.azimuth, cam.elevation)
+    rel = np.vstack([marker, trail]) - (cam.lookat - cam.distance * fwd)
+    ndc_y = (rel @ up) / ((rel @ fwd) * np.tan(np.radians(tree.model.vis.global_.fovy) / 2))
+    lowest = int((1 - ndc_y.min()) / 2 * 240) + 15  # the overlay's lowest image row, and the marker's radius
+    changed = np.abs(marked.astype(int) - plain).sum(-1) > 12
+    assert changed[:lowest].sum() > 100  # the markers are drawn
+    assert not changed[lowest:].any()  # and nothing below them changed: no shadow on the floor or the arm
+
+
+def test_captions_are_drawn_in_the_corner():
+    tree = tree_of("planar_2link")
+    qs = np.zeros((3, 2))
+    plain = render.frames(tree, qs, **SMALL)
+    captioned = render.frames(tree, qs, overlay=render.Overlay(caption=lambda t: f"pinv · frame {t}"), **SMALL)
+    diff = np.abs(captioned.astype(int) - plain).sum(-1) > 0
+    assert diff[:, :30, :80].any(axis=(1, 2)).all()  # text top-left in every frame
+    assert not diff[:, 60:, :].any()  # nothing in the lower half
+    assert not np.array_equal(captioned[0], captioned[1])  # the frame number changes
+    listed = render.frames(tree, qs, overlay=render.Overlay(caption=["a", "", "c"]), **SMALL)
+    assert np.array_equal(listed[1], plain[1])
+
+
+@pytest.mark.parametrize("src", bundled(), ids=model_id)
+def test_no_coincident_caps_between_linked_geoms(src):
+    """Two capsule/sphere caps with the same centre and radius in different bodies z-fight where they meet."""
+    tree = tree_of(src)
+    m = tree.model
+    data = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, data)
+    caps = []  # (geom, body, centre, radius)
+    for g in range(m.ngeom):
+        if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            axis = data.geom_xmat[g].reshape(3, 3)[:, 2] * m.geom_size[g, 1]
+            caps += [(g, m.geom_bodyid[g], data.geom_xpos[g] + s * axis, m.geom_size[g, 0]) for s in (-1, 1)]
+        elif m.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
+            caps.append((g, m.geom_bodyid[g], data.geom_xpos[g], m.geom_size[g, 0]))
+    for i, (g1, b1, c1, r1) in enumerate(caps):
+        for g2, b2, c2, r2 in caps[i + 1:]:
+            if b1 != b2 and np.linalg.norm(c1 - c2) < 1e-9:
+                assert abs(r1 - r2) > 1e-4 * max(r1, r2), f"geoms {m.geom(g1).name} and {m.geom(g2).name} z-fight"

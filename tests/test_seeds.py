@@ -18,7 +18,7 @@ def test_pseudoinverse_walks_onto_the_goal_within_20_frames():
     assert e[5] < e[0] and e[10] < e[5]  # it walks: the error falls frame by frame, no jump
 
 
-@pytest.mark.parametrize("method", ["transpose", "ccd", "dls"])
+@pytest.mark.parametrize("method", ["transpose", "ccd", "dls", "reach"])
 def test_other_methods_reach_the_same_goal(method):
     res = seeds.three_link(method, seeds.REACHABLE, frames=300)
     assert res.status == "converged"
@@ -60,5 +60,6 @@ def test_two_link_analytic():
 def test_bench_seeds_writes_figures(tmp_path):
     pytest.importorskip("matplotlib")
     files = seeds.figures(tmp_path)
-    assert len(files) == 4 and all(f.stat().st_size > 1000 for f in files)
+    assert len(files) == 4 + len(seeds.METHODS) and all(f.stat().st_size > 1000 for f in files)
+    assert {f.name for f in files} >= {f"seed1_convergence_{m}.png" for m in seeds.METHODS}
     assert not list(tmp_path.glob(".*"))  # no temporary files left behind

@@ -228,3 +228,19 @@ def test_repeated_calls_reuse_the_goal_structure(rng):
     assert not np.array_equal(a.data, b.data)
     c = G.compile_goals(tree, G.Pose("ee", T=T[1], weight=2.0))
     assert c.sqrt_w is not b.sqrt_w and c.sqrt_w[0] == np.sqrt(2.0)
+
+
+def test_spread_restart_starts_stratify_every_joint():
+    """Sobol starts put exactly one of 64 draws in each 1/64th of every joint's range (uniform draws do not)."""
+    from mjkin import qspace
+
+    tree = tree_of("arm7")
+    q = qspace.random(tree, 0, 64, spread=True)
+    np.testing.assert_allclose(tree.clip(q), q, atol=0)
+    lay = tree.layout
+    u = (q[:, lay.scalar_q] - lay.scalar_lo) / (lay.scalar_hi - lay.scalar_lo)
+    for column in u.T:
+        assert sorted(np.floor(column * 64).astype(int)) == list(range(64))
+    plain = qspace.random(tree, 0, 64)
+    v = (plain[:, lay.scalar_q] - lay.scalar_lo) / (lay.scalar_hi - lay.scalar_lo)
+    assert any(len(set(np.floor(c * 64).astype(int))) < 64 for c in v.T)

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import mjkin
-from conftest import tree_of
+from conftest import GYM_ASSETS, tree_of
 from mjkin.qspace import BALL, HINGE, SLIDE
 
 TWO_LINK = """<mujoco><worldbody><body name="a"><joint name="j1" axis="0 0 1"/><geom size=".1"/>
@@ -37,6 +37,15 @@ def test_load_every_kind_of_source(tmp_path):
         np.testing.assert_allclose(t.pose([0.0, np.pi / 2], "tip")[:3, 3], [1.0, 0.5, 0.0], atol=1e-15)
     assert mjkin.load(urdf).names("joint") == ["j1"]
     assert mjkin.load("arm7").nq == 7
+
+
+def test_loading_a_model_that_warns_leaves_no_mujoco_log(tmp_path, monkeypatch, mujoco_log):
+    """MuJoCo appends compiler warnings to MUJOCO_LOG.TXT in the working folder; the tests send them elsewhere."""
+    monkeypatch.chdir(tmp_path)
+    mjkin.load(GYM_ASSETS / "half_cheetah.xml")  # deprecated 'settotalmass': a compiler warning
+    assert list(tmp_path.iterdir()) == []
+    if hasattr(mujoco, "MjLogConfig"):
+        assert "settotalmass" in mujoco_log.read_text()
 
 
 def test_names_and_frames():

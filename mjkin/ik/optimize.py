@@ -33,14 +33,20 @@ def _target(prog: Program, b: int) -> Program:
     return replace(prog, data=prog.data[b:b + 1], rest_q=prog.rest_q[:, b:b + 1], batch=())
 
 
-def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDArray[np.bool_]) -> tuple[Array, bool]:
-    """Lexicographic SLSQP from ``q0``; returns the configuration and whether SciPy hit its iteration limit."""
+def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int,
+               active: NDArray[np.bool_]) -> tuple[Array, bool, int]:
+    """Lexicographic SLSQP from ``q0``.
+
+    Returns the configuration, whether SciPy hit its iteration limit, and SciPy's iterations summed over the
+    priority levels and re-centring passes.
+    """
     rows = prog.row
     free = np.flatnonzero(active)
     constraint_goal = np.isin(prog.kind, (COUPLING, HALFSPACE))
     scalar = np.isin(tree.jnt_type[tree.plan.dof_jnt], (HINGE, SLIDE))
     q_start = q0.copy()
     hit_limit = False
+    iterations = 0
 
     def at(v: Array) -> Array:
         full = np.zeros(tree.nv)
@@ -84,6 +90,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
             res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
                            options={"maxiter": max_iters, "ftol": 1e-16})
             hit_limit = hit_limit or res.status == 9
+            iterations += int(res.nit)
             v = res.x
             achieved = res.fun
             cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
@@ -93,7 +100,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
         q_start = q_new
         if done or not (tree.layout.quats.size):
             break
-    return q_start, hit_limit
+    return q_start, hit_limit, iterations
 
 
 def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
@@ -101,20 +108,22 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     """Solve every target with SLSQP (see :func:`mjkin.solve`).
 
     A target that is not met restarts from ``restarts (K, nq)``, taken where
-    ``restart_q`` is True and from the target's start elsewhere.
+    ``restart_q`` is True and from the target's start elsewhere. ``iterations``
+    are SciPy's, summed over every start tried.
     """
     B = prog.B
     out = np.empty_like(q)
     err = np.zeros((B, len(prog.goals), 2))
     status = np.zeros(B, np.int64)
     used = np.zeros(B, np.int64)
-    iters = np.ones(B, np.int64)
+    iters = np.zeros(B, np.int64)
     for b in range(B):
         one = _target(prog, b)
         best, best_cost = None, np.inf
         starts = [q[b], *np.where(restart_q, restarts, q[b])]
         for k, start in enumerate(starts):
-            qb, hit = _solve_one(tree, one, start, max_iters, active)
+            qb, hit, n = _solve_one(tree, one, start, max_iters, active)
+            iters[b] += n
             g, _, e = evaluate_program(tree, one, qb[None])
             c = float(g[0] @ g[0])
             if c < best_cost:

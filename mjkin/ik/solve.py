@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
+from .. import qspace
 from ..errors import InputError
 from ..parallel import parallel_chunks
 from ..qspace import FREE, NQ, NV, clip_kernel
@@ -18,8 +19,12 @@ from .kernel import STATUS_NAMES
 
 Array = NDArray[np.float64]
 
-METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize")
+METHODS = ("auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach")
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
+# lm's initial μ (λ² = λ_min² + μ·cost) and largest joint step per iteration: on the TRAC-IK protocol
+# (3000 targets, mid-range start, 1e-5) 0.1 / 1.0 cut mean iterations against 0.01 / 0.5 on every real arm
+# (Panda 26.5 -> 21.4, UR5e 27.5 -> 19.0, iiwa14 10.8 -> 8.8, Gen3 11.1 -> 8.9, xArm7 15.4 -> 14.8), success 100 %
+LM_MU, LM_MAX_STEP = 0.1, 1.0
 TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
@@ -191,15 +196,19 @@ def _restart_q(tree: Tree, prog: G.Program, active: NDArray[np.bool_], rooted: b
 
 
 def _random_starts(tree: Tree, seed: int | None, n: int) -> Array:
-    """``n`` random configurations ``(n, nq)``, the same for the same seed (kept on the tree)."""
+    """``n`` restart configurations ``(n, nq)``, the same for the same seed (kept on the tree).
+
+    Quasi-random (:func:`mjkin.qspace.random` with ``spread``): on the TRAC-IK
+    protocol it cut the Panda's mean iterations by about 15 %.
+    """
     if seed is None:
-        return tree.random_q(np.random.default_rng(), n)
+        return np.ascontiguousarray(qspace.random(tree, np.random.default_rng(), n, spread=True))
     cache: dict = tree.__dict__.setdefault("_random_starts", {})
     key = (int(seed), n)
     if key not in cache:
         if len(cache) > 32:
             cache.clear()
-        cache[key] = np.ascontiguousarray(tree.random_q(np.random.default_rng(seed), n))
+        cache[key] = np.ascontiguousarray(qspace.random(tree, np.random.default_rng(seed), n, spread=True))
     return cache[key]
 
 
@@ -221,8 +230,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
             error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
-            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar), or
-            ``"optimize"`` (SciPy, box and coupling constraints).
+            ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar),
+            ``"optimize"`` (SciPy, box and coupling constraints), or ``"reach"``
+            (recursive reach; status ``"root_would_move"`` when the goal is out of the chain's ring).
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
         max_iters: iteration (CCD: sweep) limit of each run (the start and every
@@ -231,7 +241,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             the floor of ``lm``'s λ (default 1e-5 of it).
         alpha: step size of ``transpose``; default Buss's ``<e, JJᵀe> / |JJᵀe|²``.
         max_step: largest joint change per iteration (rad or m); default unlimited
-            for the seeds' methods, 0.5 for ``lm``.
+            for the seeds' methods, 1.0 for ``lm``.
         halving: iterative goal halving (seed 002 §4.6.3): when a step does not
             lower the error, retract and aim halfway, repeatedly.
         goal_step: the most residual (m, or rad for orientation rows) a step aims to
@@ -323,12 +333,16 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .ccd import solve_ccd
 
         result = solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, restart_q, patience)
+    elif name == "reach":
+        from .reach import solve_reach
+
+        result = solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
     else:
         extent = float(tree.model.stat.extent) or 1.0
         st = kernel.settings(tol, rot_tol, ((1e-5 if name == "lm" else 0.05) * extent) if damping is None else damping,
-                             0.01 if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
-                             (0.5 if name == "lm" else np.inf) if max_step is None else max_step, halving, patience,
-                             np.inf if goal_step is None else goal_step, timeout)
+                             LM_MU if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
+                             (LM_MAX_STEP if name == "lm" else np.inf) if max_step is None else max_step, halving,
+                             patience, np.inf if goal_step is None else goal_step, timeout)
         result = run_kernel(tree, prog, q, _CODES[name], st, iters, starts, restart_q, active, history, method)
     if avoid_collisions:
         retries = _random_starts(tree, seed, max(8, n_restarts))

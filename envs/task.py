@@ -1,0 +1,355 @@
+"""The reach task as batched array functions, shared by the single env and the native vector env.
+
+Everything here takes a leading batch axis ``B``: configurations ``q (B, nq)``,
+actions ``(B, n_act)``, goals ``(B, 3)`` (position) or ``(B, 7)`` (pose
+``[x, y, z, qw, qx, qy, qz]``, ``qw >= 0``). The single env calls it with
+``B = 1``, the vector env with ``B = num_envs``, so both compute the same
+numbers the same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+import mjkin
+from mjkin import goals as G
+from mjkin import spatial
+from mjkin.fk import Frames
+from mjkin.jit import njit
+from mjkin.scene import Scene
+from mjkin.tree import bundled_models
+
+Array = NDArray[np.float64]
+
+OBSTACLE_RGBA = (0.85, 0.25, 0.2, 0.6)
+TABLE_RGBA = (0.55, 0.42, 0.3, 1.0)
+
+
+@njit
+def joint_move(q: Array, a: Array, step: float, lo: Array, hi: Array, wrap: NDArray[np.bool_], out: Array) -> None:
+    """``out = q + clip(a, -1, 1) * step`` (``(B, nq)``) clipped into ``[lo, hi]``; ``wrap`` entries into [-π, π)."""
+    for b in range(q.shape[0]):
+        for i in range(q.shape[1]):
+            x = q[b, i] + min(max(a[b, i], -1.0), 1.0) * step
+            if wrap[i]:
+                x = (x + np.pi) % (2.0 * np.pi) - np.pi
+            out[b, i] = min(max(x, lo[i]), hi[i])
+
+
+@njit
+def site_points(rot: Array, pos: Array, body: int, o: Array, out: Array) -> None:
+    """``out (B, 3)``: the point ``o`` of ``body`` in the world, from body frames ``rot (B, nbody, 3, 3)``, ``pos``."""
+    for b in range(rot.shape[0]):
+        for i in range(3):
+            out[b, i] = pos[b, body, i] + (rot[b, body, i, 0] * o[0] + rot[b, body, i, 1] * o[1]
+                                           + rot[b, body, i, 2] * o[2])
+
+
+@njit
+def goal_measures(achieved: Array, desired: Array, hit: Array, tol: float, rot_tol: float, bonus: float,
+                  penalty: float, sparse: bool, distance: Array, angle: Array, ok: NDArray[np.bool_],
+                  reward: Array) -> None:
+    """Per row of goals ``(B, 3|7)``: distance, angle, success and reward (the env docstring's formulas)."""
+    for b in range(achieved.shape[0]):
+        dx, dy, dz = desired[b, 0] - achieved[b, 0], desired[b, 1] - achieved[b, 1], desired[b, 2] - achieved[b, 2]
+        distance[b] = np.sqrt(dx * dx + dy * dy + dz * dz)
+        angle[b] = 0.0
+        if achieved.shape[1] == 7:
+            dot = abs(achieved[b, 3] * desired[b, 3] + achieved[b, 4] * desired[b, 4]
+                      + achieved[b, 5] * desired[b, 5] + achieved[b, 6] * desired[b, 6])
+            angle[b] = 2.0 * np.arccos(min(dot, 1.0))
+        ok[b] = distance[b] < tol and (achieved.shape[1] == 3 or angle[b] < rot_tol)
+        success = 1.0 if ok[b] else 0.0
+        if sparse:
+            reward[b] = success - 1.0
+        else:
+            reward[b] = bonus * success - (distance[b] + (tol / rot_tol) * angle[b])
+        if penalty != 0.0:
+            reward[b] -= penalty * hit[b]
+
+
+def model_spec(model: str, obstacles: Sequence[tuple[Array, float]], table: float | None,
+               extent: float) -> mujoco.MjSpec | str:
+    """The model with obstacle spheres (and a table top at height ``table``) added as world geoms through MjSpec."""
+    if not obstacles and table is None:
+        return model
+    bundled = bundled_models()
+    if Path(model).is_file() or model in bundled:
+        spec = mujoco.MjSpec.from_file(str(bundled.get(model, Path(model)) if model in bundled else model))
+    else:
+        spec = mujoco.MjSpec.from_string(model)
+    world = spec.worldbody
+    for i, (center, radius) in enumerate(obstacles):
+        world.add_geom(name=f"obstacle{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], pos=center,
+                       rgba=OBSTACLE_RGBA, contype=1, conaffinity=1)
+    if table is not None:
+        world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[extent, extent, 0.02 * extent],
+                       pos=[0.0, 0.0, table - 0.02 * extent], rgba=TABLE_RGBA, contype=1, conaffinity=1)
+    return spec
+
+
+def info_column(info: Any, key: str) -> Array:
+    """``info[key]`` as an array over the batch, from a dict, a dict of arrays, or a list/array of dicts."""
+    if isinstance(info, Mapping):
+        return np.asarray(info[key])
+    return np.array([i[key] for i in np.ravel(np.asarray(info, dtype=object))])
+
+
+class ReachTask:
+    """The reach task's constants and its batched math (see :class:`mjkin.envs.ReachEnv` for the meaning)."""
+
+    def __init__(self, model: str, site: str, action_type: str, goal_type: str, step_size: float | None,
+                 rot_step: float, success_tol: float | None, rot_tol: float, success_bonus: float, sparse: bool,
+                 collision_penalty: float, obstacles: Sequence[tuple[ArrayLike, float]] | None,
+                 table: float | None, target_region: tuple[ArrayLike, ArrayLike] | None, start_noise: float,
+                 goal_conditioned: bool) -> None:
+        if action_type not in ("joint", "cartesian"):
+            raise mjkin.InputError(f"action_type must be 'joint' or 'cartesian', not {action_type!r}")
+        if goal_type not in ("position", "pose"):
+            raise mjkin.InputError(f"goal_type must be 'position' or 'pose', not {goal_type!r}")
+        self.obstacles = [(_vector(c, 3, "obstacle center"), _positive(r, "obstacle radius"))
+                          for c, r in (obstacles or [])]
+        base = mjkin.load(model)
+        extent = float(base.model.stat.extent) or 1.0
+        self.tree = mjkin.load(model_spec(model, self.obstacles, table, extent)) \
+            if self.obstacles or table is not None else base
+        self.site = site
+        self.site_kind, self.site_id = self.tree.frame(site)  # unknown names fail here, with the list of names
+        body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
+        self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
+        self.action_type, self.goal_type, self.goal_conditioned = action_type, goal_type, bool(goal_conditioned)
+        self.extent = extent
+        self.step_size = float(step_size if step_size is not None else
+                               (0.1 if action_type == "joint" else 0.05 * extent))
+        self.rot_step = _positive(rot_step, "rot_step")
+        self.success_tol = _positive(success_tol if success_tol is not None else 0.02 * extent, "success_tol")
+        self.rot_tol = _positive(rot_tol, "rot_tol")
+        self.success_bonus, self.sparse = float(success_bonus), bool(sparse)
+        self.collision_penalty = float(collision_penalty)
+        self.table = None if table is None else float(table)
+        self.target_region = None if target_region is None else (_vector(target_region[0], 3, "target_region low"),
+                                                                   _vector(target_region[1], 3, "target_region high"))
+        self.start_noise = float(start_noise)
+        m = self.tree.model
+        self.home = m.key_qpos[0].copy() if m.nkey else self.tree.qpos0.copy()
+        self.scene = Scene(self.tree)
+        self.goal_dim = 3 if goal_type == "position" else 7
+        lay = self.tree.layout
+        # hinges and slides only (every arm here): q arithmetic is a sum and a clip
+        self.scalar = self.tree.nq == self.tree.nv == len(lay.scalar_q)
+        self.wrap = lay.scalar_q[lay.scalar_hinge & ~np.isfinite(lay.scalar_hi)]  # unlimited hinges
+        self.wrap_mask = np.isin(np.arange(self.tree.nq), self.wrap)
+        self.q_lo, self.q_hi = self._q_bounds()
+        self.spaces()
+
+    # --------------------------------------------------------------- spaces
+    def _q_bounds(self) -> tuple[Array, Array]:
+        lay, e = self.tree.layout, self.extent
+        lo, hi = np.full(self.tree.nq, -1.0), np.full(self.tree.nq, 1.0)  # quaternions
+        lo[lay.scalar_q] = np.where(np.isfinite(lay.scalar_lo), lay.scalar_lo, -10 * e)
+        hi[lay.scalar_q] = np.where(np.isfinite(lay.scalar_hi), lay.scalar_hi, 10 * e)
+        lo[self.wrap], hi[self.wrap] = -np.pi, np.pi
+        lo[lay.free_q[:, :3].ravel()], hi[lay.free_q[:, :3].ravel()] = -10 * e, 10 * e
+        return lo, hi
+
+    def spaces(self) -> None:
+        """Set ``action_space`` and ``observation_space`` (bounds in the env docstring)."""
+        pose = self.goal_type == "pose"
+        n_act = self.tree.nv if self.action_type == "joint" else (6 if pose else 3)
+        self.action_space = spaces.Box(-1.0, 1.0, (n_act,), dtype=np.float32)
+        far = 4.0 * self.extent
+        g_lo = np.concatenate([np.full(3, -far), [0.0, -1, -1, -1]])[:self.goal_dim]
+        g_hi = np.concatenate([np.full(3, far), np.ones(4)])[:self.goal_dim]
+        err = np.concatenate([np.full(3, 2 * far), np.full(3, np.pi)])[:3 if not pose else 6]
+        self.observation_space: spaces.Space
+        if self.goal_conditioned:
+            goal = spaces.Box(g_lo, g_hi, dtype=np.float64)
+            self.observation_space = spaces.Dict({"observation": spaces.Box(self.q_lo, self.q_hi, dtype=np.float64),
+                                                  "achieved_goal": goal, "desired_goal": goal})
+        else:
+            self.observation_space = spaces.Box(np.concatenate([self.q_lo, g_lo, g_lo, -err]),
+                                                np.concatenate([self.q_hi, g_hi, g_hi, err]), dtype=np.float64)
+
+    # ------------------------------------------------------------ kinematics
+    def achieved(self, q: Array) -> tuple[Array, Array | None, Frames]:
+        """One FK: the effector goal ``(B, 3|7)`` at ``q (B, nq)``, its world rotation ``(B, 3, 3)``, all frames.
+
+        The rotation is computed for pose goals only (cartesian pose actions and the quaternion need it);
+        the frames serve the contact check.
+        """
+        frames = self.tree.kinematics(q)
+        body, r, o = self.site_local
+        p = np.empty((len(q), 3))
+        site_points(frames.rot, frames.pos, body, o, p)
+        if self.goal_type == "position":
+            return p, None, frames
+        R = frames.rot[:, body] @ r
+        quat = spatial.mat_to_quat(R)
+        quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
+        return np.concatenate([p, quat], axis=1), R, frames
+
+    def tidy(self, q: Array) -> Array:
+        """``q (B, nq)`` clipped into the limits, unlimited hinges wrapped into [-π, π]."""
+        if self.scalar:
+            out = np.empty_like(q)
+            joint_move(q, np.zeros_like(q), 0.0, self.q_lo, self.q_hi, self.wrap_mask, out)
+            return out
+        q = self.tree.clip(q)
+        if len(self.wrap):
+            q[:, self.wrap] = np.remainder(q[:, self.wrap] + np.pi, 2 * np.pi) - np.pi
+        return q
+
+    def move(self, q: Array, action: Array, R: Array | None, achieved: Array) -> Array:
+        """The configurations ``(B, nq)`` after actions ``(B, n_act)`` in [-1, 1] (clipped) from ``q``."""
+        if self.action_type == "joint" and self.scalar:
+            out = np.empty_like(q)
+            joint_move(q, action, self.step_size, self.q_lo, self.q_hi, self.wrap_mask, out)
+            return out
+        a = np.minimum(np.maximum(action, -1.0), 1.0)
+        if self.action_type == "joint":
+            return self.tidy(self.tree.integrate(q, a * self.step_size))
+        p = achieved[:, :3] + a[:, :3] * self.step_size
+        if self.goal_type == "position":
+            goal: G.Goal = G.Position(self.site, p)
+        else:  # a twist: translation, then rotation vector in world axes
+            assert R is not None
+            T = np.zeros((len(q), 4, 4))
+            T[:, :3, :3] = spatial.rotvec_to_mat(a[:, 3:] * self.rot_step) @ R
+            T[:, :3, 3], T[:, 3, 3] = p, 1.0
+            goal = G.Pose(self.site, T)
+        return self.tidy(mjkin.solve(self.tree, goal, q0=q, max_iters=30, restarts=0).q.reshape(q.shape))
+
+    # -------------------------------------------------------------- measures
+    def measure(self, achieved: Array, desired: Array, hit: Array) -> tuple[Array, Array, NDArray[np.bool_], Array]:
+        """Distance ``(B,)`` (m), angle ``(B,)`` (rad, 0 for positions), success and reward for goals ``(B, 3|7)``.
+
+        ``hit (B,)``: in collision (used when ``collision_penalty`` is set). One compiled loop, shared by
+        ``step`` and :meth:`compute_reward`, so both give the same numbers.
+        """
+        B = achieved.shape[0]
+        distance, angle, reward = np.empty(B), np.empty(B), np.empty(B)
+        ok = np.empty(B, dtype=np.bool_)
+        goal_measures(achieved, desired, hit, self.success_tol, self.rot_tol, self.success_bonus,
+                      self.collision_penalty, self.sparse, distance, angle, ok, reward)
+        return distance, angle, ok, reward
+
+    def _flat(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any
+              ) -> tuple[tuple[int, ...], tuple[Array, Array, NDArray[np.bool_], Array]]:
+        """Measures of goals with any leading shape, flattened; and that shape."""
+        achieved = np.asarray(achieved_goal, dtype=np.float64)
+        desired = np.asarray(desired_goal, dtype=np.float64)
+        shape = np.broadcast_shapes(achieved.shape, desired.shape)
+        if shape[-1:] != (self.goal_dim,):
+            raise mjkin.InputError(f"goals have shape {shape}; expected (..., {self.goal_dim})")
+        a = np.ascontiguousarray(np.broadcast_to(achieved, shape)).reshape(-1, self.goal_dim)
+        d = np.ascontiguousarray(np.broadcast_to(desired, shape)).reshape(-1, self.goal_dim)
+        hit = np.zeros(len(a)) if not self.collision_penalty else \
+            np.broadcast_to(info_column(info, "in_collision"), shape[:-1]).reshape(-1).astype(np.float64)
+        return shape[:-1], self.measure(a, d, hit)
+
+    def compute_reward(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Array | float:
+        """Reward for goals ``(..., 3|7)``; ``info`` supplies ``in_collision`` when a collision penalty is set."""
+        shape, (_, _, _, reward) = self._flat(achieved_goal, desired_goal, info)
+        return float(reward[0]) if shape == () else reward.reshape(shape)
+
+    def compute_terminated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
+        """An episode ends when the goal is met (both tolerances)."""
+        shape, (_, _, ok, _) = self._flat(achieved_goal, desired_goal, info)
+        return bool(ok[0]) if shape == () else ok.reshape(shape)
+
+    def compute_truncated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
+        """Never by the goals; the time limit truncates."""
+        shape = np.shape(np.asarray(achieved_goal))[:-1]
+        return False if shape == () else np.zeros(shape, dtype=bool)
+
+    def contacts(self, q: Array, frames: Frames | None = None) -> NDArray[np.int64]:
+        """MuJoCo contacts ``(B,)`` at valid ``q (B, nq)`` (adjacent bodies excluded).
+
+        Given the FK ``frames`` of ``q`` and more than a few envs, configurations whose geoms are
+        all apart skip MuJoCo (the same counts, less work); one env is cheaper without.
+        """
+        return self.scene.counts(q, frames if len(q) > 4 else None)
+
+    def outcome(self, q: Array, achieved: Array, desired: Array,
+                frames: Frames | None = None) -> tuple[dict[str, Array], Array]:
+        """Per-env ``info`` arrays ``(B,)`` (distance, is_success, contacts, in_collision[, angle]) and rewards."""
+        contacts = self.contacts(q, frames)
+        hit = contacts > 0
+        distance, angle, ok, reward = self.measure(achieved, desired, hit.astype(np.float64))
+        out = {"distance": distance, "is_success": ok, "contacts": contacts, "in_collision": hit}
+        if self.goal_dim == 7:
+            out["angle"] = angle
+        return out, reward
+
+    def observe(self, q: Array, achieved: Array, desired: Array) -> Any:
+        """Observations of a batch: ``(B, n_obs)``, or a dict of such arrays when goal-conditioned."""
+        if self.goal_conditioned:
+            return {"observation": q.copy(), "achieved_goal": achieved.copy(), "desired_goal": desired.copy()}
+        err = desired[:, :3] - achieved[:, :3]
+        if self.goal_type == "pose":
+            R_a = spatial.quat_to_mat(achieved[:, 3:])
+            R_d = spatial.quat_to_mat(desired[:, 3:])
+            err = np.concatenate([err, spatial.mat_to_rotvec(R_d @ np.swapaxes(R_a, -1, -2))], axis=1)
+        return np.concatenate([q, achieved, desired, err], axis=1)
+
+    # ----------------------------------------------------------------- start
+    def start(self, rng: np.random.Generator, options: Mapping[str, Any] | None) -> tuple[Array, Array]:
+        """An episode's start ``q (nq,)`` and goal ``(3|7,)``: from ``options`` or drawn from ``rng``."""
+        options = dict(options or {})
+        unknown = set(options) - {"q", "target"}
+        if unknown:
+            raise mjkin.InputError(f"reset options are 'q' and 'target', not {sorted(unknown)}")
+        if options.get("q") is not None:
+            q = self.tidy(self.tree.check_q(options["q"], "options['q']").reshape(1, -1).copy())[0]
+        else:
+            noise = rng.uniform(-self.start_noise, self.start_noise, self.tree.nv)
+            q = self.tidy(self.tree.integrate(self.home, noise)[None])[0]
+        if options.get("target") is not None:
+            return q, self.goal(options["target"])
+        return q, self.sample_goal(rng)
+
+    def goal(self, target: ArrayLike) -> Array:
+        """A user's target: ``(3,)`` position, or for pose goals ``(7,)`` position + quaternion (normalised)."""
+        g = _vector(target, self.goal_dim, "options['target']" + (" [x, y, z, qw, qx, qy, qz]"
+                                                                    if self.goal_dim == 7 else " [x, y, z]"))
+        if self.goal_dim == 7:
+            g[3:] = spatial.quat_normalize(g[3:]) * (1.0 if g[3] >= 0 else -1.0)
+        return g
+
+    def sample_goal(self, rng: np.random.Generator) -> Array:
+        """The effector goal of a random in-limit, collision-free configuration (so always reachable)."""
+        for _ in range(1000):
+            q = self.tree.random_q(rng)[None]
+            goal = self.achieved(q)[0][0]
+            p = goal[:3]
+            inside = self.target_region is None or bool(np.all((p >= self.target_region[0])
+                                                               & (p <= self.target_region[1])))
+            if inside and all(np.linalg.norm(p - c) > r for c, r in self.obstacles) \
+                    and not self.contacts(q)[0]:
+                return goal
+        raise mjkin.InputError("no reachable, collision-free target found inside target_region and outside the "
+                               "obstacles; widen target_region or move the obstacles")
+
+
+def _vector(value: ArrayLike, n: int, what: str) -> Array:
+    try:
+        a = np.array(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise mjkin.InputError(f"{what} must be {n} numbers, got {value!r}") from None
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise mjkin.InputError(f"{what} must be {n} finite numbers, got {value!r}")
+    return a
+
+
+def _positive(value: Any, what: str) -> float:
+    x = float(value)
+    if not (np.isfinite(x) and x > 0):
+        raise mjkin.InputError(f"{what} must be a positive number, got {value!r}")
+    return x

@@ -1,0 +1,373 @@
+"""``mjkin bench ik``: 6-D pose IK, mjkin beside the baselines a user would write, re-checked by MuJoCo.
+
+Every solver gets the same targets (FK of random in-limit configurations), the
+same start and, for the single-start rows, the same iteration budget. Only the
+solver's own work is inside a timed region; every answer is re-checked afterwards
+with MuJoCo's ``mj_kinematics`` and success is counted from that re-check.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from . import goals as G
+from .bench import Report, Row, shared_models_dir
+from .errors import InputError
+from .ik import solve
+from .progress import track
+from .qspace import HINGE, SLIDE
+from .tree import Tree, load
+
+Array = NDArray[np.float64]
+Kind = Literal["site", "body"]
+
+IK_ARMS: dict[str, tuple[str, str, Kind]] = {  # name: model (bundled name or path under shared models), frame, kind
+    "arm7": ("arm7", "ee", "site"),
+    "panda": ("franka_emika_panda/panda_nohand.xml", "attachment_site", "site"),
+    "ur5e": ("universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
+    "iiwa14": ("kuka_iiwa_14/iiwa14.xml", "attachment_site", "site"),
+    "gen3": ("kinova_gen3/gen3.xml", "pinch_site", "site"),
+    "xarm7": ("ufactory_xarm7/xarm7_nohand.xml", "attachment_site", "site"),
+}
+TRAC_IK_ARMS = ("panda", "ur5e", "iiwa14", "gen3", "xarm7")
+TRAC_IK_SOURCE = "TRAC-IK v1.4.6 README, Speed mode (published, not measured here)"
+TRAC_IK_PUBLISHED: tuple[Row, ...] = (  # as printed in the source, 10 000 queries, 1e-5, 5 ms limit
+    {"model": "panda", "solver": "TRAC-IK (published)", "success": 99.70, "mean_ms": 0.38, "source": TRAC_IK_SOURCE},
+    {"model": "panda", "solver": "KDL (published)", "success": 61.77, "mean_ms": 2.14, "source": TRAC_IK_SOURCE},
+    {"model": "iiwa14", "solver": "TRAC-IK (published)", "success": 99.84, "mean_ms": 0.31,
+     "source": TRAC_IK_SOURCE},
+    {"model": "iiwa14", "solver": "KDL (published)", "success": 37.64, "mean_ms": 3.38, "source": TRAC_IK_SOURCE},
+)
+
+
+@dataclass(frozen=True)
+class Arm:
+    """A model and the frame whose pose is solved for."""
+
+    name: str
+    tree: Tree
+    frame: str
+    kind: Kind
+
+    @property
+    def home(self) -> Array:
+        """The first keyframe, else ``qpos0``: the start of ``bench ik``."""
+        m = self.tree.model
+        return m.key_qpos[0].copy() if m.nkey else self.tree.qpos0.copy()
+
+
+@dataclass(frozen=True)
+class Run:
+    """One solver's answers: ``q (N, nq)``, seconds per target ``(N,)`` (None if only batched), counts ``(N,)``.
+
+    ``cpu`` is the calling thread's CPU seconds per target, when measured: the solve's own
+    work without the waits of a shared machine.
+    """
+
+    q: Array
+    seconds: Array | None
+    iterations: Array
+    restarts: Array
+    per_s: float | None = None
+    cpu: Array | None = None
+    status: NDArray[np.str_] | None = None
+
+
+def arms(names: Sequence[str] | None, default: Sequence[str] = tuple(IK_ARMS)) -> list[Arm]:
+    """Resolve ``--models``: names of :data:`IK_ARMS` or MJCF paths (frame: the last site, else the last body).
+
+    Default arms whose shared model is missing are skipped; a named one that is missing is an error.
+    """
+    out = []
+    for name in names or default:
+        if name in IK_ARMS:
+            src, frame, kind = IK_ARMS[name]
+            if src not in ("arm7",):
+                root = shared_models_dir()
+                if root is None or not (root / src).is_file():
+                    if names:
+                        raise InputError(f"model {name!r} needs ../shared/models/{src} (or $MJKIN_SHARED_MODELS)")
+                    continue
+                src = str(root / src)
+            out.append(Arm(name, load(src), frame, kind))
+        elif Path(name).is_file():
+            tree = load(name)
+            m = tree.model
+            kind = "site" if m.nsite else "body"
+            frame = tree.names(kind)[-1] or ""
+            if not frame:
+                raise InputError(f"{name}: its last {kind} has no name; name it to benchmark it")
+            out.append(Arm(Path(name).stem, tree, frame, kind))
+        else:
+            raise InputError(f"--models takes names ({', '.join(IK_ARMS)}) or MJCF files; {name!r} is neither")
+    return out
+
+
+def mid_range(tree: Tree) -> Array:
+    """TRAC-IK's nominal start: every limited hinge/slide at the midpoint of its range, the rest at ``qpos0``."""
+    q = tree.qpos0.copy()
+    for j in range(tree.njnt):
+        if tree.jnt_limited[j] and int(tree.jnt_type[j]) in (HINGE, SLIDE):
+            q[tree.jnt_qadr[j]] = 0.5 * (tree.jnt_range[j, 0] + tree.jnt_range[j, 1])
+    return q
+
+
+def has_timeout() -> bool:
+    """Whether :func:`mjkin.solve` takes ``timeout=`` (a per-target time bound)."""
+    return "timeout" in inspect.signature(solve).parameters
+
+
+def frame_errors(model: mujoco.MjModel, frame: str, kind: Kind, qs: Array, targets: Array) -> tuple[Array, Array]:
+    """Re-check answers with MuJoCo: position (m) and rotation (rad) error of ``frame`` at ``qs (N, nq)``.
+
+    The pose comes from ``mj_kinematics``, not from the solver; rotation error is the
+    angle of ``R_reachedᵀ R_target`` (atan2 form, accurate near zero).
+    """
+    data = mujoco.MjData(model)
+    obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
+    i = mujoco.mj_name2id(model, obj, frame)
+    pos, rot = np.empty((len(qs), 3)), np.empty((len(qs), 3, 3))
+    for n, q in enumerate(qs):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        pos[n] = data.site_xpos[i] if kind == "site" else data.xpos[i]
+        rot[n] = (data.site_xmat[i] if kind == "site" else data.xmat[i]).reshape(3, 3)
+    ep = np.linalg.norm(pos - targets[:, :3, 3], axis=-1)
+    D = np.swapaxes(rot, -1, -2) @ targets[:, :3, :3]
+    s = 0.5 * np.linalg.norm(np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0],
+                                       D[:, 1, 0] - D[:, 0, 1]], -1), axis=-1)
+    c = 0.5 * (np.trace(D, axis1=-2, axis2=-1) - 1.0)
+    return ep, np.arctan2(s, c)
+
+
+def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, **options: Any) -> Run:
+    """One :func:`mjkin.solve` call per target, each timed on its own (goal built inside the call, as a user does)."""
+    tree, frame, kind = arm.tree, arm.frame, arm.kind
+    solve(tree, G.Pose(frame, T=targets[0], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
+    N = len(targets)
+    q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
+    iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")
+    for k in range(N):
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
+        seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
+        q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
+    return Run(q, seconds, iters, used, N / seconds.sum(), cpu, status)
+
+
+def mjkin_batched(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, repeat: int = 3,
+                  **options: Any) -> Run:
+    """All targets in one :func:`mjkin.solve` call (all cores); solves/s from the best of ``repeat`` calls."""
+    tree, frame, kind = arm.tree, arm.frame, arm.kind
+    solve(tree, G.Pose(frame, T=targets[:2], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
+        best = min(best, time.perf_counter() - start)
+    return Run(res.q, None, res.iterations.astype(float), res.restarts.astype(float), len(targets) / best,
+               status=np.asarray(res.status))
+
+
+def mujoco_dls(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max_iters: int,
+               damping: float = 0.05) -> Run:
+    """Damped least squares on MuJoCo's own ``mj_kinematics`` + ``mj_jacSite``/``mj_jacBody``, as a user writes it.
+
+    Joint limits by clipping after each step; stops when both errors are within tolerance.
+    """
+    model, frame, kind = arm.tree.model, arm.frame, arm.kind
+    data = mujoco.MjData(model)
+    site = kind == "site"
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE if site else mujoco.mjtObj.mjOBJ_BODY, frame)
+    limited = model.jnt_limited.astype(bool) & (model.jnt_type > 1)
+    qa, lo, hi = model.jnt_qposadr[limited], model.jnt_range[limited, 0], model.jnt_range[limited, 1]
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    cur, neg, diff, err, goal = np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(6), np.zeros(4)
+    lam2 = damping ** 2 * np.eye(6)
+    N = len(targets)
+    out, seconds, cpu, iters = np.empty((N, model.nq)), np.empty(N), np.empty(N), np.zeros(N)
+    for n, T in enumerate(targets):
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        mujoco.mju_mat2Quat(goal, T[:3, :3].ravel())
+        q = q0.copy()
+        for it in range(max_iters + 1):
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            err[:3] = T[:3, 3] - (data.site_xpos[i] if site else data.xpos[i])
+            mujoco.mju_mat2Quat(cur, data.site_xmat[i] if site else data.xmat[i])
+            mujoco.mju_negQuat(neg, cur)
+            mujoco.mju_mulQuat(diff, goal, neg)
+            mujoco.mju_quat2Vel(err[3:], diff, 1.0)
+            if it == max_iters or (np.linalg.norm(err[:3]) <= tol and np.linalg.norm(err[3:]) <= rot_tol):
+                break
+            (mujoco.mj_jacSite if site else mujoco.mj_jacBody)(model, data, jacp, jacr, i)
+            J = np.vstack([jacp, jacr])
+            dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
+            mujoco.mj_integratePos(model, q, dq, 1.0)
+            q[qa] = np.clip(q[qa], lo, hi)
+        seconds[n], cpu[n] = time.perf_counter() - start, time.thread_time() - start_cpu
+        out[n], iters[n] = q, it
+    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
+
+
+def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max_iters: int) -> Run:
+    """The same targets through mink, run as its examples run it.
+
+    FrameTask + ConfigurationLimit, ``solve_ik`` (daqp), integrate, and convergence by
+    ``FrameTask.compute_error`` (translation and rotation norms) after each step.
+    """
+    import mink
+
+    config = mink.Configuration(arm.tree.model)
+    task = mink.FrameTask(arm.frame, arm.kind, position_cost=1.0, orientation_cost=1.0, lm_damping=1.0)
+    limits = [mink.ConfigurationLimit(config.model)]
+    N = len(targets)
+    out, seconds, cpu, iters = np.empty((N, arm.tree.nq)), np.empty(N), np.empty(N), np.zeros(N)
+    for n in range(-1, N):  # n = -1: one untimed solve first (imports, first QP)
+        T = targets[max(n, 0)]
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        config.update(q0)
+        task.set_target(mink.SE3.from_matrix(T))
+        it = 0
+        while it < max_iters:
+            vel = mink.solve_ik(config, [task], 1.0, "daqp", damping=1e-3, limits=limits)
+            config.integrate_inplace(vel, 1.0)
+            it += 1
+            e = task.compute_error(config)
+            if np.linalg.norm(e[:3]) <= tol and np.linalg.norm(e[3:]) <= rot_tol:
+                break
+        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+        if n >= 0:
+            seconds[n], cpu[n], out[n], iters[n] = elapsed, elapsed_cpu, config.q, it
+    return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
+
+
+def row(arm: Arm, solver: str, run: Run, targets: Array, tol: float, rot_tol: float,
+        batched: Run | None = None, extra: Row | None = None) -> Row:
+    """A table row; success is re-checked by MuJoCo (:func:`frame_errors`), never taken from the solver."""
+    ok = success(arm, run.q, targets, tol, rot_tol)
+    ms = None if run.seconds is None else 1e3 * run.seconds
+    r: Row = {"model": arm.name, "solver": solver, "success": 100.0 * float(ok.mean()),
+              "mean_ms": None if ms is None else float(ms.mean()),
+              "median_ms": None if ms is None else float(np.median(ms)),
+              "p95_ms": None if ms is None else float(np.percentile(ms, 95)),
+              "single_per_s": None if ms is None else run.per_s,
+              "batched_per_s": None if batched is None else batched.per_s,
+              "cpu_mean_ms": None if run.cpu is None else 1e3 * float(run.cpu.mean()),
+              "iterations_mean": float(run.iterations.mean()), "restarts_mean": float(run.restarts.mean())}
+    if batched is not None:
+        r["batched_success"] = 100.0 * float(success(arm, batched.q, targets, tol, rot_tol).mean())
+    r.update(extra or {})
+    return r
+
+
+def success(arm: Arm, q: Array, targets: Array, tol: float, rot_tol: float) -> NDArray[np.bool_]:
+    """Per target: both errors, as MuJoCo computes them at ``q``, within tolerance."""
+    ep, er = frame_errors(arm.tree.model, arm.frame, arm.kind, q, targets)
+    return (ep <= tol) & (er <= rot_tol)
+
+
+def targets_for(arm: Arm, n: int, seed: int) -> Array:
+    """``n`` reachable poses ``(n, 4, 4)``: FK of random in-limit configurations (seeded per model name)."""
+    rng = np.random.default_rng([seed, *arm.name.encode()])
+    return arm.tree.pose(arm.tree.random_q(rng, n), arm.frame, arm.kind)
+
+
+def check_settings(n: int, tol: float, rot_tol: float, iters: int) -> None:
+    """Raise :class:`InputError` for settings no benchmark can run with."""
+    if n < 1:
+        raise InputError(f"--targets must be at least 1, got {n}")
+    if not (tol > 0 and rot_tol > 0 and np.isfinite(tol) and np.isfinite(rot_tol)):
+        raise InputError(f"--tol and --rot-tol must be positive, got {tol}, {rot_tol}")
+    if iters < 1:
+        raise InputError(f"--iters must be at least 1, got {iters}")
+
+
+def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: float = 1e-4, rot_tol: float = 1e-3,
+             iters: int = 200, seed: int = 0, mink: bool | None = None) -> Report:
+    """Run mjkin (auto; single start) beside MuJoCo DLS and mink on the same targets, start and budget."""
+    check_settings(targets, tol, rot_tol, iters)
+    use_mink = importlib.util.find_spec("mink") is not None if mink is None else mink
+    rows: list[Row] = []
+    for arm in track(arms(models), "bench ik"):
+        T, q0 = targets_for(arm, targets, seed), arm.home
+        auto = mjkin_single(arm, T, q0, tol, rot_tol)
+        rows.append(row(arm, "mjkin", auto, T, tol, rot_tol, mjkin_batched(arm, T, q0, tol, rot_tol)))
+        one = {"restarts": 0, "max_iters": iters}
+        rows.append(row(arm, "mjkin-single-start", mjkin_single(arm, T, q0, tol, rot_tol, **one), T, tol, rot_tol,
+                        mjkin_batched(arm, T, q0, tol, rot_tol, **one)))
+        rows.append(row(arm, "mujoco-dls", mujoco_dls(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
+        if use_mink:
+            rows.append(row(arm, "mink", mink_ik(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
+    settings = {"targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol, "iters": iters, "seed": seed,
+                "start": "home keyframe (else qpos0)", "success": "% of targets within both tolerances, "
+                "re-checked by mujoco.mj_kinematics", "mjkin": "method auto: up to 50 iterations x (1 + 24 restarts)",
+                "single-start budget": f"{iters} iterations, no restart (mjkin-single-start, mujoco-dls, mink)",
+                "mink": "installed" if use_mink else "not installed (pip install 'mjkin[bench]')",
+                "times": "wall clock per target, one call each; cpu_mean_ms: the calling thread's CPU time "
+                         "(the solve's own work, without waits for a shared machine's cores)"}
+    title = (f"{targets} random reachable 6-D poses per model from the home keyframe; success at {tol:g} m / "
+             f"{rot_tol:g} rad re-checked by mj_kinematics; times per target, one call each")
+    return Report({title: rows}, settings)
+
+
+def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, tol: float = 1e-5,
+                  rot_tol: float = 1e-5, time_limit: float = 0.005, seed: int = 0) -> Report:
+    """TRAC-IK's protocol: random in-limit configurations, FK poses, mid-range start, 1e-5, 5 ms per solve.
+
+    Means and medians are over all queries, failures included. Without ``timeout=`` in
+    :func:`mjkin.solve` the limit is applied afterwards: a single solve slower than it counts as failed.
+    """
+    check_settings(targets, tol, rot_tol, 1)
+    if not time_limit > 0:
+        raise InputError(f"the time limit must be positive, got {time_limit}")
+    bounded = has_timeout()
+    options: dict[str, Any] = {"timeout": time_limit} if bounded else {}
+    rows: list[Row] = []
+    for arm in track(arms(models, TRAC_IK_ARMS), "bench ik --protocol trac-ik"):
+        T, q0 = targets_for(arm, targets, seed), mid_range(arm.tree)
+        single = mjkin_single(arm, T, q0, tol, rot_tol, **options)
+        in_time = single.seconds <= time_limit if not bounded and single.seconds is not None else None
+        r = row(arm, "mjkin single", single, T, tol, rot_tol)
+        if in_time is not None and single.cpu is not None:  # the limit applied after the fact
+            r["success_no_limit"] = r["success"]
+            ok = success(arm, single.q, T, tol, rot_tol) & in_time
+            r["success"] = 100.0 * float(ok.mean())
+            r["over_limit"] = int((~in_time).sum())
+            r["over_limit_cpu"] = int((single.cpu > time_limit).sum())
+        rows.append(r)
+        batched = mjkin_batched(arm, T, q0, tol, rot_tol, repeat=1, **options)
+        b = row(arm, "mjkin batched", batched, T, tol, rot_tol)
+        assert batched.per_s is not None
+        b["mean_ms"], b["batched_per_s"] = 1e3 / batched.per_s, batched.per_s
+        rows.append(b)
+        if bounded:
+            for out, run in ((r, single), (b, batched)):
+                out["timeouts"] = int(np.sum(run.status == "timeout"))
+    published = [p for p in TRAC_IK_PUBLISHED if p["model"] in {r["model"] for r in rows}]
+    settings = {"protocol": "trac-ik", "targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol,
+                "time_limit_s": time_limit, "seed": seed, "start": "mid-range of every limited joint",
+                "time limit": "mjkin.solve(timeout=...)" if bounded else
+                "applied after the fact to single calls by wall clock (this mjkin.solve has no timeout=): "
+                "success counts only solves within it; success_no_limit without it; over_limit_cpu: solves whose "
+                "own CPU time exceeded it; batched rows unbounded",
+                "success": "% within both tolerances (norms), re-checked by mujoco.mj_kinematics",
+                "mean_ms": "over all queries including failures; batched: wall time / targets",
+                "cpu_mean_ms": "the calling thread's CPU time per single call (no waits for a shared machine)",
+                "published": TRAC_IK_SOURCE}
+    tables = {f"TRAC-IK protocol: {targets} random in-limit configurations -> FK poses, start mid-range, "
+              f"{tol:g} m / {rot_tol:g} rad, {1e3 * time_limit:g} ms per solve": rows}
+    if published:
+        tables[TRAC_IK_SOURCE] = published
+    return Report(tables, settings, {"published": published})

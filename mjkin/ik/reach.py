@@ -1,0 +1,272 @@
+"""Recursive reach (seed 002 §4.3): the thesis author's own greedy method, on points.
+
+The chain is seen as points — the joint anchors from the root to the tool — a
+fixed distance apart. One pass puts the tool on the goal and walks back toward
+the root: where the link before can meet the moved one (the intersection of a
+sphere around its base and a sphere around the moved point, a circle) the
+joint goes to the nearest point of that circle and the pass ends; where they
+cannot meet, the link is turned toward its target and moved onto it, and the
+same question is asked one link nearer the root. When the pass arrives at the
+root's own link, that link is turned toward what is left: if the root would
+have to move for the chain to follow (the goal is outside the ring
+``max(0, 2·max L − ΣL) ≤ |goal − root| ≤ ΣL``) the solve ends with status
+``"root_would_move"``, stretched toward the goal. The joint values that realise
+the new points are found base to tip, each joint turning its next point onto
+the wanted one (hinges about their axis, ball joints by the shortest arc, both
+clamped into their limits); on planar chains one pass is exact, on 3-D chains
+with hinges the passes repeat until the tool is within ``tol``. Like the thesis
+says, it behaves badly with joint limits (a clamped joint leaves the points
+where the pass did not put them; the next pass starts from there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import GoalError
+from ..goals import POSITION, Program
+from ..qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
+from ..tree import Tree
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, _frames_scratch, kinematic_arrays
+from .solve import History, Result, package
+
+Array = NDArray[np.float64]
+ROOT_WOULD_MOVE = "root_would_move"
+PATIENCE = 10  # passes without progress before a solve counts as stalled
+
+
+def circle_point(c1: Array, r1: float, c2: Array, r2: float, near: Array,
+                 normal: Array | None = None) -> Array | None:
+    """The point of the circle where spheres ``(c1, r1)`` and ``(c2, r2)`` meet nearest to ``near``; None if apart.
+
+    When ``near`` is on the line of centres every point of the circle is as near; then
+    the one in the plane with ``normal`` (a planar chain's) is taken, if given.
+    """
+    axis = c2 - c1
+    d = float(np.linalg.norm(axis))
+    scale = max(r1, r2, d, 1e-300)
+    if d < 1e-12 * scale:  # concentric: they meet everywhere or nowhere
+        if abs(r1 - r2) > 1e-12 * scale:
+            return None
+        w = near - c1
+        n = float(np.linalg.norm(w))
+        return c1 + r1 * (w / n if n > 1e-12 * scale else np.array([1.0, 0.0, 0.0]))
+    if d > r1 + r2 + 1e-12 * scale or d < abs(r1 - r2) - 1e-12 * scale:
+        return None
+    e = axis / d
+    a = (d * d + r1 * r1 - r2 * r2) / (2 * d)
+    h = np.sqrt(max(r1 * r1 - a * a, 0.0))
+    m = c1 + a * e
+    w = near - m
+    w -= (w @ e) * e
+    n = float(np.linalg.norm(w))
+    if n < 1e-12 * scale:  # ``near`` on the axis: any point of the circle (in the chain's plane if known)
+        w = np.cross(normal if normal is not None else ([1.0, 0.0, 0.0] if abs(e[0]) < 0.9 else [0.0, 1.0, 0.0]), e)
+        n = float(np.linalg.norm(w))
+    return m + h * w / n
+
+
+def reach_points(points: Array, goal: Array, normal: Array | None = None) -> tuple[Array, bool]:
+    """One recursive-reach pass over ``points (m+1, 3)`` (root first, tool last) toward ``goal (3,)``.
+
+    Returns the new points (link lengths kept, the root where it was) and whether
+    the pass ended at a circle of two spheres (True) or had to turn the root's
+    link toward a target it cannot meet (False). ``normal``: the plane of a planar
+    chain, kept when a circle offers no nearest point.
+    """
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    new = points.copy()
+    target = np.asarray(goal, dtype=np.float64).copy()
+    for k in range(len(points) - 1, 1, -1):  # the link from point k-1 to point k, tool end first
+        new[k] = target
+        met = circle_point(new[k - 2], lengths[k - 2], target, lengths[k - 1], new[k - 1], normal)
+        if met is not None:
+            new[k - 1] = met
+            return new, True
+        new[k - 1] = target - lengths[k - 1] * _toward(target - new[k - 1], points[k] - points[k - 1])
+        target = new[k - 1]  # the link turned toward its target and moved there
+    n = float(np.linalg.norm(target - new[0]))
+    met = abs(n - lengths[0]) <= 1e-12 * max(n, lengths[0], 1e-300)
+    for k in range(1, len(points)):  # the root's link turned toward what is left; the rest follows it
+        new[k] = new[k - 1] + lengths[k - 1] * _toward(new[k] - new[k - 1] if k > 1 else target - new[0],
+                                                       points[k] - points[k - 1])
+    return new, met
+
+
+def _toward(d: Array, before: Array) -> Array:
+    """The unit direction of ``d``; the link's direction ``before`` when ``d`` is zero."""
+    for v in (d, before):
+        n = float(np.linalg.norm(v))
+        if n > 0:
+            return v / n
+    return np.zeros(3)
+
+
+class _Chain:
+    """The joints between the root and the tool, grouped by anchor, with FK scratch space."""
+
+    def __init__(self, tree: Tree, body: int, lpos: Array, joints: list[int]) -> None:
+        self.kin = kinematic_arrays(tree)
+        self.scratch = _frames_scratch(self.kin)
+        self.body, self.lpos, self.joints = body, lpos, joints
+        self.tree = tree
+        axes = self.frames(tree.qpos0)[1]
+        planar = all(tree.jnt_type[j] == HINGE for j in joints) and len(joints) > 0 and \
+            bool(np.all(np.linalg.norm(np.cross(axes, axes[0]), axis=-1) < 1e-9))
+        self.normal = axes[0] / np.linalg.norm(axes[0]) if planar else None  # the plane of a planar chain
+
+    def frames(self, q: Array) -> tuple[Array, Array, Array, list[Array]]:
+        """World anchors ``(nj, 3)``, axes ``(nj, 3)`` of the chain's joints, the tool ``(3,)``, joint frames."""
+        rot, pos, irot, ipos = self.scratch
+        kin = self.kin
+        _fk(kin, q[None], rot, pos, irot, ipos)
+        inner, jbody, axis, anchor = kin.jnt_inner, kin.jnt_body, kin.jnt_axis, kin.jnt_pos
+        anchors, axes, Rs = [], [], []
+        for j in self.joints:
+            R, x = (irot[0, inner[j]], ipos[0, inner[j]]) if inner[j] >= 0 else (rot[0, jbody[j]], pos[0, jbody[j]])
+            anchors.append(R @ anchor[j] + x)
+            axes.append(R @ axis[j])
+            Rs.append(R)
+        tool = rot[0, self.body] @ self.lpos + pos[0, self.body]
+        return np.array(anchors).reshape(-1, 3), np.array(axes).reshape(-1, 3), tool, Rs
+
+    def points(self, q: Array) -> tuple[Array, list[list[int]]]:
+        """The chain as points ``(m+1, 3)`` (distinct anchors, then the tool) and the joints at each anchor."""
+        anchors, _, tool, _ = self.frames(q)
+        pts: list[Array] = []
+        groups: list[list[int]] = []
+        scale = max(float(np.abs(anchors).max(initial=0.0)), float(np.abs(tool).max()), 1.0)
+        for k, a in enumerate(anchors):
+            if pts and np.linalg.norm(a - pts[-1]) <= 1e-9 * scale:
+                groups[-1].append(k)
+            else:
+                pts.append(a)
+                groups.append([k])
+        return np.array(pts + [tool]), groups
+
+    def align(self, q: Array, want: Array, groups: list[list[int]]) -> bool:
+        """Turn the joints base to tip so each brings its next point onto ``want``; True if one hit a limit."""
+        kin = self.kin
+        jtype, qadr, lo, hi = kin.jnt_type, kin.jnt_qadr, kin.jnt_lo, kin.jnt_hi
+        pinned = False
+        for g, members in enumerate(groups):
+            for k in members:
+                anchors, axes, tool, Rs = self.frames(q)
+                now = self.points_from(anchors, tool, groups)
+                v1, v2 = now[g + 1] - anchors[k], want[g + 1] - anchors[k]
+                j, c = self.joints[k], int(qadr[self.joints[k]])
+                if jtype[j] == HINGE:
+                    u = axes[k]
+                    if np.linalg.norm(np.cross(u, v1)) < 1e-6 * np.linalg.norm(v1):
+                        # the next point is on the axis (a twist joint): turn the rest of the chain
+                        # toward where it is wanted instead (least squares over the points beyond)
+                        v1, v2 = now[g + 2:] - anchors[k], want[g + 2:] - anchors[k]
+                    v1, v2 = np.reshape(v1, (-1, 3)), np.reshape(v2, (-1, 3))
+                    sin = float(np.sum(np.cross(v1, v2) @ u))
+                    cos = float(np.sum(v1 * v2) - np.sum((v1 @ u) * (v2 @ u)))
+                    q[c] = min(max(q[c] + np.arctan2(sin, cos), lo[j]), hi[j])
+                    pinned = pinned or q[c] in (lo[j], hi[j])
+                else:  # ball: the shortest arc from v1 to v2, as a rotation vector in the joint frame
+                    w = np.cross(v1, v2)
+                    s = float(np.linalg.norm(w))
+                    if s < 1e-15 * max(float(np.linalg.norm(v1) * np.linalg.norm(v2)), 1e-300):
+                        continue
+                    u = Rs[k].T @ (w * np.arctan2(s, v1 @ v2) / s)
+                    _turn(q, c, u[0], u[1], u[2])
+                    before = q[c:c + 4].copy()
+                    _quat_angle_clip(q, c, hi[j])
+                    pinned = pinned or not np.allclose(before, q[c:c + 4], atol=1e-12)
+        return pinned
+
+    @staticmethod
+    def points_from(anchors: Array, tool: Array, groups: list[list[int]]) -> Array:
+        """The chain's points from joint anchors: the first anchor of each group, then the tool."""
+        return np.array([anchors[m[0]] for m in groups] + [tool])
+
+
+def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int,
+              hist_q: Array, hist_err: Array) -> tuple[int, int | str, float]:
+    """Recursive reach for one target; ``q (nq,)`` is updated in place. Returns (passes, status, error).
+
+    Pass ``k``'s configuration and error go into ``hist_q[k]``, ``hist_err[k, 0]`` while there is room.
+    """
+    pts, groups = chain.points(q)
+    if len(hist_q):
+        hist_q[0], hist_err[0, 0] = q, np.linalg.norm(goal - pts[-1])
+    lengths = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    dist = float(np.linalg.norm(goal - pts[0]))
+    total, inner = float(lengths.sum()), max(0.0, 2 * float(lengths.max(initial=0.0)) - float(lengths.sum()))
+    if len(lengths) == 0 or dist > total * (1 + 1e-12) or dist < inner * (1 - 1e-12):
+        if len(lengths) and dist > total:  # stretched straight toward the goal
+            way = (goal - pts[0]) / dist
+            chain.align(q, pts[0] + np.concatenate([[0.0], np.cumsum(lengths)])[:, None] * way, groups)
+        elif len(lengths):  # folded toward it as far as one pass goes
+            chain.align(q, reach_points(pts, goal, chain.normal)[0], groups)
+        e = float(np.linalg.norm(goal - chain.points(q)[0][-1]))
+        if len(lengths) and len(hist_q) > 1:
+            hist_q[1], hist_err[1, 0] = q, e
+        return int(len(lengths) > 0), ROOT_WOULD_MOVE, e
+    best, best_q, since, pinned = np.inf, q.copy(), 0, False
+    for it in range(max_iters + 1):
+        pts, _ = chain.points(q)
+        e = float(np.linalg.norm(goal - pts[-1]))
+        if it < len(hist_q):
+            hist_q[it], hist_err[it, 0] = q, e
+        if e < best * (1 - 1e-9):
+            best, best_q, since = e, q.copy(), 0
+        else:
+            since += 1
+        if e <= tol:
+            return it, CONVERGED, e
+        if since >= PATIENCE:
+            q[:] = best_q
+            return it, LIMITS if pinned else UNREACHABLE, best
+        if it == max_iters:
+            break
+        pinned = chain.align(q, reach_points(pts, goal, chain.normal)[0], groups)
+    q[:] = best_q
+    return max_iters, MAX_ITERATIONS, best
+
+
+def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
+                active: NDArray[np.bool_], history: bool = False) -> Result:
+    """Recursive reach on one position goal (see :func:`mjkin.solve`); ``q (B, nq)`` holds the starts.
+
+    One iteration is one pass; with ``history`` every pass's configuration is kept.
+    """
+    if len(prog.goals) != 1 or prog.kind[0] != POSITION:
+        raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
+    body = int(prog.body[0])
+    dof_jnt = tree.plan.dof_jnt
+    in_chain = [int(j) for j in np.unique(dof_jnt[tree.body_dofs[body]]) if active[tree.jnt_dofadr[j]]]
+    movable = [j for j in in_chain if tree.jnt_type[j] != FREE]  # a free root joint is the root: it stays
+    if any(tree.jnt_type[j] not in (HINGE, BALL) for j in movable):
+        names = [tree.names("joint")[j] for j in movable if tree.jnt_type[j] not in (HINGE, BALL)]
+        raise GoalError(f"method 'reach' moves hinge and ball joints only; the chain has slide joints {names}")
+    chain = _Chain(tree, body, np.asarray(prog.lpos[0], dtype=np.float64), movable)
+    B = prog.B
+    iters, codes, err = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B)
+    root_moves = np.zeros(B, bool)
+    goals = prog.data[:, 0, :3]
+    H = max_iters + 1 if history else 0
+    hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
+    hist_err[..., 1] = 0.0
+    for b in range(B):
+        it, code, e = reach_one(chain, q[b], np.asarray(goals[b], dtype=np.float64), tol, max_iters, hist_q[b],
+                                hist_err[b])
+        iters[b], err[b] = it, e
+        root_moves[b] = code == ROOT_WOULD_MOVE
+        codes[b] = UNREACHABLE if root_moves[b] else int(code)
+    errors = np.zeros((B, 1, 2))
+    errors[:, 0, 0] = err
+    hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
+    res = package(prog, q, errors, iters, codes, np.zeros(B, np.int64), tol, rot_tol, "reach",
+                  History(hist_q, hist_err) if history else None)
+    if root_moves.any():
+        labels: NDArray[Any] = np.where(root_moves, ROOT_WOULD_MOVE, np.asarray(res.status).reshape(-1))
+        res = replace(res, status=labels.reshape(np.shape(res.status)) if np.ndim(res.status) else labels[0])
+    return res

@@ -1,0 +1,92 @@
+"""Progress on a terminal: the first-run compile notice, and no ETA before the first item is done."""
+
+from __future__ import annotations
+
+import io
+import re
+import sys
+
+import numba
+import pytest
+
+from mjkin import progress
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.fixture
+def terminal(monkeypatch):
+    """stderr as a terminal, progress enabled as the CLI does, the notice not yet printed in this process.
+
+    Patched when the test body runs (pytest resets ``sys.stderr`` between fixture set-up and the test).
+    """
+    err = Terminal()
+    monkeypatch.setattr(progress, "_said", False)
+    progress.enable(True)
+    yield lambda: monkeypatch.setattr(sys, "stderr", err) or err
+    progress.enable(False)
+
+
+def fresh_kernel():
+    """A function numba has never compiled: calling it compiles it for real (milliseconds, not a minute)."""
+    @numba.njit(cache=False)
+    def add_one(x):
+        return x + 1
+
+    return add_one
+
+
+def test_compiling_is_announced_once_on_a_terminal(terminal):
+    terminal = terminal()
+    for k in progress.track(range(3), "work"):
+        fresh_kernel()(k)  # a compilation inside the loop, as the IK kernels on the first run
+    fresh_kernel()(1)
+    assert terminal.getvalue().count(progress.COMPILING) == 1
+
+
+def test_no_notice_without_compiling_or_off_a_terminal(terminal, monkeypatch):
+    terminal = terminal()
+    kernel = fresh_kernel()
+    kernel(0)  # compiled (and announced) here
+    monkeypatch.setattr(progress, "_said", False)
+    for k in progress.track(range(3), "work"):
+        kernel(k)  # already compiled: no compilation, no notice
+    assert progress.COMPILING not in terminal.getvalue().split(progress.COMPILING, 1)[1]
+    monkeypatch.setattr(terminal, "isatty", lambda: False)
+    fresh_kernel()(1)
+    assert progress.compiling_notice() is False
+    assert terminal.getvalue().count(progress.COMPILING) == 1
+
+
+def test_disabled_progress_stops_listening(terminal):
+    terminal = terminal()
+    progress.enable(False)
+    fresh_kernel()(1)
+    assert terminal.getvalue() == ""
+    assert list(progress.track(range(4), "quiet")) == [0, 1, 2, 3]
+    assert terminal.getvalue() == ""
+
+
+def seconds(text: str) -> int:
+    parts = [int(p) for p in text.split(":")]
+    return sum(p * 60**k for k, p in enumerate(reversed(parts)))
+
+
+def test_no_eta_until_the_first_item_is_done(terminal, monkeypatch):
+    import tqdm.std
+
+    terminal = terminal()
+    clock = [1000.0]
+    monkeypatch.setattr(tqdm.std, "time", lambda: clock[0])
+    items = list(progress.track(range(6), "solve path"))
+    assert items == list(range(6))
+    clock[0] = 1000.0
+    for k in progress.track(range(6), "solve path"):
+        clock[0] += 70.0 if k == 0 else 1.0  # the first item compiles for 70 s, then 1 s each
+    text = terminal.getvalue()
+    assert "solve path: 0/6 [starting]" in text
+    etas = [seconds(t) for t in re.findall(r"<(\d\d:\d\d(?::\d\d)?)", text)]
+    assert etas and max(etas) <= 5  # measured after the first item: 1 s per item, at most 5 to go

@@ -1,0 +1,66 @@
+"""Workspaces by batched FK against the closed forms of planar two- and three-link arms (seed 000)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mjkin
+from conftest import tree_of
+from mjkin import build
+from mjkin.cli import main
+
+
+@pytest.mark.parametrize("lengths", [(1.0, 0.7), (0.6, 1.1), (2.0, 0.5, 0.3), (15.0, 10.0, 5.0)])
+def test_planar_annulus_matches_the_closed_form(lengths):
+    tree = tree_of(build.planar_chain(list(lengths)))
+    ws = mjkin.workspace(tree, "ee", 20_000)
+    L = np.array(lengths)
+    outer, inner = L.sum(), max(0.0, 2 * L.max() - L.sum())  # |L1 - L2| for two links
+    assert ws.planar and ws.points.shape == (20_000, 3)
+    np.testing.assert_allclose(np.abs(ws.normal), [0, 0, 1])
+    assert outer * (1 - 2e-3) <= ws.outer <= outer * (1 + 1e-12)  # sampling never overshoots
+    assert inner - 1e-12 <= ws.inner <= inner + 0.02 * outer
+    r = np.linalg.norm(ws.plane_coords(), axis=-1)
+    assert np.all((r >= inner - 1e-9) & (r <= outer + 1e-9))
+    np.testing.assert_allclose(ws.points, tree.pose(tree.random_q(np.random.default_rng(0), 20_000), "ee")[:, :3, 3])
+
+
+@pytest.mark.parametrize("lengths", [(3.0, 2.0, 0.5), (15.0, 10.0, 5.0)])
+def test_dexterous_ring_of_a_three_link_arm(lengths):
+    """Every orientation is reachable iff the wrist circle (radius L3) fits the two-link annulus."""
+    L1, L2, L3 = lengths
+    ws = mjkin.workspace(tree_of(build.planar_chain(list(lengths))), "ee", 60_000)
+    lo, hi = abs(L1 - L2) + L3, L1 + L2 - L3
+    r = np.linalg.norm(ws.plane_coords(), axis=-1)
+    band = 0.08 * sum(lengths)  # sampling blurs the edges by about twice the pooling radius (1/50 of 2 * reach)
+    far = r > 2 * band  # near the base, neighbours of every direction pool their orientations
+    assert np.all(ws.dexterous[far] <= ((r[far] > lo - band) & (r[far] < hi + band)))  # none outside the ring
+    inside = (r > lo + band) & (r < hi - band)
+    assert ws.dexterous[inside].mean() > 0.85  # and most inside it (the rest: a bin no nearby sample hit)
+    two = mjkin.workspace(tree_of(build.planar_chain([1.0, 0.7])), "ee", 5_000)
+    assert not two.dexterous.any()  # two links: one orientation per point (two elbows)
+
+
+def test_3d_workspace_and_errors(tmp_path):
+    tree = tree_of("arm7")
+    ws = mjkin.workspace(tree, "ee", 5_000)
+    assert not ws.planar and ws.normal is None
+    d = np.linalg.norm(ws.points - ws.base, axis=-1)
+    assert ws.outer == pytest.approx(d.max()) and ws.outer <= 0.24 + 0.2 + 0.2 + 0.2 + 0.19 + 0.02 + 0.08 + 1e-9
+    np.testing.assert_allclose(ws.lo, ws.points.min(0))
+    with pytest.raises(mjkin.MjkinError, match="unknown site or body 'hand'"):
+        mjkin.workspace(tree, "hand", 10)
+    with pytest.raises(mjkin.InputError, match="at least 2 samples"):
+        mjkin.workspace(tree, "ee", 1)
+
+
+def test_cli_workspace_plot(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "ws.png"
+    assert main(["workspace", "planar_2link", "--frame", "tip", "--samples", "3000", "-o", str(out)]) == 0
+    assert out.stat().st_size > 5000 and "annulus 0.3 <= r <= 1.7" in capsys.readouterr().out
+    assert main(["workspace", "planar_3link", "-o", str(tmp_path / "tip.png"), "--samples", "500"]) == 0
+    assert "annulus" in capsys.readouterr().out  # the last site (the tip) by default
+    assert main(["workspace", "arm7", "--frame", "nope", "-o", str(tmp_path / "x.png")]) == 2
+    assert "unknown site or body 'nope'" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
