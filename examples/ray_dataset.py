@@ -72,13 +72,13 @@ def measure(n: int, chunk: int) -> None:
     print(f"ray.init (local, {cores} CPUs): {time.perf_counter() - start:.1f} s")
     start = time.perf_counter()
     solve_many(tree, G.Pose("ee", T=T[:1]), progress=False)
-    one = time.perf_counter() - start
-    print(f"solve_many of 1 target (workers start, load the model and the kernels): {one:.2f} s")
-    k = 200
-    start = time.perf_counter()
-    solve_many(tree, G.Pose("ee", T=T[:k]), chunk=1, restarts=0, progress=False)
-    each = (time.perf_counter() - start - one) / (k - 1)
-    print(f"per chunk round trip (chunk=1 over {k} targets): {each * 1e3:.1f} ms")
+    print(f"solve_many of 1 target (workers start, load model and kernels): {time.perf_counter() - start:.2f} s")
+    k, cost = 1000, {}
+    for size in (k, 1):  # the same targets in one chunk, then in k: the difference is k - 1 round trips
+        start = time.perf_counter()
+        solve_many(tree, G.Pose("ee", T=T[:k]), chunk=size, restarts=0, progress=False)
+        cost[size] = time.perf_counter() - start
+    print(f"per chunk round trip (chunk=1 against 1 chunk, {k} targets): {(cost[1] - cost[k]) / (k - 1) * 1e3:.2f} ms")
     start = time.perf_counter()
     got = solve_many(tree, G.Pose("ee", T=T), chunk=chunk, progress=False)
     many = time.perf_counter() - start
