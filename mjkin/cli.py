@@ -383,6 +383,15 @@ def cmd_play(args: argparse.Namespace) -> int:
     return serve(args.model, host=args.host, port=args.port, browser=not args.no_browser, out_dir=args.out)
 
 
+def cmd_warmup(args: argparse.Namespace) -> int:
+    """Compile every kernel once (or load it from the cache), so later runs start at once."""
+    from .warmup import warmup
+
+    print("compiling mjkin's kernels (first run only, about a minute)...", flush=True)
+    print(f"done in {warmup():.1f} s")
+    return 0
+
+
 def _version() -> str:
     try:
         return metadata.version("mjkin")
@@ -504,6 +513,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-browser", action="store_true", help="only print the URL")
     s.add_argument("--out", default=".", help="folder for recordings (default: here)")
     s.set_defaults(run=cmd_play)
+
+    s = sub.add_parser("warmup", help="compile every kernel ahead of use (a Dockerfile or CI cache step)")
+    s.set_defaults(run=cmd_warmup)
     return p
 
 

@@ -24,6 +24,17 @@ class UnknownNameError(MjkinError, KeyError):
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])
 
+    def __reduce__(self) -> tuple[object, tuple[type, str]]:
+        """Pickle by message (the constructor's arguments are not kept), so it crosses processes."""
+        return _restore, (type(self), str(self))
+
+
+def _restore(cls: type[Exception], message: str) -> Exception:
+    """An exception of type ``cls`` with ``message``, made without calling its constructor."""
+    error = cls.__new__(cls)
+    Exception.__init__(error, message)
+    return error
+
 
 class InputError(MjkinError, ValueError):
     """An array argument (q, a target, an option) has the wrong shape or value."""
