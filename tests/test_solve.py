@@ -244,3 +244,10 @@ def test_spread_restart_starts_stratify_every_joint():
     plain = qspace.random(tree, 0, 64)
     v = (plain[:, lay.scalar_q] - lay.scalar_lo) / (lay.scalar_hi - lay.scalar_lo)
     assert any(len(set(np.floor(c * 64).astype(int))) < 64 for c in v.T)
+
+
+@pytest.mark.parametrize("method", ["auto", "dls", "pinv", "transpose", "ccd", "optimize", "reach", "analytic2"])
+def test_every_method_returns_its_tree(method):
+    tree = tree_of("planar_2link")
+    res = mjkin.solve(tree, G.Position("tip", (1.2, 0.5, 0.0)), method=method)
+    assert res.tree is tree and res.singular_values().shape[-1] >= 1

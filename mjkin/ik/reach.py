@@ -265,7 +265,7 @@ def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float,
     errors[:, 0, 0] = err
     hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
     res = package(prog, q, errors, iters, codes, np.zeros(B, np.int64), tol, rot_tol, "reach",
-                  History(hist_q, hist_err) if history else None)
+                  History(hist_q, hist_err) if history else None, tree)
     if root_moves.any():
         labels: NDArray[Any] = np.where(root_moves, ROOT_WOULD_MOVE, np.asarray(res.status).reshape(-1))
         res = replace(res, status=labels.reshape(np.shape(res.status)) if np.ndim(res.status) else labels[0])

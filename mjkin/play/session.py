@@ -68,15 +68,12 @@ def live_painter(tree: Tree, width: int, height: int) -> render.Painter:
 def view_camera(tree: Tree, home: np.ndarray, samples: int = 64) -> mujoco.MjvCamera:
     """A camera on the space the figure reaches from where it stands (random poses, the free root kept at home).
 
-    :func:`mjkin.render.default_camera` frames every sampled pose; the view is then
-    moved in to 70 % of that distance, as the far corners of the box are seldom reached.
+    :func:`mjkin.render.default_camera` frames every geom of every sampled pose.
     """
     qs = np.concatenate([home[None], tree.random_q(np.random.default_rng(0), samples)])
     free = tree.layout.free_q.ravel().astype(int)
     qs[:, free] = home[free]
-    cam = render.default_camera(tree, qs)
-    cam.distance *= 0.7
-    return cam
+    return render.default_camera(tree, qs)
 
 
 class Playground:
