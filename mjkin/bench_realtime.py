@@ -21,7 +21,7 @@ from .bench import Report, Row
 from .build import Link, links_mjcf
 from .errors import InputError
 from .ik import solve
-from .parallel import set_threads, threads
+from .parallel import threads_set
 from .progress import track
 from .qspace import FREE
 from .tree import Tree, load
@@ -118,12 +118,8 @@ def bench_realtime(dofs: Sequence[int] = (2, 4, 8, 16, 32, 64, 128), frames: int
     """Per-frame 6-D IK cost, warm (animation) and cold (from home), and the largest chain each rate allows."""
     if frames < 2 or not dofs or min(dofs) < 1:
         raise InputError(f"need --frames >= 2 and chain sizes >= 1, got {frames} and {list(dofs)}")
-    before = threads()
-    set_threads(1)
-    try:
+    with threads_set(1):
         rows, largest = _measure(dofs, frames, seed)
-    finally:
-        set_threads(before)
     if plot:
         draw(rows, plot)
     settings = {"frames": frames, "seed": seed, "tol_m": 1e-4, "rot_tol_rad": 1e-3, "method": "auto",

@@ -9,8 +9,9 @@ that threads take as they go; the compiled code releases the GIL.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -29,6 +30,21 @@ def set_threads(n: int | None) -> None:
     if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
         raise InputError(f"threads must be a positive integer (or None for the default), got {n!r}")
     _threads = None if n is None else int(n)
+
+
+@contextmanager
+def threads_set(n: int) -> Iterator[None]:
+    """Run a block with ``n`` solver threads, then put the previous *setting* back.
+
+    An environment variable or the default applies again afterwards, not the number they gave before.
+    """
+    global _threads
+    before = _threads
+    set_threads(n)
+    try:
+        yield
+    finally:
+        _threads = before
 
 
 def threads() -> int:

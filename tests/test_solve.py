@@ -179,6 +179,9 @@ def test_goal_take_slices_targets(rng):
 
 # ---------------------------------------------------------------- threads
 def test_thread_setting(monkeypatch):
+    from mjkin import parallel
+
+    monkeypatch.setattr(parallel, "_threads", None)  # whatever an earlier test set
     monkeypatch.delenv("MJKIN_NUM_THREADS", raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     assert mjkin.threads() == 3
@@ -196,12 +199,13 @@ def test_thread_setting(monkeypatch):
         mjkin.set_threads(0)
 
 
-def test_one_thread_runs_the_batch_in_the_caller(monkeypatch, rng):
+def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):
     import threading
 
     from mjkin import parallel
 
     seen = set()
+    monkeypatch.setattr(parallel, "_threads", None)
     monkeypatch.setenv("MJKIN_NUM_THREADS", "1")
     parallel.parallel_chunks(lambda lo, hi: seen.add(threading.get_ident()), 1000)
     assert seen == {threading.get_ident()}
@@ -251,3 +255,14 @@ def test_every_method_returns_its_tree(method):
     tree = tree_of("planar_2link")
     res = mjkin.solve(tree, G.Position("tip", (1.2, 0.5, 0.0)), method=method)
     assert res.tree is tree and res.singular_values().shape[-1] >= 1
+
+
+def test_threads_set_restores_the_setting_not_the_number(monkeypatch):
+    from mjkin import parallel
+
+    monkeypatch.setattr(parallel, "_threads", None)
+    monkeypatch.setenv("MJKIN_NUM_THREADS", "2")
+    with parallel.threads_set(1):
+        assert mjkin.threads() == 1
+    monkeypatch.setenv("MJKIN_NUM_THREADS", "3")
+    assert mjkin.threads() == 3  # the environment applies again
