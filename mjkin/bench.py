@@ -21,7 +21,7 @@ import numpy as np
 
 from .argtypes import positive_float, positive_int
 from .errors import InputError
-from .files import write_text
+from .files import check_writable, write_text
 from .progress import track
 from .tree import Tree, load
 
@@ -420,21 +420,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 
 
-def _writable(path: str | None, suffix: str, option: str) -> None:
-    if path is None:
-        return
-    p = Path(path)
-    if p.suffix.lower() != suffix:
-        raise InputError(f"{option} must name a {suffix} file, got {path!r}")
-    folder = p.parent if str(p.parent) else Path(".")
-    if not folder.is_dir() or not os.access(folder, os.W_OK):
-        raise InputError(f"{option}: folder {str(folder)!r} does not exist or is not writable")
-
-
 def run(args: argparse.Namespace) -> Report:
-    """Run the benchmark ``args.which`` with its options (outputs are checked before any work)."""
-    _writable(args.json, ".json", "--json")
-    _writable(getattr(args, "plot", None), ".png", "--plot")
+    """Run the benchmark ``args.which`` with its options (``--plot`` is checked before any work)."""
+    if getattr(args, "plot", None):
+        check_writable(args.plot, (".png",), "--plot")
     if args.which == "fk":
         return bench_fk(args.models, args.batch, args.seed)
     if args.which == "ik":
@@ -461,8 +450,9 @@ def run(args: argparse.Namespace) -> Report:
 
 
 def main(args: argparse.Namespace) -> int:
-    """``mjkin bench ...``: run, print every table, write ``--json`` atomically."""
-    _writable(args.json, ".json", "--json")
+    """``mjkin bench ...``: run, print every table, write ``--json`` atomically (checked before any work)."""
+    if args.json:
+        check_writable(args.json, (".json",), "--json")
     if args.which == "all":
         defaults = argparse.ArgumentParser()
         add_arguments(defaults)
