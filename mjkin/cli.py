@@ -20,7 +20,7 @@ from . import bench, motion, progress, spatial
 from .argtypes import positive_float, positive_int
 from .errors import InputError, MjkinError
 from .files import check_writable
-from .goals import Goal, Orientation, Position, Rest
+from .goals import Goal, Orientation, Position
 from .ik.solve import METHODS, solve
 from .qspace import HINGE, JOINT_NAMES
 from .tree import Tree, bundled_models, load
@@ -256,18 +256,6 @@ def write_images(args: argparse.Namespace, images: np.ndarray, frame: int | None
         render.write_image(images[frame], args.output)
     what = f"{len(images)} frame{'s' * (len(images) > 1)}" if frame is None else f"frame {frame} of {len(images)}"
     print(f"wrote {args.output} ({what}, {images.shape[2]}x{images.shape[1]})")
-
-
-def demo_trajectory(tree: Tree, frames: int, fps: float = 30.0,
-                    smooth: float = 0.3) -> tuple[motion.Trajectory, np.ndarray]:
-    """The demo on the bundled 7-DoF arm: its effector through five waypoints and home; returns it and the stops."""
-    home = tree.model.key_qpos[0].copy()
-    start = tree.pose(home, "ee")[:3, 3]
-    stops = np.array([start, [0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
-                      [0.45, 0.3, 0.45], start])
-    traj = motion.follow(tree, "ee", motion.waypoints(stops, frames), q0=home, fps=fps, smooth=smooth,
-                         extra=[Rest(q_rest=home, weight=0.3, priority=1)])  # keep a natural posture
-    return traj, stops
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -144,7 +144,9 @@ def one_line_exit_2(argv, text, capsys, folder, keep=()):
 def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkeypatch, script):
     monkeypatch.chdir(tmp_path)
     # IK and rendering must not start: make them fail loudly if they do
-    monkeypatch.setattr("mjkin.cli.demo_trajectory", lambda *a, **k: pytest.fail("IK ran before the checks"))
+    monkeypatch.setattr("mjkin.showcase.showcase", lambda *a, **k: pytest.fail("the demo ran before the checks"))
+    monkeypatch.setattr("mjkin.motion.walk_cycle", lambda *a, **k: pytest.fail("the walk ran before the checks"))
+    monkeypatch.setattr("mjkin.motion.follow", lambda *a, **k: pytest.fail("IK ran before the checks"))
     monkeypatch.setattr("mjkin.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
     argv = [a.format(script=script) for a in argv]
     one_line_exit_2(argv, text, capsys, tmp_path, keep=["five.json"])

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import GYM_ASSETS, bundled, model_id, tree_of
 from mjkin import build, motion, render
-from mjkin.cli import demo_trajectory, main
+from mjkin.cli import main
 from mjkin.scene import Scene
 
 SMALL = {"width": 160, "height": 120}
@@ -103,6 +103,17 @@ def test_follow_a_circle_and_replay_the_script(tmp_path):
         motion.Trajectory.load(tmp_path / "t.json", tree_of("ball_chain"))
     with pytest.raises(mjkin.MjkinIOError, match="not found"):
         motion.Trajectory.load(tmp_path / "nope.json")
+
+
+def demo_trajectory(tree, frames, fps=30.0, smooth=0.3):
+    """The old demo path on the bundled 7-DoF arm: its effector through five waypoints and home, and the stops."""
+    home = tree.model.key_qpos[0].copy()
+    start = tree.pose(home, "ee")[:3, 3]
+    stops = np.array([start, [0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
+                      [0.45, 0.3, 0.45], start])
+    traj = motion.follow(tree, "ee", motion.waypoints(stops, frames), q0=home, fps=fps, smooth=smooth,
+                         extra=[mjkin.goals.Rest(q_rest=home, weight=0.3, priority=1)])  # keep a natural posture
+    return traj, stops
 
 
 def test_follow_smoothing_keeps_a_comfort_pose_from_swinging_the_arm():
