@@ -208,9 +208,8 @@ class Frames:
 
     def world(self, kind: str, i: int, offset: Array | None = None) -> Array:
         """World poses ``(B, 4, 4)`` of a site or body frame, moved to a local point ``offset (3,)`` if given."""
-        t = self.tree
-        b, local = (int(t.site_body[i]), spatial.make_transform(t.site_rot[i], t.site_pos[i])) if kind == "site" \
-            else (i, _EYE4)
+        b, r, o = self.local_frame(kind, i)
+        local = spatial.make_transform(r, o)
         if offset is not None:
             local = moved(local, offset)
         T = np.empty((self.rot.shape[0], 4, 4))
@@ -230,9 +229,6 @@ class Frames:
         from .jacobian import frame_jacobian
 
         return frame_jacobian(self, kind, i, offset).reshape(self.batch + (6, self.tree.nv))
-
-
-_EYE4 = np.eye(4)
 
 
 def moved(local: Array, offset: Array) -> Array:
@@ -332,6 +328,16 @@ def fk_arrays(tree: Tree) -> tuple:
 
 
 @njit
+def fk_scratch(parent: Index, jnt_inner: Index) -> tuple[Array, Array, Array, Array]:
+    """Empty :func:`fk_kernel` outputs for one configuration: body frames and inner-joint frames."""
+    n_inner = 0
+    for j in range(jnt_inner.shape[0]):
+        n_inner += jnt_inner[j] >= 0
+    nbody = parent.shape[0]
+    return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+
+
+@njit
 def frame_pose_one(q: Array, body: int, local: Array, T: Array, parent: Index, fixed_rot: Array, fixed_pos: Array,
                    jnt_start: Index, jnt_count: Index, jnt_inner: Index, fixed_plain: NDArray[np.bool_],
                    hinge_coord: Index, anchor_zero: NDArray[np.bool_], jnt_type: Index, jnt_qadr: Index,
@@ -342,11 +348,7 @@ def frame_pose_one(q: Array, body: int, local: Array, T: Array, parent: Index, f
     compiled call taking the FK arrays one by one (numba passes separate arrays
     faster than a tuple of them), no per-body output.
     """
-    n_inner = 0
-    for j in range(jnt_inner.shape[0]):
-        n_inner += jnt_inner[j] >= 0
-    rot, pos = np.empty((1, parent.shape[0], 3, 3)), np.empty((1, parent.shape[0], 3))
-    irot, ipos = np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+    rot, pos, irot, ipos = fk_scratch(parent, jnt_inner)
     fk_kernel(q, parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
               anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, irot, ipos)
     frame_world(rot, pos, 0, body, local, T)

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
-from .fk import Kinematics, fk_kernel, frame_world
+from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
 from .jit import njit, njit_inline
 
 if TYPE_CHECKING:
@@ -98,11 +98,7 @@ def frame_jacobian_one(kin: Kinematics, q: Array, body: int, local: Array, J: Ar
 
     The short path of :meth:`mjkin.Tree.jacobian` for a single configuration.
     """
-    rot, pos = np.empty((1, kin.parent.shape[0], 3, 3)), np.empty((1, kin.parent.shape[0], 3))
-    n_inner = 0
-    for j in range(kin.jnt_inner.shape[0]):
-        n_inner += kin.jnt_inner[j] >= 0
-    irot, ipos = np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
+    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     fk_kernel(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
               kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
               kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)

@@ -13,12 +13,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
+from ..fk import fk_scratch
 from ..goals import POSITION, Program
 from ..jit import matvec3, njit
 from ..parallel import parallel_chunks
 from ..qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, Kinematics, _fk, _frames_scratch, kinematic_arrays
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, Kinematics, _fk, kinematic_arrays
 from .solve import History, Result, package
 
 Array = NDArray[np.float64]
@@ -36,7 +37,7 @@ def _tool(rot: Array, pos: Array, body: int, lpos: Array, out: Array) -> None:
 def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
             patience: int, hist_q: Array, hist_err: Array) -> tuple:
     """CCD for one target; ``q (1, nq)`` is updated in place. Returns (sweeps, status, error)."""
-    rot, pos, irot, ipos = _frames_scratch(kin)
+    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     jtype, qadr, axis, anchor = kin.jnt_type, kin.jnt_qadr, kin.jnt_axis, kin.jnt_pos
     inner, jbody, lo, hi = kin.jnt_inner, kin.jnt_body, kin.jnt_lo, kin.jnt_hi
     p, u, a, v1, v2, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)

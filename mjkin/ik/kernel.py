@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ..fk import Kinematics, fk_kernel, kinematic_arrays
+from ..fk import Kinematics, fk_kernel, fk_scratch, kinematic_arrays
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
 from ..jacobian import jacobian_kernel
 from ..jit import matvec3, monotonic_ns, njit, njit_inline
@@ -107,17 +107,6 @@ def _fk(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Ar
     fk_kernel(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
               kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
               kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
-
-
-@njit
-def _frames_scratch(kin: Kinematics) -> tuple[Array, Array, Array, Array]:
-    """Empty FK outputs for one configuration."""
-    n_inner = 0
-    for j in range(kin.jnt_inner.shape[0]):
-        if kin.jnt_inner[j] >= 0:
-            n_inner += 1
-    nbody = kin.parent.shape[0]
-    return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
 
 
 @njit_inline
@@ -540,7 +529,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     nv = kin.dof_body.shape[0]
     level_rows, counted = ga.level_rows, ga.counted
     m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
-    rot, pos, irot, ipos = _frames_scratch(kin)
+    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     ws, sws = goal_scratch(nv), step_scratch(m, nv)
     g, gt = np.empty(m), np.empty(m)
     J, Jt = np.empty((m, nv)), np.empty((m, nv))
@@ -659,7 +648,7 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
 
 @njit
 def _evaluate_batch(kin: Kinematics, ga: GoalArrays, q: Array, g: Array, J: Array, err: Array) -> None:
-    rot, pos, irot, ipos = _frames_scratch(kin)
+    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     ws = goal_scratch(J.shape[2])
     for b in range(q.shape[0]):
         _fk(kin, q[b:b + 1], rot, pos, irot, ipos)

@@ -28,10 +28,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
+from ..fk import fk_scratch
 from ..goals import POSITION, Program
 from ..qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, _frames_scratch, kinematic_arrays
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, kinematic_arrays
 from .solve import History, Result, package
 
 Array = NDArray[np.float64]
@@ -111,7 +112,7 @@ class _Chain:
 
     def __init__(self, tree: Tree, body: int, lpos: Array, joints: list[int]) -> None:
         self.kin = kinematic_arrays(tree)
-        self.scratch = _frames_scratch(self.kin)
+        self.scratch = fk_scratch(self.kin.parent, self.kin.jnt_inner)
         self.body, self.lpos, self.joints = body, lpos, joints
         self.tree = tree
         axes = self.frames(tree.qpos0)[1]
