@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, example, given
 from hypothesis import strategies as st
 
 import mjkin
@@ -39,14 +39,29 @@ def test_seed_arm_fails_clearly_when_the_root_would_have_to_move():
 
 
 @given(st.floats(0.3, 2.05), st.floats(-np.pi, np.pi), st.lists(st.floats(-3, 3), min_size=3, max_size=3))
+@example(0.3125, 3.140625, [0.0, 0.0, 0.0])  # found by hypothesis: a goal behind a straight arm, folded in line
+@example(0.5, np.pi, [0.0, 0.0, 0.0])  # exactly behind: the folded chain stayed on the line for ever
 def test_planar_goals_inside_the_ring_are_reached(r, phi, q0):
     tree = tree_of(PLANAR)
     # ring 0 <= r <= 2.1 for links 1, 0.7, 0.4; within ~0.2 of the base the arm must fold almost flat
-    # (elbow near pi) and the greedy passes crawl (1e-5 per pass): a known weakness, not tested here
+    # (elbow near pi) and the greedy passes crawl (1e-5 per pass): a known weakness, not tested here.
+    # A straight start with the goal exactly on its line is a fixed point of the greedy passes when no folding
+    # on that line reaches the goal: test_exactly_collinear_start_says_it_is_stuck covers it.
+    assume(not (max(map(abs, q0)) == 0.0 and abs(np.sin(phi)) < 1e-12))
     goal = [r * np.cos(phi), r * np.sin(phi), 0.0]
     res = mjkin.solve(tree, G.Position("ee", goal), q0=q0, method="reach", tol=1e-9)
     assert res.success, (res.status, res.error)
     np.testing.assert_allclose(tree.pose(res.q, "ee")[:3, 3], goal, atol=1e-9)
+
+
+def test_exactly_collinear_start_says_it_is_stuck():
+    """Found by hypothesis: goal (-0.375, 0) behind the straight arm; every pass stays on the line, so reach
+    reports that it is stuck (not success), and the arm is left folded on the line toward the goal."""
+    tree = tree_of(PLANAR)
+    res = mjkin.solve(tree, G.Position("ee", [-0.375, 0.0, 0.0]), q0=[0.0, 0.0, 0.0], method="reach", tol=1e-9)
+    assert not res.success and res.status == "unreachable"
+    np.testing.assert_allclose(res.error[0], 0.275, atol=1e-9)  # the tool at (-0.1, 0), the nearest fold on the line
+    np.testing.assert_allclose(tree.pose(res.q, "ee")[:3, 3], [-0.1, 0.0, 0.0], atol=1e-9)
 
 
 @pytest.mark.parametrize("src, site", [(BALLS, "ee"), ("ball_chain", "tip")])
@@ -62,6 +77,8 @@ def test_3d_ball_chains(src, site):
 
 
 @given(st.lists(point, min_size=2, max_size=6), point)
+@example([np.array([-0.775961106041201, 0.0, 0.0]), np.array([1.5625, 1.0, 1.625]), np.array([1.5625, 1.0, 1.625])],
+         np.array([1.5625, 1.0, 1.625]))  # found by hypothesis: a zero-length link, spheres touching
 def test_a_pass_keeps_the_root_and_every_link_length(pts, goal):
     pts = np.array(pts)
     new, met = reach_points(pts, goal)
@@ -73,6 +90,7 @@ def test_a_pass_keeps_the_root_and_every_link_length(pts, goal):
 
 
 @given(point, st.floats(0.1, 2), point, st.floats(0.1, 2), point)
+@example(np.zeros(3), 1.0, np.array([0.0, 0.0, 8.120741011171864e-11]), 1.0, np.zeros(3))  # nearly concentric
 def test_circle_point_lies_on_both_spheres(c1, r1, c2, r2, near):
     p = circle_point(c1, r1, c2, r2, near)
     d = np.linalg.norm(c2 - c1)

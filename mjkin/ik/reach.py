@@ -5,8 +5,10 @@ fixed distance apart. One pass puts the tool on the goal and walks back toward
 the root: where the link before can meet the moved one (the intersection of a
 sphere around its base and a sphere around the moved point, a circle) the
 joint goes to the nearest point of that circle and the pass ends; where they
-cannot meet, the link is turned toward its target and moved onto it, and the
-same question is asked one link nearer the root. When the pass arrives at the
+cannot meet, the link is turned toward its target and moved onto it (or, when
+the target is too close for the link before to reach, away from that link's
+joint, the nearest it can come), and the same question is asked one link
+nearer the root. When the pass arrives at the
 root's own link, that link is turned toward what is left: if the root would
 have to move for the chain to follow (the goal is outside the ring
 ``max(0, 2·max L − ΣL) ≤ |goal − root| ≤ ΣL``) the solve ends with status
@@ -60,7 +62,10 @@ def circle_point(c1: Array, r1: float, c2: Array, r2: float, near: Array,
         return None
     e = axis / d
     a = (d * d + r1 * r1 - r2 * r2) / (2 * d)
-    h = np.sqrt(max(r1 * r1 - a * a, 0.0))
+    # the circle's radius by Heron's product, not sqrt(r1² - a²): near tangency that difference is all rounding
+    # and its root amplifies it to ~1e-8 (found by hypothesis: a zero-length link moved a point by 4e-8)
+    dr = r1 - r2  # grouped so that each factor is one rounding from exact, also for nearly concentric spheres
+    h = np.sqrt(max((d + r1 + r2) * (d + dr) * (d - dr) * (r1 + r2 - d), 0.0)) / (2 * d)
     m = c1 + a * e
     w = near - m
     w -= (w @ e) * e
@@ -88,8 +93,14 @@ def reach_points(points: Array, goal: Array, normal: Array | None = None) -> tup
         if met is not None:
             new[k - 1] = met
             return new, True
-        new[k - 1] = target - lengths[k - 1] * _toward(target - new[k - 1], points[k] - points[k - 1])
-        target = new[k - 1]  # the link turned toward its target and moved there
+        reach_back = target - new[k - 2]
+        if float(np.linalg.norm(reach_back)) < lengths[k - 2] - lengths[k - 1]:
+            # too close for the link before to reach: the nearest the link can come is pointing away from
+            # that joint (turning it toward the target would keep a folded, straight chain where it is)
+            new[k - 1] = target + lengths[k - 1] * _toward(reach_back, points[k] - points[k - 1])
+        else:
+            new[k - 1] = target - lengths[k - 1] * _toward(target - new[k - 1], points[k] - points[k - 1])
+        target = new[k - 1]  # the link turned (toward its target, or away as above) and moved there
     n = float(np.linalg.norm(target - new[0]))
     met = abs(n - lengths[0]) <= 1e-12 * max(n, lengths[0], 1e-300)
     for k in range(1, len(points)):  # the root's link turned toward what is left; the rest follows it
