@@ -43,6 +43,8 @@ from .session import Busy, Playground
 MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"
 PART = f"\r\n--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n\r\n".encode()  # ends one image, starts the next
+STREAM_THREAD = "mjkin-play-stream"  # the name of a thread serving /stream.mjpg
+STALL_TIMEOUT = 5.0  # seconds a stream write may wait for a viewer that no longer reads
 
 
 class PlayServer(ThreadingHTTPServer):
@@ -149,7 +151,7 @@ class Handler(BaseHTTPRequestHandler):
                 self._error(404, f"no such page {path!r}; try /, /state, /info, /frame.jpg or /stream.mjpg")
         except MjkinError as e:
             self._error(503, str(e))
-        except (BrokenPipeError, ConnectionResetError, ConnectionAbortedError):
+        except (BrokenPipeError, ConnectionResetError, ConnectionAbortedError, TimeoutError):
             self.close_connection = True
 
     def do_POST(self) -> None:  # noqa: N802
@@ -211,6 +213,8 @@ class Handler(BaseHTTPRequestHandler):
     def _stream(self) -> None:
         """Every new frame as a part of ``multipart/x-mixed-replace``, until the client or the server goes."""
         pg = self.server.playground
+        threading.current_thread().name = STREAM_THREAD  # so a lingering stream can be told from other requests
+        self.connection.settimeout(STALL_TIMEOUT)  # a viewer that stops reading without closing frees the thread
         self.close_connection = True
         self.send_response(200)
         self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={BOUNDARY}")
