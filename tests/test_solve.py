@@ -17,6 +17,31 @@ def pose_targets(tree, site, rng, n):
     return tree.pose(tree.random_q(rng, n), site)
 
 
+# ------------------------------------------------------------------- stalls
+def test_progress_is_an_unmet_counted_goal_falling_by_the_fraction():
+    tol, rot_tol = 1e-3, 1e-2
+    counted = np.array([True, True, False])
+    ref = np.array([50.0, 0.5, 80.0])  # errors in tolerances at the last progress: unmet, met, not counted
+    err = np.array([[0.046, 0.0], [1e-4, 1e-3], [0.01, 0.0]])  # 8 % down; the met one and the uncounted fell a lot
+    assert not kernel._progressed(err, counted, tol, rot_tol, ref, 0.9)
+    assert ref.tolist() == [50.0, 0.5, 80.0]  # unchanged without progress
+    err[0] = [0.0, 0.44]  # 12 % down, now on its rotation
+    assert kernel._progressed(err, counted, tol, rot_tol, ref, 0.9)
+    np.testing.assert_allclose(ref, [44.0, 0.1, 10.0])  # the next window starts from here
+
+
+def test_lm_follows_a_slowly_converging_run():
+    """Five position goals on the primate converge linearly for ~100 iterations in one run: no window of
+    LM_PATIENCE iterations passes without some goal's error falling by LM_PROGRESS, so the run goes on."""
+    tree = tree_of("primate")
+    targets = {f: tree.pose(tree.qpos0, f, "body")[:3, 3] for f in ("left_foot", "right_foot", "head", "right_hand")}
+    targets["left_hand"] = tree.pose(tree.qpos0, "left_hand", "body")[:3, 3] + [0.15, 0.05, 0.1]
+    goals = [G.Position(f, xyz, kind="body") for f, xyz in targets.items()]
+    free = [n for n, t in zip(tree.names("joint"), tree.jnt_type, strict=True) if t != mjkin.qspace.FREE]
+    res = mjkin.solve(tree, goals, tree.qpos0, max_iters=200, restarts=0, joints=free)
+    assert res.success and res.iterations > 40, (res.status, res.iterations)
+
+
 # ------------------------------------------------------------------ timeout
 def test_timeout_stops_each_target_and_says_so(rng):
     tree = tree_of("arm7")

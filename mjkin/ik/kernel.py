@@ -22,7 +22,8 @@ compiled code releases the GIL). Each iteration (seed 000/002):
    (seed 002 §4.6.3).
 
 A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
-stalled (no progress for ``patience`` iterations: ``unreachable``, or
+stalled (no progress — an unmet counted goal's error falling by the fraction
+``progress`` — for ``patience`` iterations: ``unreachable``, or
 ``limits`` when a joint limit blocks the way), or at ``max_iters``. A stalled
 solve restarts from the given random configurations, if any; the best
 configuration seen is returned.
@@ -84,15 +85,16 @@ class Settings(NamedTuple):
     patience: int  # iterations without progress before a run counts as stalled
     goal_step: float  # largest residual norm one step aims to remove
     timeout_ns: int  # per-target time limit (0 = none)
+    progress: float  # relative fall of a goal's error that counts as progress (see _progressed)
 
 
 def settings(tol: float, rot_tol: float, damping: float, lm_factor: float = 0.0, alpha: float = 0.0,
              max_step: float = np.inf, halving: bool = False, patience: int = 10, goal_step: float = np.inf,
-             timeout: float | None = None) -> Settings:
+             timeout: float | None = None, progress: float = 1e-9) -> Settings:
     """:class:`Settings` with Python types fixed, so every call shares one compiled specialisation."""
     return Settings(float(tol), float(rot_tol), float(damping), float(lm_factor), float(alpha), float(max_step),
                     bool(halving), int(patience), float(goal_step),
-                    0 if timeout is None else max(1, int(round(timeout * 1e9))))
+                    0 if timeout is None else max(1, int(round(timeout * 1e9))), float(progress))
 
 
 def program_arrays(prog: Program) -> GoalArrays:
@@ -500,6 +502,31 @@ def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: 
 
 
 @njit
+def _progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, ref: Array,
+                keep: float) -> bool:
+    """Whether a counted goal outside tolerance has fallen below ``keep`` times its error in ``ref (G,)``.
+
+    Errors are in tolerances (``max(e_pos/tol, e_rot/rot_tol)``). Stalls are judged
+    goal by goal rather than by the merit: a goal that cannot be met (a rest pose, a
+    conflicting lower level) keeps the merit from falling while the goals that decide
+    success still converge. When True, ``ref`` takes the current errors.
+    """
+    hit = False
+    for i in range(err.shape[0]):
+        if counted[i] and ref[i] > 1.0 and max(err[i, 0] / tol, err[i, 1] / rot_tol) < keep * ref[i]:
+            hit = True
+    if hit:
+        _scaled_errors(err, tol, rot_tol, ref)
+    return hit
+
+
+@njit
+def _scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
+    for i in range(err.shape[0]):
+        out[i] = max(err[i, 0] / tol, err[i, 1] / rot_tol)
+
+
+@njit
 def _converged(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
     for i in range(err.shape[0]):
         if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
@@ -542,7 +569,8 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     q_start = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
-    best, best_met, run_best = np.inf, -1, np.inf  # best overall (returned) and of this run (for stalls)
+    best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
+    run_ref = np.empty(G)  # each goal's error (in tolerances) at this run's last progress
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     scale, fresh, any_locked = 1.0, True, False
@@ -560,8 +588,13 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             merit = _merit(cost)
             if not fresh:
                 mu = max(mu / 3.0, 1e-9)
-            since_best = 0 if fresh or merit < run_best * (1 - 1e-9) else since_best + 1
-            run_best = merit if fresh else min(run_best, merit)
+            if fresh:
+                since_best = 0
+                _scaled_errors(err, tol, rot_tol, run_ref)
+            elif _progressed(err, counted, tol, rot_tol, run_ref, 1.0 - st.progress):
+                since_best = 0
+            else:
+                since_best += 1
             fresh, attempts, scale = False, 0, 1.0
             met = _levels_met(err, counted, ga.row, level_rows, tol, rot_tol)
             if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit

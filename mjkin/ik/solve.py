@@ -25,6 +25,11 @@ AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mj
 # (3000 targets, mid-range start, 1e-5) 0.1 / 1.0 cut mean iterations against 0.01 / 0.5 on every real arm
 # (Panda 26.5 -> 21.4, UR5e 27.5 -> 19.0, iiwa14 10.8 -> 8.8, Gen3 11.1 -> 8.9, xArm7 15.4 -> 14.8), success 100 %
 LM_MU, LM_MAX_STEP = 0.1, 1.0
+# lm's stall test: a run in which no unmet goal's error has fallen by LM_PROGRESS (10 %) within LM_PATIENCE
+# iterations restarts. A converging run falls fast; one creeping along a joint limit was kept alive by any gain
+# of the merit at all (patience 6, 1e-9). Same protocol: mean iterations Panda 20.1 -> 13.4, UR5e 21.0 -> 15.3,
+# xArm7 14.4 -> 10.9, batched solves/s x1.4-1.5, success 100 %; from `home` at 1e-4 likewise.
+LM_PATIENCE, LM_PROGRESS = 4, 0.1
 TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
@@ -252,7 +257,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
         patience: iterations without progress before a run counts as stalled; default
-            6 for ``lm``/``auto`` (then it restarts), 10 for the others.
+            4 for ``lm``/``auto`` (progress there: an unmet goal's error fell by 10 %;
+            then it restarts), 10 for the others (any fall counts).
         base: only joints between this body and the goal frames move.
         joints: only these joints move.
         root: a body that stays where it is (e.g. a planted foot): a top-priority
@@ -313,7 +319,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .analytic import solve_analytic2
 
         return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
-    patience = (6 if name == "lm" else 10) if patience is None else int(patience)
+    patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else int(patience)
     iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
     if iters < 0:
         raise InputError(f"max_iters must be >= 0, got {max_iters}")
@@ -342,7 +348,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         st = kernel.settings(tol, rot_tol, ((1e-5 if name == "lm" else 0.05) * extent) if damping is None else damping,
                              LM_MU if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
                              (LM_MAX_STEP if name == "lm" else np.inf) if max_step is None else max_step, halving,
-                             patience, np.inf if goal_step is None else goal_step, timeout)
+                             patience, np.inf if goal_step is None else goal_step, timeout,
+                             LM_PROGRESS if name == "lm" else 1e-9)
         result = run_kernel(tree, prog, q, _CODES[name], st, iters, starts, restart_q, active, history, method)
     if avoid_collisions:
         retries = _random_starts(tree, seed, max(8, n_restarts))
