@@ -249,6 +249,8 @@ def test_env_bench_measures_reacher_beside_reach():
     (rows,) = report.tables.values()
     envs = [r["env"] for r in rows]
     assert envs[0] == "Reacher-v5 (gymnasium)" and "mjkin/Reach-v0" in envs
+    vector = [(r["action"], r["envs"]) for r in rows if "make_vec" in r["env"]]
+    assert vector == [("joint", 2), ("cartesian", 2)]
     reacher = rows[0]["steps_per_s"]
     for r in rows:
         assert r["ratio"] == pytest.approx(r["steps_per_s"] / reacher)
