@@ -8,11 +8,13 @@ returns a :class:`Report` whose rows the CLI prints and, with ``--json``, writes
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,19 +51,40 @@ class Report:
         return {"rows": rows, "settings": self.settings, **self.extra}
 
 
+GC_NOTE = "Python's garbage collector off inside timed loops, as timeit does (a full collection can take 30 ms)"
+
+
+@contextmanager
+def gc_paused() -> Iterator[None]:
+    """Python's garbage collector off for a timed loop, as ``timeit`` does (collected first, restored after).
+
+    With numba and MuJoCo loaded a full collection takes tens of milliseconds; one landing in a
+    timed call would be charged to whichever solver happened to allocate at that moment.
+    """
+    was = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 3) -> float:
     """Best of ``repeat`` runs of the mean time per call over at least ``min_time`` seconds."""
     fn()  # warm caches
     best = np.inf
-    for _ in range(repeat):
-        n, start = 0, time.perf_counter()
-        while True:
-            fn()
-            n += 1
-            elapsed = time.perf_counter() - start
-            if elapsed >= min_time:
-                break
-        best = min(best, elapsed / n)
+    with gc_paused():
+        for _ in range(repeat):
+            n, start = 0, time.perf_counter()
+            while True:
+                fn()
+                n += 1
+                elapsed = time.perf_counter() - start
+                if elapsed >= min_time:
+                    break
+            best = min(best, elapsed / n)
     return float(best)
 
 
@@ -187,7 +210,8 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
                    "(ratio > 1: mjkin faster)": batched,
                    "one site pose for one q: tree.pose(q, site) vs mj_kinematics + reading site_xpos/site_xmat "
                    "into a 4x4 (ratio > 1: mjkin faster)": single},
-                  {"sizes": list(sizes), "seed": seed, "timing": f"best of 3 runs of >= {min_time} s each"})
+                  {"sizes": list(sizes), "seed": seed, "timing": f"best of 3 runs of >= {min_time} s each",
+                   "gc": GC_NOTE})
 
 
 # -------------------------------------------------------------------------------------------- seeds
@@ -307,12 +331,13 @@ def env_steps_per_s(env: object, steps: int, seed: int) -> float:
     for a in actions[:3]:
         env.step(a)  # type: ignore[attr-defined]
     env.reset(seed=seed)  # type: ignore[attr-defined]
-    start = time.perf_counter()
-    for a in actions:
-        _, _, term, trunc, _ = env.step(a)  # type: ignore[attr-defined]
-        if not vector and (term or trunc):
-            env.reset()  # type: ignore[attr-defined]
-    elapsed = time.perf_counter() - start
+    with gc_paused():
+        start = time.perf_counter()
+        for a in actions:
+            _, _, term, trunc, _ = env.step(a)  # type: ignore[attr-defined]
+            if not vector and (term or trunc):
+                env.reset()  # type: ignore[attr-defined]
+        elapsed = time.perf_counter() - start
     env.close()  # type: ignore[attr-defined]
     return steps * (env.num_envs if vector else 1) / elapsed  # type: ignore[attr-defined]
 
@@ -350,7 +375,8 @@ def bench_env(steps: int = 2000, num_envs: int = 256, seed: int = 0) -> Report:
     vec_note = f"{max(1, steps // 10)} vector steps of {num_envs} envs, total env steps/s"
     return Report({f"environment steps per second, {steps} random steps, no rendering (ratio vs one Reacher-v5 "
                    "in this process)": rows},
-                  {"steps": steps, "num_envs": num_envs, "seed": seed, "Reacher-v5": note, "vector": vec_note})
+                  {"steps": steps, "num_envs": num_envs, "seed": seed, "Reacher-v5": note, "vector": vec_note,
+                   "gc": GC_NOTE})
 
 
 # ---------------------------------------------------------------------------------------------- CLI

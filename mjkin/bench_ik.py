@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import goals as G
-from .bench import Report, Row, shared_models_dir
+from .bench import GC_NOTE, Report, Row, gc_paused, shared_models_dir
 from .errors import InputError
 from .ik import solve
 from .progress import track
@@ -151,11 +151,12 @@ def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float
     N = len(targets)
     q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
     iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")
-    for k in range(N):
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
-        seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
-        q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
+    with gc_paused():
+        for k in range(N):
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
+            seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
+            q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
     return Run(q, seconds, iters, used, N / seconds.sum(), cpu, status)
 
 
@@ -165,10 +166,11 @@ def mjkin_batched(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: floa
     tree, frame, kind = arm.tree, arm.frame, arm.kind
     solve(tree, G.Pose(frame, T=targets[:2], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
     best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
-        best = min(best, time.perf_counter() - start)
+    with gc_paused():
+        for _ in range(repeat):
+            start = time.perf_counter()
+            res = solve(tree, G.Pose(frame, T=targets, kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
+            best = min(best, time.perf_counter() - start)
     return Run(res.q, None, res.iterations.astype(float), res.restarts.astype(float), len(targets) / best,
                status=np.asarray(res.status))
 
@@ -190,28 +192,29 @@ def mujoco_dls(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, 
     lam2 = damping ** 2 * np.eye(6)
     N = len(targets)
     out, seconds, cpu, iters = np.empty((N, model.nq)), np.empty(N), np.empty(N), np.zeros(N)
-    for n, T in enumerate(targets):
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        mujoco.mju_mat2Quat(goal, T[:3, :3].ravel())
-        q = q0.copy()
-        for it in range(max_iters + 1):
-            data.qpos[:] = q
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_comPos(model, data)
-            err[:3] = T[:3, 3] - (data.site_xpos[i] if site else data.xpos[i])
-            mujoco.mju_mat2Quat(cur, data.site_xmat[i] if site else data.xmat[i])
-            mujoco.mju_negQuat(neg, cur)
-            mujoco.mju_mulQuat(diff, goal, neg)
-            mujoco.mju_quat2Vel(err[3:], diff, 1.0)
-            if it == max_iters or (np.linalg.norm(err[:3]) <= tol and np.linalg.norm(err[3:]) <= rot_tol):
-                break
-            (mujoco.mj_jacSite if site else mujoco.mj_jacBody)(model, data, jacp, jacr, i)
-            J = np.vstack([jacp, jacr])
-            dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
-            mujoco.mj_integratePos(model, q, dq, 1.0)
-            q[qa] = np.clip(q[qa], lo, hi)
-        seconds[n], cpu[n] = time.perf_counter() - start, time.thread_time() - start_cpu
-        out[n], iters[n] = q, it
+    with gc_paused():
+        for n, T in enumerate(targets):
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            mujoco.mju_mat2Quat(goal, T[:3, :3].ravel())
+            q = q0.copy()
+            for it in range(max_iters + 1):
+                data.qpos[:] = q
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_comPos(model, data)
+                err[:3] = T[:3, 3] - (data.site_xpos[i] if site else data.xpos[i])
+                mujoco.mju_mat2Quat(cur, data.site_xmat[i] if site else data.xmat[i])
+                mujoco.mju_negQuat(neg, cur)
+                mujoco.mju_mulQuat(diff, goal, neg)
+                mujoco.mju_quat2Vel(err[3:], diff, 1.0)
+                if it == max_iters or (np.linalg.norm(err[:3]) <= tol and np.linalg.norm(err[3:]) <= rot_tol):
+                    break
+                (mujoco.mj_jacSite if site else mujoco.mj_jacBody)(model, data, jacp, jacr, i)
+                J = np.vstack([jacp, jacr])
+                dq = J.T @ np.linalg.solve(J @ J.T + lam2, err)
+                mujoco.mj_integratePos(model, q, dq, 1.0)
+                q[qa] = np.clip(q[qa], lo, hi)
+            seconds[n], cpu[n] = time.perf_counter() - start, time.thread_time() - start_cpu
+            out[n], iters[n] = q, it
     return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
 
 
@@ -228,22 +231,23 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
     limits = [mink.ConfigurationLimit(config.model)]
     N = len(targets)
     out, seconds, cpu, iters = np.empty((N, arm.tree.nq)), np.empty(N), np.empty(N), np.zeros(N)
-    for n in range(-1, N):  # n = -1: one untimed solve first (imports, first QP)
-        T = targets[max(n, 0)]
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        config.update(q0)
-        task.set_target(mink.SE3.from_matrix(T))
-        it = 0
-        while it < max_iters:
-            vel = mink.solve_ik(config, [task], 1.0, "daqp", damping=1e-3, limits=limits)
-            config.integrate_inplace(vel, 1.0)
-            it += 1
-            e = task.compute_error(config)
-            if np.linalg.norm(e[:3]) <= tol and np.linalg.norm(e[3:]) <= rot_tol:
-                break
-        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
-        if n >= 0:
-            seconds[n], cpu[n], out[n], iters[n] = elapsed, elapsed_cpu, config.q, it
+    with gc_paused():
+        for n in range(-1, N):  # n = -1: one untimed solve first (imports, first QP)
+            T = targets[max(n, 0)]
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            config.update(q0)
+            task.set_target(mink.SE3.from_matrix(T))
+            it = 0
+            while it < max_iters:
+                vel = mink.solve_ik(config, [task], 1.0, "daqp", damping=1e-3, limits=limits)
+                config.integrate_inplace(vel, 1.0)
+                it += 1
+                e = task.compute_error(config)
+                if np.linalg.norm(e[:3]) <= tol and np.linalg.norm(e[3:]) <= rot_tol:
+                    break
+            elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+            if n >= 0:
+                seconds[n], cpu[n], out[n], iters[n] = elapsed, elapsed_cpu, config.q, it
     return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
 
 
@@ -310,7 +314,7 @@ def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: floa
                 "single-start budget": f"{iters} iterations, no restart (mjkin-single-start, mujoco-dls, mink)",
                 "mink": "installed" if use_mink else "not installed (pip install 'mjkin[bench]')",
                 "times": "wall clock per target, one call each; cpu_mean_ms: the calling thread's CPU time "
-                         "(the solve's own work, without waits for a shared machine's cores)"}
+                         "(the solve's own work, without waits for a shared machine's cores)", "gc": GC_NOTE}
     title = (f"{targets} random reachable 6-D poses per model from the home keyframe; success at {tol:g} m / "
              f"{rot_tol:g} rad re-checked by mj_kinematics; times per target, one call each")
     return Report({title: rows}, settings)
@@ -340,7 +344,7 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
     published = [p for p in TRAC_IK_PUBLISHED if p["model"] in {r["model"] for r in rows}]
     settings = {"protocol": "trac-ik", "targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol,
                 "time_limit_s": time_limit, "seed": seed, "start": "mid-range of every limited joint",
-                "time limit": "mjkin.solve(timeout=...)",
+                "time limit": "mjkin.solve(timeout=...)", "gc": GC_NOTE,
                 "success": "% within both tolerances (norms), re-checked by mujoco.mj_kinematics",
                 "mean_ms": "over all queries including failures; batched: wall time / targets",
                 "cpu_mean_ms": "the calling thread's CPU time per single call (no waits for a shared machine)",

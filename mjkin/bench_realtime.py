@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import goals as G
-from .bench import Report, Row
+from .bench import GC_NOTE, Report, Row, gc_paused
 from .build import Link, links_mjcf
 from .errors import InputError
 from .ik import solve
@@ -92,12 +92,13 @@ def follow(case: Case, path: Array, warm: bool) -> tuple[Array, Array, Array, Ar
     wall, cpu, ok, restarts = np.empty(len(path)), np.empty(len(path)), np.empty(len(path), dtype=bool), np.empty(
         len(path))
     q = case.home
-    for k, goals in enumerate(targets):
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        res = solve(case.tree, goals, q0=q if warm else case.home, tol=1e-4, rot_tol=1e-3)
-        wall[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
-        ok[k], restarts[k] = _met(case, res.q, goals), res.restarts
-        q = res.q
+    with gc_paused():
+        for k, goals in enumerate(targets):
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            res = solve(case.tree, goals, q0=q if warm else case.home, tol=1e-4, rot_tol=1e-3)
+            wall[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
+            ok[k], restarts[k] = _met(case, res.q, goals), res.restarts
+            q = res.q
     return wall, cpu, ok, restarts
 
 
@@ -127,7 +128,7 @@ def bench_realtime(dofs: Sequence[int] = (2, 4, 8, 16, 32, 64, 128), frames: int
                 "every frame": "warm chains on target in every frame whose slowest frame fits the budget, by wall "
                                "clock and by the thread's CPU time (without a shared machine's waits); largest_dof: "
                                "the largest such chain; all_up_to: the largest N with every measured chain <= N such",
-                "restarted_frames": "frames whose solve needed random restarts (the slow ones)"}
+                "restarted_frames": "frames whose solve needed random restarts (the slow ones)", "gc": GC_NOTE}
     return Report({f"6-D IK per frame along a smooth {frames}-frame path: warm = from the previous frame's "
                    "answer, cold = from home; success re-checked by FK": rows,
                    "largest chain solved every frame (warm)": largest}, settings)

@@ -279,3 +279,22 @@ def test_every_bench_option_has_help():
     for name, command in sub.choices.items():
         for action in command._actions:
             assert action.help, f"mjkin bench {name} {'/'.join(action.option_strings)} has no help"
+
+
+def test_timed_loops_pause_the_garbage_collector_and_restore_it():
+    import gc
+
+    assert gc.isenabled()
+    with bench.gc_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), bench.gc_paused():
+        raise RuntimeError("a failing benchmark")
+    assert gc.isenabled()  # restored on the way out of an error too
+    gc.disable()
+    try:
+        with bench.gc_paused():
+            pass
+        assert not gc.isenabled()  # a caller's own choice is kept
+    finally:
+        gc.enable()
