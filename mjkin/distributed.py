@@ -44,7 +44,6 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeAlias
 
@@ -172,25 +171,6 @@ def _dispatch(actors: list[Any], jobs: Sequence[Callable[[Any], Any]], sizes: Se
                 pass
 
 
-def _batched_fields(goal: G.Goal) -> list[str]:
-    """The fields of a batched goal that :meth:`~mjkin.goals.Goal.take` slices."""
-    probe = goal.take(0, 0)
-    return [f for f in goal._batched if getattr(probe, f) is not getattr(goal, f)]
-
-
-def _join_goals(parts: Sequence[tuple[G.Goal, ...]]) -> tuple[G.Goal, ...]:
-    """The goals of consecutive chunks put back together (the inverse of ``take``)."""
-    joined = []
-    for pieces in zip(*parts, strict=True):
-        first = pieces[0]
-        if first.batch() == ():
-            joined.append(first)
-        else:
-            joined.append(replace(first, **{f: np.concatenate([np.asarray(getattr(p, f)) for p in pieces])
-                                            for f in _batched_fields(first)}))
-    return tuple(joined)
-
-
 def concatenate(parts: Sequence[Result], tree: Tree | None = None) -> Result:
     """One :class:`~mjkin.Result` from the results of consecutive chunks of one batched solve."""
     if not parts:
@@ -206,8 +186,9 @@ def concatenate(parts: Sequence[Result], tree: Tree | None = None) -> Result:
     if first.history is not None:
         hs = [p.history for p in parts if p.history is not None]
         history = History(np.concatenate([h.q for h in hs]), np.concatenate([h.error for h in hs]))
+    goals = tuple(G.concatenate(pieces) for pieces in zip(*[p.goals for p in parts], strict=True))
     return Result(q=cat("q"), success=cat("success"), error=cat("error"), iterations=cat("iterations"),
-                  status=cat("status"), goal_errors=cat("goal_errors"), goals=_join_goals([p.goals for p in parts]),
+                  status=cat("status"), goal_errors=cat("goal_errors"), goals=goals,
                   method=first.method, restarts=cat("restarts"), history=history, tree=tree)
 
 

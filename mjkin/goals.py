@@ -132,13 +132,18 @@ class Goal:
         """
         if self.batch() == ():
             return self
-        changes: dict[str, Any] = {}
+        changes: dict[str, Any] = {name: np.asarray(getattr(self, name))[lo:hi] for name in self._batch_fields()}
+        return replace(self, **changes)
+
+    def _batch_fields(self) -> list[str]:
+        """The fields whose value carries the leading batch axis."""
+        out = []
         for name in self._batched:
             value = np.asarray(getattr(self, name))
             core = 2 if name == "T" or (name == "quat" and value.shape[-1:] != (4,)) else 1
             if value.ndim > core:
-                changes[name] = value[lo:hi]
-        return replace(self, **changes)
+                out.append(name)
+        return out
 
 
 @dataclass(frozen=True)
@@ -408,6 +413,26 @@ class Program:
     def B(self) -> int:
         """Number of targets (1 when unbatched)."""
         return int(self.data.shape[0])
+
+
+def concatenate(pieces: Sequence[Goal]) -> Goal:
+    """One goal from pieces of one batched goal, in order: the inverse of :meth:`Goal.take`.
+
+    Raises:
+        GoalError: no pieces, pieces of different goals, or batched and unbatched pieces mixed.
+    """
+    if not pieces:
+        raise GoalError("concatenate needs at least one piece")
+    first = pieces[0]
+    fields = first._batch_fields() if first.batch() != () else []
+    for p in pieces[1:]:
+        if type(p) is not type(first) or (p.batch() != ()) != bool(fields) or p._batch_fields() != fields:
+            raise GoalError(f"concatenate takes pieces of one goal; got a {type(p).__name__} batched as "
+                            f"{p.batch()} after a {type(first).__name__} batched as {first.batch()}")
+    if not fields:
+        return first
+    joined: dict[str, Any] = {f: np.concatenate([np.asarray(getattr(p, f)) for p in pieces]) for f in fields}
+    return replace(first, **joined)
 
 
 def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:

@@ -6,6 +6,8 @@ import pickle
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mjkin
 from conftest import GYM_ASSETS, tree_of
@@ -200,6 +202,34 @@ def test_goal_take_slices_targets(rng):
     part = mjkin.solve(tree, [g.take(3, 7) for g in goals])
     np.testing.assert_array_equal(part.q, full.q[3:7])
     assert goals[2].take(3, 7) is goals[2]  # unbatched: as it is
+
+
+@settings(max_examples=30, deadline=None)
+@given(cuts=st.lists(st.integers(0, 9), max_size=4))
+def test_goal_concatenate_undoes_take(cuts):
+    rng = np.random.default_rng(len(cuts))
+    T = np.tile(np.eye(4), (9, 1, 1))
+    T[:, :3, 3] = rng.normal(size=(9, 3))
+    goals = [G.Pose("ee", T=T), G.Position("ee", rng.normal(size=(9, 3)), offset=(0.0, 0.0, 0.1)),
+             G.Orientation("ee", quat=np.tile([1.0, 0.0, 0.0, 0.0], (9, 1)), weight=0.5),
+             G.Aim("ee", point=rng.normal(size=(9, 3))), G.Rest(np.zeros(7), priority=1)]
+    edges = [0, *sorted(cuts), 9]
+    for g in goals:
+        back = G.concatenate([g.take(lo, hi) for lo, hi in zip(edges[:-1], edges[1:], strict=True)])
+        assert type(back) is type(g) and back.batch() == g.batch()
+        for name in g._batched:
+            np.testing.assert_array_equal(np.asarray(getattr(back, name)), np.asarray(getattr(g, name)))
+        assert (back.weight, back.priority) == (g.weight, g.priority)
+
+
+def test_goal_concatenate_rejects_pieces_of_different_goals():
+    a = G.Position("ee", np.zeros((2, 3)))
+    with pytest.raises(mjkin.GoalError, match="at least one"):
+        G.concatenate([])
+    with pytest.raises(mjkin.GoalError, match="pieces of one goal"):
+        G.concatenate([a, G.Pose("ee", T=np.tile(np.eye(4), (2, 1, 1)))])
+    with pytest.raises(mjkin.GoalError, match="pieces of one goal"):
+        G.concatenate([a, G.Position("ee", np.zeros(3))])
 
 
 # ---------------------------------------------------------------- threads
