@@ -56,6 +56,13 @@ def _array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
     return a
 
 
+def _broadcast(shapes: Sequence[tuple[int, ...]]) -> tuple[int, ...]:
+    """``np.broadcast_shapes`` without its cost (a few µs) when every shape is the same (the usual case)."""
+    if all(s == shapes[0] for s in shapes[1:]):
+        return tuple(shapes[0]) if shapes else ()
+    return tuple(np.broadcast_shapes(*shapes))
+
+
 @njit
 def _rotation_defect(R: Array) -> tuple[float, float]:
     """Largest ``|RRᵀ - I|`` entry and smallest determinant over ``R (n, 3, 3)``."""
@@ -186,7 +193,7 @@ class FrameGoal(Goal):
         """Leading batch shape shared by the targets."""
         shapes = [t.shape[: t.ndim - core] for t, core in zip(self._targets(), self._cores, strict=False)]
         try:
-            return tuple(np.broadcast_shapes(*shapes)) if shapes else ()
+            return _broadcast(shapes)
         except ValueError:
             raise GoalError(f"{type(self).__name__}: targets have different batch sizes {shapes}") from None
 
@@ -463,7 +470,7 @@ def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     order, prog = structure
     goals = tuple(goals[i] for i in order)
     try:
-        batch = tuple(np.broadcast_shapes(*(g.batch() for g in goals)))
+        batch = _broadcast([g.batch() for g in goals])
     except ValueError:
         raise GoalError(f"goal targets have different batch sizes: {[g.batch() for g in goals]}") from None
     if len(batch) > 1:

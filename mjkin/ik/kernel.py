@@ -680,6 +680,24 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
 
 
 @njit
+def summarise(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, worst: Array,
+              success: NDArray[np.bool_]) -> None:
+    """Worst counted ``[position, rotation]`` error ``worst (B, 2)`` and ``success (B,)`` from ``err (B, G, 2)``.
+
+    A NaN error stays NaN (and is no success); with no counted goal the worst is 0.
+    """
+    for b in range(err.shape[0]):
+        for c in range(2):
+            w = 0.0
+            for i in range(err.shape[1]):
+                e = err[b, i, c]
+                if counted[i] and (e > w or e != e) and w == w:
+                    w = e
+            worst[b, c] = w
+        success[b] = worst[b, 0] <= tol and worst[b, 1] <= rot_tol
+
+
+@njit
 def _evaluate_batch(kin: Kinematics, ga: GoalArrays, q: Array, g: Array, J: Array, err: Array) -> None:
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     ws = goal_scratch(J.shape[2])

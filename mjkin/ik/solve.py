@@ -425,9 +425,8 @@ def run_kernel(tree: Tree, prog: G.Program, q: Array, code: int, st: kernel.Sett
 def package(prog: G.Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
             rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
     """Build a :class:`Result` from flat per-target arrays."""
-    counted = err[:, prog.counted] if prog.counted.any() else np.zeros((len(q), 1, 2))
-    worst = counted.max(axis=1)
-    success = (worst[:, 0] <= tol) & (worst[:, 1] <= rot_tol)
+    worst, success = np.empty((len(q), 2)), np.empty(len(q), dtype=bool)
+    kernel.summarise(err, prog.counted, float(tol), float(rot_tol), worst, success)
     names = _STATUS[status]
     b = prog.batch
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
