@@ -51,7 +51,7 @@ class Report:
         return {"rows": rows, "settings": self.settings, **self.extra}
 
 
-GC_NOTE = "Python's garbage collector off inside timed loops, as timeit does (a full collection can take 30 ms)"
+GC_NOTE = "Python's garbage collector off inside timed loops, as timeit does"
 
 
 @contextmanager

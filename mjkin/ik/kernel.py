@@ -23,7 +23,8 @@ compiled code releases the GIL). Each iteration (seed 000/002):
 
 A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
 stalled (no progress — an unmet counted goal's error falling by the fraction
-``progress`` — for ``patience`` iterations: ``unreachable``, or
+``progress``, or at all in the last run, which has no restart to go to — for
+``patience`` iterations: ``unreachable``, or
 ``limits`` when a joint limit blocks the way), or at ``max_iters``. A stalled
 solve restarts from the given random configurations, if any; the best
 configuration seen is returned.
@@ -591,7 +592,8 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             if fresh:
                 since_best = 0
                 _scaled_errors(err, tol, rot_tol, run_ref)
-            elif _progressed(err, counted, tol, rot_tol, run_ref, 1.0 - st.progress):
+            elif _progressed(err, counted, tol, rot_tol, run_ref,  # the last run goes on while any error falls
+                             1.0 - (st.progress if used < restarts.shape[0] else 1e-9)):
                 since_best = 0
             else:
                 since_best += 1
