@@ -166,13 +166,13 @@ def test_every_panel_method_follows_a_small_drag(method):
     tree, view = arm(), arm_view()
     state = core.with_method(core.initial_state(tree), method)
     target = state.targets["ee"][:3] + [0.03, -0.02, 0.02]
+    if method == "reach":  # the thesis's recursive reach: planar and ball-joint chains; this 3-D hinge arm is refused
+        with pytest.raises(mjkin.GoalError, match="planar chains"):
+            core.apply(tree, view, state, core.Place("ee", tuple(target)))
+        return
     out = core.apply(tree, view, state, core.Place("ee", tuple(target)))
     assert in_limits(tree, out.q)
-    if method == "reach":  # the thesis's recursive reach is greedy: on a hinge-only 3-D arm it gets close, no more
-        assert out.error[0] < 0.5 * np.linalg.norm([0.03, -0.02, 0.02]) and (out.status == "converged") == (
-            out.error[0] < 1e-3), (method, out.status, out.error)
-    else:
-        assert out.error[0] < 1e-3, (method, out.status)
+    assert out.error[0] < 1e-3, (method, out.status)
 
 
 @settings(deadline=None)

@@ -105,5 +105,10 @@ def test_reach_refuses_what_it_cannot_do():
     tree = tree_of("planar_3link")
     with pytest.raises(mjkin.GoalError, match="one Position goal"):
         mjkin.solve(tree, [G.Position("tip", [1, 0, 0]), G.Position("link1_tip", [0, 1, 0])], method="reach")
+    with pytest.raises(mjkin.GoalError, match=r"planar chains .* hinges \['j1', 'j2'"):
+        mjkin.solve(tree_of("arm7"), G.Position("ee", [0.3, 0.1, 0.4]), method="reach")
+    with pytest.raises(mjkin.GoalError, match=r"hinges \['left_elbow'\]"):  # a ball shoulder, a hinge elbow
+        mjkin.solve(tree_of("primate"), G.Position("left_hand", [0.3, 0.2, 1.0], kind="body"), method="reach",
+                    base="upper_torso")
     with pytest.raises(mjkin.GoalError, match="slide joints"):
         mjkin.solve(tree_of("planar_prismatic"), G.Position("tip", [0.5, 0.5, 0]), method="reach")

@@ -238,7 +238,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
             ``"transpose"``, ``"ccd"``, ``"analytic2"`` (two-link planar),
             ``"optimize"`` (SciPy, box and coupling constraints), or ``"reach"``
-            (recursive reach; status ``"root_would_move"`` when the goal is out of the chain's ring).
+            (recursive reach, for planar chains and chains of ball joints; status
+            ``"root_would_move"`` when the goal is out of the chain's ring).
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
         max_iters: iteration (CCD: sweep) limit of each run (the start and every
