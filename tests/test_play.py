@@ -495,7 +495,7 @@ def test_info_lists_what_the_panel_offers(api):
     assert info["sites"] == ["ee"] and "link7" in info["bodies"] and (info["width"], info["height"]) == (W, H)
     assert [j["name"] for j in info["joints"]] == [f"j{k}" for k in range(1, 8)]
     status, page = api.get("/")
-    assert status == 200 and b"/stream.mjpg" in page and b"/drag" in page
+    assert status == 200 and b"/stream.mjpg" in page and b"/drag" in page and b"/view" in page
 
 
 def test_bad_json_unknown_route_and_bad_method(api):
@@ -755,3 +755,65 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
     assert frame_after != frame_before
     assert shot_after != shot_before  # the page's own view changed
 
+
+def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_target(served):
+    reason = browser.missing()
+    if reason:
+        print(f"browser test skipped: {reason}")
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    server, _ = served
+    client = Client(server.server_address[1], "watcher")
+    time.sleep(0.6)  # the other tests' lease has run out
+    client.post("/reset")
+    client.post("/view", {"reset": True})
+    time.sleep(0.6)
+    _, before = client.get("/state")
+    settled = "!inFlight && !pending && !orbitBy && !zoomBy"  # the page has sent every move it had
+    with sync_playwright() as p:
+        chromium = browser.launch(p)
+        try:
+            page = browser.open_page(chromium, server.url)
+            help_line = page.locator("#help").inner_text()
+            assert "Right-drag (or Alt + drag) turns the view" in help_line and "Ctrl + wheel" in help_line
+            shot_before = page.locator("#view").screenshot()
+            box = page.locator("#view").bounding_box()
+            browser.turn_view(page, 120, -40)
+            page.wait_for_function(settled)
+            _, turned = client.get("/state")
+            page.wait_for_timeout(500)  # the stream shows the turned view
+            shot_turned = page.locator("#view").screenshot()
+            browser.drag_target(page, "ee", 50, 30)
+            page.wait_for_function(settled)
+            _, after = client.get("/state")
+            page.keyboard.down("Alt")  # trackpads: Alt + drag turns the view too
+            browser.mouse_drag(page, box["x"] + 20, box["y"] + 20, -60, 0)
+            page.keyboard.up("Alt")
+            page.keyboard.down("Control")  # Ctrl + wheel (a pinch) zooms; the plain wheel moves a target in depth
+            page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+            page.mouse.wheel(0, 100)
+            page.keyboard.up("Control")
+            page.wait_for_function(settled)
+            _, alt = client.get("/state")
+            page.click("#resetview")
+            page.wait_for_function(settled)
+        finally:
+            chromium.close()
+    # a drag across the view's height is 180 degrees, the scene following the mouse (MuJoCo's viewer)
+    cam, home = turned["camera"], before["camera"]
+    assert angle_gap(cam["azimuth"], home["azimuth"]) == pytest.approx(-120 / box["height"] * 180, abs=1e-6)
+    assert cam["elevation"] == pytest.approx(home["elevation"] + 40 / box["height"] * 180, abs=1e-6)
+    assert turned["targets"] == before["targets"]  # the right button turned the view, it did not grab the target
+    assert shot_turned != shot_before
+    # the later left-drag: the target went where the mouse went, in the turned view
+    assert after["camera"] == cam and after["success"]
+    expected = np.array(turned["screen"]["ee"]) + [50 / box["width"], 30 / box["height"]]
+    np.testing.assert_allclose(after["screen"]["ee"], expected, atol=2 / box["height"])
+    assert off_ray(view_of(cam), np.array(after["targets"]["ee"][:3]), after["screen"]["ee"]) < 1e-9
+    np.testing.assert_allclose(arm().pose(np.array(after["q"]), "ee")[:3, 3], after["targets"]["ee"][:3],
+                               atol=IK_TOL)
+    assert angle_gap(alt["camera"]["azimuth"], cam["azimuth"]) == pytest.approx(60 / box["height"] * 180, abs=1e-6)
+    assert alt["camera"]["distance"] == pytest.approx(cam["distance"] * np.exp(100 * 0.0025), rel=1e-9)
+    assert alt["targets"] == after["targets"]  # neither grabbed the target
+    assert client.get("/state")[1]["camera"] == home  # the "Reset view" button
