@@ -561,6 +561,8 @@ def test_view_route_orbits_zooms_and_resets_what_is_streamed(api, served):
         assert not np.allclose(turned["screen"]["ee"], state["screen"]["ee"], atol=0.01)  # seen from elsewhere
         orbited = stream.next()
         assert np.abs(orbited - first).mean() > 2.0
+        assert api.post("/reset")[1]["camera"] == cam  # "reset pose" keeps the view
+        assert np.abs(stream.next() - orbited).mean() < 0.5  # the pose was home already: the same picture
         status, zoomed = api.post("/view", {"zoom": 0.6})
         assert status == 200 and zoomed["camera"]["distance"] == pytest.approx(0.6 * home["distance"])
         closer = stream.next()
