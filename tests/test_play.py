@@ -41,6 +41,29 @@ def arm_view() -> core.View:
     return core.View.of(view_camera(tree, core.initial_state(tree).q), tree.model, W, H)
 
 
+@cache
+def arm_home() -> core.Camera:
+    tree = arm()
+    return core.Camera.of(view_camera(tree, core.initial_state(tree).q))
+
+
+def view_of(camera: core.Camera | dict) -> core.View:
+    """The arm's view in a W x H image of a camera, or of the ``"camera"`` of a JSON state."""
+    if isinstance(camera, dict):
+        camera = core.Camera(tuple(camera["lookat"]), camera["distance"], camera["azimuth"], camera["elevation"])
+    return core.View.of(camera, arm().model, W, H)
+
+
+def angle_gap(a: float, b: float) -> float:
+    """``a - b`` in degrees, wrapped to [-180, 180)."""
+    return (a - b + 180.0) % 360.0 - 180.0
+
+
+def off_ray(view: core.View, point: np.ndarray, uv) -> float:
+    """How far (m) ``point`` is from the ray through image point ``uv``."""
+    return float(np.linalg.norm(np.cross(np.asarray(point) - view.pos, view.ray(uv))))
+
+
 def in_limits(tree: mjkin.Tree, q: np.ndarray) -> bool:
     return bool(np.allclose(tree.clip(q), q, atol=1e-12) and np.isfinite(q).all())
 
@@ -72,11 +95,15 @@ def test_push_moves_along_the_line_of_sight(amount):
     assert np.linalg.norm(moved - view.pos) == pytest.approx(np.linalg.norm(target - view.pos) + amount, abs=1e-12)
 
 
-def test_view_matches_what_mujoco_draws():
-    """A marker drawn by the renderer appears where View.project says (within 2 px)."""
+@pytest.mark.parametrize("moves", [(), (core.Orbit(-70.0, 25.0), core.Zoom(0.8))], ids=["home", "orbited"])
+def test_view_matches_what_mujoco_draws(moves):
+    """A marker drawn by the renderer appears where View.project says (within 2 px), also after an orbit."""
     tree = arm()
     q = core.initial_state(tree).q
-    cam = view_camera(tree, q)
+    camera = arm_home()
+    for move in moves:
+        camera = core.look(arm_home(), camera, move)
+    cam = camera.mjv(tree.model)
     view = core.View.of(cam, tree.model, W, H)
     overlay = render.Overlay(point_size=0.03, point_rgba=(0.0, 1.0, 0.0, 1.0))
     with render.Painter(tree, W, H) as painter:
@@ -87,6 +114,119 @@ def test_view_matches_what_mujoco_draws():
             rows, cols = np.nonzero(green)
             seen = np.array([cols.mean() + 0.5, rows.mean() + 0.5]) / [W, H]
             np.testing.assert_allclose(seen * [W, H], view.project(point) * [W, H], atol=2.0)
+
+
+def test_camera_round_trips_through_mujoco_and_gives_the_same_view():
+    tree = arm()
+    cam = view_camera(tree, core.initial_state(tree).q)
+    home = core.Camera.of(cam)
+    assert core.Camera.of(home.mjv(tree.model)) == home
+    a, b = core.View.of(cam, tree.model, W, H), core.View.of(home, tree.model, W, H)
+    for x, y in ((a.pos, b.pos), (a.forward, b.forward), (a.up, b.up)):
+        np.testing.assert_allclose(x, y, atol=1e-12)
+    assert -core.ELEVATION_LIMIT < home.elevation < core.ELEVATION_LIMIT
+    cam.elevation = -90.0  # a planar chain is framed from straight above: its home stops at the orbit's limit
+    assert core.Camera.of(cam).elevation == -core.ELEVATION_LIMIT
+
+
+def test_orbit_turns_about_the_look_at_point_and_stops_short_of_the_poles():
+    home = arm_home()
+    cam = core.look(home, home, core.Orbit(30.0, 10.0))
+    assert angle_gap(cam.azimuth, home.azimuth) == pytest.approx(30.0)
+    assert cam.elevation == pytest.approx(home.elevation + 10.0)
+    assert cam.lookat == home.lookat and cam.distance == home.distance
+    before, after = view_of(home), view_of(cam)
+    assert np.linalg.norm(after.pos - home.lookat) == pytest.approx(home.distance)
+    np.testing.assert_allclose(after.project(home.lookat), [0.5, 0.5], atol=1e-12)  # still the image's middle
+    cos = (before.pos - home.lookat) @ (after.pos - home.lookat) / home.distance**2
+    assert 10.0 < np.degrees(np.arccos(cos)) < 40.0  # the camera moved on its sphere
+    assert core.look(home, home, core.Orbit(0.0, 500.0)).elevation == core.ELEVATION_LIMIT
+    assert core.look(home, home, core.Orbit(0.0, -500.0)).elevation == -core.ELEVATION_LIMIT
+    around = core.look(home, home, core.Orbit(730.0, 0.0))
+    assert angle_gap(around.azimuth, home.azimuth) == pytest.approx(10.0) and -180 <= around.azimuth <= 180
+
+
+def test_zoom_moves_the_camera_along_its_line_of_sight_within_range():
+    home = arm_home()
+    lo, hi = core.distance_range(home)
+    assert lo < home.distance < hi
+    near = core.look(home, home, core.Zoom(0.6))
+    assert near.distance == pytest.approx(0.6 * home.distance)
+    assert (near.lookat, near.azimuth, near.elevation) == (home.lookat, home.azimuth, home.elevation)
+    before, after = view_of(home), view_of(near)
+    np.testing.assert_allclose(after.forward, before.forward, atol=1e-12)
+    np.testing.assert_allclose(after.pos, before.pos + 0.4 * home.distance * before.forward, atol=1e-12)
+    assert core.look(home, near, core.Zoom(1e-9)).distance == pytest.approx(lo)
+    assert core.look(home, near, core.Zoom(1e9)).distance == pytest.approx(hi)
+
+
+def test_at_the_nearest_zoom_what_the_arm_reaches_stays_in_front_of_the_camera():
+    tree, home = arm(), arm_home()
+    points = np.array([tree.pose(q, "ee")[:3, 3] for q in tree.random_q(np.random.default_rng(0), 500)])
+    nearest = core.distance_range(home)[0]
+    for azimuth in range(-180, 180, 30):
+        for elevation in (-89, -60, -30, 0, 30, 60, 89):
+            view = view_of(core.Camera(home.lookat, nearest, azimuth, elevation))
+            assert ((points - view.pos) @ view.forward).min() > 0.02 * home.distance, (azimuth, elevation)
+
+
+view_events = st.one_of(
+    st.builds(core.Orbit, st.floats(allow_nan=False, allow_infinity=False),
+              st.floats(allow_nan=False, allow_infinity=False)),
+    st.builds(core.Orbit, st.floats(-200, 200), st.floats(-200, 200)),
+    st.builds(core.Zoom, st.floats(min_value=0.0, exclude_min=True, allow_infinity=False)),
+    st.builds(core.Zoom, st.floats(0.2, 5.0)),
+    st.just(core.ResetView()),
+)
+
+
+@settings(deadline=None)
+@given(events=st.lists(view_events, max_size=25))
+def test_any_orbits_and_zooms_keep_a_valid_camera_and_reset_goes_home(events):
+    home = arm_home()
+    lo, hi = core.distance_range(home)
+    cam = home
+    for event in events:
+        cam = core.look(home, cam, event)
+        assert cam.lookat == home.lookat
+        assert np.isfinite([cam.distance, cam.azimuth, cam.elevation]).all()
+        assert -core.ELEVATION_LIMIT <= cam.elevation <= core.ELEVATION_LIMIT
+        assert -180.0 <= cam.azimuth <= 180.0 and lo * (1 - 1e-12) <= cam.distance <= hi * (1 + 1e-12)
+        view = view_of(cam)
+        frame = np.stack([view.forward, view.up, view.right])
+        np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(view.project(home.lookat), [0.5, 0.5], atol=1e-9)
+    assert core.look(home, cam, core.ResetView()) == home
+
+
+@settings(max_examples=50, deadline=None)
+@given(d_az=st.floats(-180, 180), d_el=st.floats(-120, 120), factor=st.floats(0.6, 2.5),
+       du=st.floats(-0.1, 0.1), dv=st.floats(-0.1, 0.1))
+def test_a_drag_after_an_orbit_lands_on_the_ray_under_the_pointer(d_az, d_el, factor, du, dv):
+    tree, home = arm(), arm_home()
+    cam = core.look(home, core.look(home, home, core.Orbit(d_az, d_el)), core.Zoom(factor))
+    view = view_of(cam)
+    state = core.initial_state(tree)
+    target = state.targets["ee"][:3]
+    uv = view.project(target) + [du, dv]
+    moved = core.move(tree, view, state, core.Drag("ee", (float(uv[0]), float(uv[1])))).targets["ee"][:3]
+    assert off_ray(view, moved, uv) < 1e-9
+    assert (moved - view.pos) @ view.ray(uv) > 0  # in front of the camera
+    assert abs((moved - target) @ view.forward) < 1e-9  # on the plane facing the new camera
+    np.testing.assert_allclose(view.project(moved), uv, atol=1e-9)
+
+
+@pytest.mark.parametrize(("event", "needle"), [
+    (core.Orbit(float("nan"), 0.0), "finite angles"),
+    (core.Orbit(0.0, float("inf")), "finite angles"),
+    (core.Zoom(0.0), "factor > 0"),
+    (core.Zoom(-2.0), "factor > 0"),
+    (core.Zoom(float("nan")), "factor > 0"),
+    (core.Zoom(float("inf")), "factor > 0"),
+])
+def test_bad_view_events_are_input_errors(event, needle):
+    with pytest.raises(InputError, match=needle):
+        core.look(arm_home(), arm_home(), event)
 
 
 # -------------------------------------------------------------- state and IK (pure)
@@ -294,6 +434,7 @@ def api(served):
     deadline = time.monotonic() + 10
     while client.post("/reset")[0] == 409 and time.monotonic() < deadline:
         time.sleep(0.1)  # another test's client holds control until its lease (0.5 s here) runs out
+    client.post("/view", {"reset": True})
     client.post("/frames", {"frames": ["ee"]})
     client.post("/method", {"method": "auto"})
     client.post("/goal", {"goal": "position"})
@@ -354,7 +495,7 @@ def test_info_lists_what_the_panel_offers(api):
     assert info["sites"] == ["ee"] and "link7" in info["bodies"] and (info["width"], info["height"]) == (W, H)
     assert [j["name"] for j in info["joints"]] == [f"j{k}" for k in range(1, 8)]
     status, page = api.get("/")
-    assert status == 200 and b"/stream.mjpg" in page and b"/drag" in page
+    assert status == 200 and b"/stream.mjpg" in page and b"/drag" in page and b"/view" in page
 
 
 def test_bad_json_unknown_route_and_bad_method(api):
@@ -375,6 +516,98 @@ def test_frame_jpg_shows_the_current_state(api):
     _, after = api.get("/frame.jpg")
     diff = np.abs(imageio.imread(after).astype(int) - imageio.imread(before).astype(int))
     assert diff.mean() > 0.5  # the arm moved in the picture
+
+
+class Stream:
+    """A reader of ``/stream.mjpg``: :meth:`next` is the next JPEG the server streams."""
+
+    def __init__(self, port: int) -> None:
+        self.conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+        self.conn.request("GET", "/stream.mjpg")
+        self.resp = self.conn.getresponse()
+        self.data = b""
+        while len(self.data) < len(PART) - 2:
+            self.data += self.resp.read1(1 << 16)
+        assert self.data.startswith(PART[2:])
+        self.data = self.data[len(PART) - 2:]
+
+    def next(self) -> np.ndarray:
+        while PART not in self.data:
+            self.data += self.resp.read1(1 << 16)
+        jpeg, self.data = self.data.split(PART, 1)
+        return imageio.imread(jpeg).astype(int)
+
+    def close(self) -> None:
+        self.resp.close()
+        self.conn.close()
+
+
+def test_view_route_orbits_zooms_and_resets_what_is_streamed(api, served):
+    server, _ = served
+    _, state = api.get("/state")
+    home = state["camera"]
+    assert api.get("/frame.jpg")[0] == 200  # the current state is drawn: the stream starts with it
+    stream = Stream(server.server_address[1])
+    try:
+        first = stream.next()
+        status, turned = api.post("/view", {"orbit": [50, -20]})
+        assert status == 200
+        cam = turned["camera"]
+        assert angle_gap(cam["azimuth"], home["azimuth"]) == pytest.approx(50.0)
+        assert cam["elevation"] == pytest.approx(home["elevation"] - 20.0)
+        assert cam["lookat"] == home["lookat"] and cam["distance"] == home["distance"]
+        assert turned["q"] == state["q"] and turned["targets"] == state["targets"]  # the figure stays put
+        np.testing.assert_allclose(turned["screen"]["ee"], view_of(cam).project(state["targets"]["ee"][:3]))
+        assert not np.allclose(turned["screen"]["ee"], state["screen"]["ee"], atol=0.01)  # seen from elsewhere
+        orbited = stream.next()
+        assert np.abs(orbited - first).mean() > 2.0
+        assert api.post("/reset")[1]["camera"] == cam  # "reset pose" keeps the view
+        assert np.abs(stream.next() - orbited).mean() < 0.5  # the pose was home already: the same picture
+        status, zoomed = api.post("/view", {"zoom": 0.6})
+        assert status == 200 and zoomed["camera"]["distance"] == pytest.approx(0.6 * home["distance"])
+        closer = stream.next()
+        assert np.abs(closer - orbited).mean() > 2.0
+        status, back = api.post("/view", {"reset": True})
+        assert status == 200 and back["camera"] == home
+        np.testing.assert_allclose(back["screen"]["ee"], state["screen"]["ee"], atol=1e-12)
+        again = stream.next()
+        assert np.abs(again - first).mean() < 0.5  # the first frame again, within JPEG noise
+    finally:
+        stream.close()
+
+
+def test_a_drag_after_an_orbit_moves_the_effector_under_the_pointer_in_the_new_view(api):
+    status, turned = api.post("/view", {"orbit": [-70, 25]})
+    assert status == 200
+    view = view_of(turned["camera"])
+    u, v = turned["screen"]["ee"]
+    uv = [u + 0.04, v + 0.03]
+    status, moved = api.post("/drag", {"frame": "ee", "uv": uv})
+    assert status == 200 and moved["success"]
+    target = np.array(moved["targets"]["ee"][:3])
+    assert off_ray(view, target, uv) < 1e-9
+    assert off_ray(arm_view(), target, uv) > 0.01  # the initial view's ray is elsewhere: the drag used the new one
+    np.testing.assert_allclose(moved["screen"]["ee"], uv, atol=1e-9)
+    np.testing.assert_allclose(arm().pose(np.array(moved["q"]), "ee")[:3, 3], target, atol=IK_TOL)
+
+
+@pytest.mark.parametrize(("body", "needle"), [
+    ({}, "exactly one of \"orbit\": [d_azimuth, d_elevation] (degrees)"),
+    ({"orbit": [10, 0], "zoom": 2}, "got keys [\"orbit\", \"zoom\"]"),
+    ({"orbit": [10]}, "orbit must be a list of 2 numbers"),
+    ({"orbit": [10, "up"]}, "orbit must be a number"),
+    ({"zoom": 0}, "factor > 0"),
+    ({"zoom": -1.5}, "factor > 0"),
+    ({"zoom": "in"}, "zoom must be a number"),
+    ({"reset": "yes"}, "\"reset\" must be true"),
+    (b'{"orbit": [NaN, 0]}', "finite angles"),
+])
+def test_bad_view_change_is_a_400_with_one_line_and_changes_nothing(api, body, needle):
+    _, before = api.get("/state")
+    status, doc = api.post("/view", raw=body) if isinstance(body, bytes) else api.post("/view", body)
+    assert status == 400 and set(doc) == {"error"} and "\n" not in doc["error"]
+    assert needle in doc["error"]
+    assert api.get("/state")[1]["camera"] == before["camera"]
 
 
 def test_stream_sends_frames_and_a_client_leaving_mid_stream_costs_nothing(api, served):
@@ -497,6 +730,7 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
     client = Client(server.server_address[1], "watcher")
     time.sleep(0.6)  # the other tests' lease has run out
     client.post("/reset")
+    client.post("/view", {"reset": True})
     time.sleep(0.6)
     _, before = client.get("/state")
     _, frame_before = client.get("/frame.jpg")
@@ -522,3 +756,66 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
     _, frame_after = client.get("/frame.jpg")
     assert frame_after != frame_before
     assert shot_after != shot_before  # the page's own view changed
+
+
+def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_target(served):
+    reason = browser.missing()
+    if reason:
+        print(f"browser test skipped: {reason}")
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    server, _ = served
+    client = Client(server.server_address[1], "watcher")
+    time.sleep(0.6)  # the other tests' lease has run out
+    client.post("/reset")
+    client.post("/view", {"reset": True})
+    time.sleep(0.6)
+    _, before = client.get("/state")
+    settled = "!inFlight && !pending && !orbitBy && !zoomBy"  # the page has sent every move it had
+    with sync_playwright() as p:
+        chromium = browser.launch(p)
+        try:
+            page = browser.open_page(chromium, server.url)
+            help_line = page.locator("#help").inner_text()
+            assert "Right-drag (or Alt + drag) turns the view" in help_line and "Ctrl + wheel" in help_line
+            shot_before = page.locator("#view").screenshot()
+            box = page.locator("#view").bounding_box()
+            browser.turn_view(page, 120, -40)
+            page.wait_for_function(settled)
+            _, turned = client.get("/state")
+            page.wait_for_timeout(500)  # the stream shows the turned view
+            shot_turned = page.locator("#view").screenshot()
+            browser.drag_target(page, "ee", 50, 30)
+            page.wait_for_function(settled)
+            _, after = client.get("/state")
+            page.keyboard.down("Alt")  # trackpads: Alt + drag turns the view too
+            browser.mouse_drag(page, box["x"] + 20, box["y"] + 20, -60, 0)
+            page.keyboard.up("Alt")
+            page.keyboard.down("Control")  # Ctrl + wheel (a pinch) zooms; the plain wheel moves a target in depth
+            page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+            page.mouse.wheel(0, 100)
+            page.keyboard.up("Control")
+            page.wait_for_function(settled)
+            _, alt = client.get("/state")
+            page.click("#resetview")
+            page.wait_for_function(settled)
+        finally:
+            chromium.close()
+    # a drag across the view's height is 180 degrees, the scene following the mouse (MuJoCo's viewer)
+    cam, home = turned["camera"], before["camera"]
+    assert angle_gap(cam["azimuth"], home["azimuth"]) == pytest.approx(-120 / box["height"] * 180, abs=1e-6)
+    assert cam["elevation"] == pytest.approx(home["elevation"] + 40 / box["height"] * 180, abs=1e-6)
+    assert turned["targets"] == before["targets"]  # the right button turned the view, it did not grab the target
+    assert shot_turned != shot_before
+    # the later left-drag: the target went where the mouse went, in the turned view
+    assert after["camera"] == cam and after["success"]
+    expected = np.array(turned["screen"]["ee"]) + [50 / box["width"], 30 / box["height"]]
+    np.testing.assert_allclose(after["screen"]["ee"], expected, atol=2 / box["height"])
+    assert off_ray(view_of(cam), np.array(after["targets"]["ee"][:3]), after["screen"]["ee"]) < 1e-9
+    np.testing.assert_allclose(arm().pose(np.array(after["q"]), "ee")[:3, 3], after["targets"]["ee"][:3],
+                               atol=IK_TOL)
+    assert angle_gap(alt["camera"]["azimuth"], cam["azimuth"]) == pytest.approx(60 / box["height"] * 180, abs=1e-6)
+    assert alt["camera"]["distance"] == pytest.approx(cam["distance"] * np.exp(100 * 0.0025), rel=1e-9)
+    assert alt["targets"] == after["targets"]  # neither grabbed the target
+    assert client.get("/state")[1]["camera"] == home  # the "Reset view" button

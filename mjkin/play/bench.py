@@ -105,11 +105,12 @@ def measure_model(model: str, width: int, height: int, seconds: float, drags: in
         conn.close()
         # baseline: the renderer alone with JPEG encoding, same size and camera
         qs = tree.random_q(np.random.default_rng(0), 30)
+        camera = pg.camera.mjv(tree.model)
         with live_painter(tree, width, height) as painter:
-            painter.draw(qs[0], pg.camera)
+            painter.draw(qs[0], camera)
             t0 = time.perf_counter()
             for q in qs:
-                encode_jpeg(painter.draw(q, pg.camera))
+                encode_jpeg(painter.draw(q, camera))
             bare = len(qs) / (time.perf_counter() - t0)
     finally:
         stop_server(server, thread)

@@ -54,18 +54,28 @@ def open_page(browser: Any, url: str) -> Any:
     return page
 
 
+def mouse_drag(page: Any, x: float, y: float, dx: float, dy: float, button: str = "left", steps: int = 8) -> None:
+    """Press ``button`` at page pixel ``(x, y)`` and drag by ``(dx, dy)`` pixels in ``steps`` moves."""
+    page.mouse.move(x, y)
+    page.mouse.down(button=button)
+    for k in range(1, steps + 1):
+        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
+        time.sleep(0.05)
+    page.mouse.up(button=button)
+
+
 def drag_target(page: Any, frame: str, dx: float, dy: float, steps: int = 8) -> None:
     """Press on ``frame``'s marker in the view and drag it by ``(dx, dy)`` pixels."""
     state = page.evaluate("fetch('/state').then(r => r.json())")
     box = page.locator("#view").bounding_box()
     u, v = state["screen"][frame]
-    x, y = box["x"] + u * box["width"], box["y"] + v * box["height"]
-    page.mouse.move(x, y)
-    page.mouse.down()
-    for k in range(1, steps + 1):
-        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
-        time.sleep(0.05)
-    page.mouse.up()
+    mouse_drag(page, box["x"] + u * box["width"], box["y"] + v * box["height"], dx, dy, steps=steps)
+
+
+def turn_view(page: Any, dx: float, dy: float, steps: int = 8) -> None:
+    """Right-drag from the middle of the view by ``(dx, dy)`` pixels: the camera orbits."""
+    box = page.locator("#view").bounding_box()
+    mouse_drag(page, box["x"] + box["width"] / 2, box["y"] + box["height"] / 2, dx, dy, "right", steps)
 
 
 def screenshot(path: str | Path, model: str = "arm7") -> Path:

@@ -1,9 +1,11 @@
-"""The playground's core as pure functions: camera rays, a drag on the view plane, the warm-started solve.
+"""The playground's core as pure functions: the orbit camera, rays, a drag on the view plane, the warm-started solve.
 
 ``(state, event) → targets → IK → q``: :func:`move` turns a drag, a push in depth
 or a placed target into new targets; :func:`solve_state` runs the chosen IK method
 from the current pose (warm start, no random restarts, so the figure follows
-continuously and stays inside its joint limits). Nothing here touches a socket,
+continuously and stays inside its joint limits). ``(camera, view event) → camera``:
+:func:`look` orbits, zooms or resets the camera; the :class:`View` that drags use is
+built from the camera of the moment. Nothing here touches a socket,
 a thread or a GL context, so all of it is tested without a browser.
 """
 
@@ -32,6 +34,45 @@ AIM_AXIS = (0.0, 0.0, 1.0)  # the effector axis that aim goals point at the targ
 
 
 # ---------------------------------------------------------------------- camera
+ELEVATION_LIMIT = 89.0  # degrees: the orbit stops short of the poles, where "up" and the azimuth lose their meaning
+# zoom keeps the distance within these multiples of the initial framing's: nearer, the camera would enter the space
+# the figure reaches and a target could fall behind it (tested on arm7: from any side, at the nearest, every point
+# the effector reaches stays in front of the camera)
+DISTANCE_RANGE = (0.5, 4.0)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A free camera on a sphere about ``lookat`` (world, m): ``distance`` (m), ``azimuth`` and ``elevation`` (deg).
+
+    MuJoCo's free-camera convention (:class:`mujoco.MjvCamera`): the azimuth turns
+    about world z from +x, a negative elevation looks down.
+    """
+
+    lookat: tuple[float, float, float]
+    distance: float
+    azimuth: float
+    elevation: float
+
+    @classmethod
+    def of(cls, cam: mujoco.MjvCamera) -> Camera:
+        """The orbit camera of a MuJoCo free camera, its elevation clamped to ±:data:`ELEVATION_LIMIT`.
+
+        (A planar chain is framed from straight above, at -90°.)
+        """
+        x, y, z = (float(v) for v in cam.lookat)
+        elevation = float(np.clip(cam.elevation, -ELEVATION_LIMIT, ELEVATION_LIMIT))
+        return cls((x, y, z), float(cam.distance), float(cam.azimuth), elevation)
+
+    def mjv(self, model: mujoco.MjModel) -> mujoco.MjvCamera:
+        """This camera as a MuJoCo free camera, for the renderer."""
+        cam = mujoco.MjvCamera()
+        mujoco.mjv_defaultFreeCamera(model, cam)
+        cam.lookat[:] = self.lookat
+        cam.distance, cam.azimuth, cam.elevation = self.distance, self.azimuth, self.elevation
+        return cam
+
+
 @dataclass(frozen=True)
 class View:
     """A pinhole camera: ``pos (3,)``, unit ``forward`` and ``up`` (world), vertical ``fovy`` (degrees), ``aspect``.
@@ -47,8 +88,8 @@ class View:
     aspect: float
 
     @classmethod
-    def of(cls, cam: mujoco.MjvCamera, model: mujoco.MjModel, width: int, height: int) -> View:
-        """The view of a MuJoCo free camera (``lookat``, ``distance``, ``azimuth``, ``elevation``) in an image."""
+    def of(cls, cam: mujoco.MjvCamera | Camera, model: mujoco.MjModel, width: int, height: int) -> View:
+        """The view of a free camera (``lookat``, ``distance``, ``azimuth``, ``elevation``) in an image."""
         az, el = np.radians(cam.azimuth), np.radians(cam.elevation)
         forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         up = np.array([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
@@ -159,6 +200,55 @@ class Place:
 
 
 Event = Drag | Push | Turn | Place
+
+
+@dataclass(frozen=True)
+class Orbit:
+    """Turn the camera about its look-at point: ``azimuth`` and ``elevation`` changes in degrees."""
+
+    azimuth: float
+    elevation: float
+
+
+@dataclass(frozen=True)
+class Zoom:
+    """Scale the camera's distance to its look-at point by ``factor`` (below 1: closer)."""
+
+    factor: float
+
+
+@dataclass(frozen=True)
+class ResetView:
+    """Back to the initial camera."""
+
+
+ViewEvent = Orbit | Zoom | ResetView
+
+
+def distance_range(home: Camera) -> tuple[float, float]:
+    """The distances (m) zoom keeps to: :data:`DISTANCE_RANGE` times ``home``'s."""
+    return DISTANCE_RANGE[0] * home.distance, DISTANCE_RANGE[1] * home.distance
+
+
+def look(home: Camera, camera: Camera, event: ViewEvent) -> Camera:
+    """The camera after an orbit, a zoom or a view reset; the look-at point stays put.
+
+    The elevation is clamped to ±:data:`ELEVATION_LIMIT`, the azimuth kept in
+    [-180, 180], the distance in :func:`distance_range` of ``home`` (the initial camera).
+    """
+    if isinstance(event, Orbit):
+        turn = (event.azimuth, event.elevation)
+        if not np.isfinite(turn).all():
+            raise InputError(f"an orbit needs finite angles [d_azimuth, d_elevation] in degrees, got {list(turn)!r}")
+        azimuth = (camera.azimuth + float(event.azimuth) + 180.0) % 360.0 - 180.0
+        elevation = float(np.clip(camera.elevation + float(event.elevation), -ELEVATION_LIMIT, ELEVATION_LIMIT))
+        return replace(camera, azimuth=azimuth, elevation=elevation)
+    if isinstance(event, Zoom):
+        if not (np.isfinite(event.factor) and event.factor > 0):
+            raise InputError(f"a zoom needs a finite factor > 0 (below 1: closer), got {event.factor!r}")
+        lo, hi = distance_range(home)
+        return replace(camera, distance=float(np.clip(camera.distance * float(event.factor), lo, hi)))
+    return home
 
 
 def default_frames(tree: Tree) -> list[str]:

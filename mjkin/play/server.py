@@ -5,10 +5,13 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
-  ``manipulability``, ``step``, ``recording``, ``screen``: each target's image point ``[u, v]``).
+  ``manipulability``, ``step``, ``recording``, ``screen``: each target's image point ``[u, v]``, ``camera``:
+  ``{"lookat", "distance", "azimuth", "elevation"}``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
 - ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
   (along the line of sight) or ``{"frame", "turn": rad}`` (about it, for pose goals).
+- ``POST /view`` ``{"orbit": [d_azimuth, d_elevation]}`` (degrees, about the look-at point), ``{"zoom": factor}``
+  (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
 - ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
@@ -81,6 +84,22 @@ def _text(doc: dict, key: str) -> str:
     if not isinstance(value, str) or not value:
         raise InputError(f"the request needs \"{key}\": a name (string), got {json.dumps(value)}")
     return value
+
+
+def _view_event(doc: dict) -> core.ViewEvent:
+    """The camera move of a ``POST /view`` body: exactly one of ``orbit``, ``zoom``, ``reset``."""
+    given = [k for k in ("orbit", "zoom", "reset") if k in doc]
+    if len(given) != 1:
+        raise InputError("a view change needs exactly one of \"orbit\": [d_azimuth, d_elevation] (degrees), "
+                         f"\"zoom\": factor (below 1: closer) or \"reset\": true; got keys {json.dumps(sorted(doc))}")
+    if "orbit" in doc:
+        azimuth, elevation = _numbers(doc["orbit"], 2, "orbit")
+        return core.Orbit(azimuth, elevation)
+    if "zoom" in doc:
+        return core.Zoom(_number(doc["zoom"], "zoom"))
+    if doc["reset"] is not True:
+        raise InputError(f"\"reset\" must be true (back to the initial camera), got {json.dumps(doc['reset'])}")
+    return core.ResetView()
 
 
 class Handler(BaseHTTPRequestHandler):
@@ -176,6 +195,8 @@ class Handler(BaseHTTPRequestHandler):
                 else:
                     raise InputError("a drag needs \"uv\": [u, v] (image fractions), \"depth\": metres "
                                      "or \"turn\": radians")
+            elif path == "/view":
+                self._json(pg.apply(who, _view_event(doc)))
             elif path == "/method":
                 self._json(pg.set_method(who, _text(doc, "method")))
             elif path == "/goal":
@@ -199,7 +220,7 @@ class Handler(BaseHTTPRequestHandler):
             elif path == "/stop":
                 self._json(pg.stop(who))
             else:
-                self._error(404, f"no such action {path!r}; POST /target, /drag, /method, /goal, /frames, "
+                self._error(404, f"no such action {path!r}; POST /target, /drag, /view, /method, /goal, /frames, "
                                  "/joint, /step, /reset, /record or /stop")
         except Busy as e:
             self._error(409, str(e))

@@ -1,4 +1,4 @@
-"""The live playground: one state under a lock, a render thread making JPEG frames, recording, who controls.
+"""The live playground: one state and camera under a lock, a render thread making JPEG frames, recording, control.
 
 Control: the first client that changes something holds control for
 :attr:`Playground.lease` seconds after its last change; meanwhile changes from
@@ -6,7 +6,7 @@ other clients are refused (:class:`Busy`, HTTP 409) and they watch. A client is
 named by the page (a random id it sends with every request), else by its address.
 
 Threads: every GL call happens in the render thread (an EGL context belongs to the
-thread that made it current). It renders when the state changes, and at the frame
+thread that made it current). It renders when the state or the camera changes, and at the frame
 rate while step mode runs or a recording is on; it sleeps otherwise.
 """
 
@@ -86,8 +86,8 @@ class Playground:
         self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
         self.out_dir = Path(out_dir)
         home = core.initial_state(tree, frames)
-        self.camera = view_camera(tree, home.q)
-        self.view = core.View.of(self.camera, tree.model, width, height)
+        self.home = core.Camera.of(view_camera(tree, home.q))  # the initial camera, where "reset view" goes
+        self.camera = self.home  # the camera of the moment (orbit, zoom); guarded by the lock like the state
         self.state = core.solve_state(tree, home)  # also compiles the solver before the first client comes
         self._lock = threading.RLock()
         self._wake = threading.Event()
@@ -138,17 +138,31 @@ class Playground:
                        "watch, or try again then")
         self._controller, self._lease_until = client, now + self.lease
 
-    def _change(self, client: str, update: Callable[[core.State], core.State]) -> dict:
-        """Apply ``update`` to the state as ``client`` (under the lock); returns the new state as JSON."""
+    @property
+    def view(self) -> core.View:
+        """The view of the camera of the moment: rays and drags, the targets' image points."""
+        return core.View.of(self.camera, self.tree.model, self.width, self.height)
+
+    def _change(self, client: str, update: Callable[[core.State], core.State] | None = None,
+                look: core.ViewEvent | None = None) -> dict:
+        """Apply ``update`` to the state, ``look`` to the camera, as ``client`` (under the lock); the JSON state."""
         with self._lock:
             self._claim(client)
-            self.state = update(self.state)
+            if update is not None:
+                self.state = update(self.state)
+            if look is not None:
+                self.camera = core.look(self.home, self.camera, look)
             self._version += 1
         self._wake.set()
         return self.snapshot()
 
-    def apply(self, client: str, event: core.Event) -> dict:
-        """A drag, push or placement: targets move, IK follows (in step mode, frame by frame)."""
+    def apply(self, client: str, event: core.Event | core.ViewEvent) -> dict:
+        """A drag, push or placement: targets move, IK follows (in step mode, frame by frame); or the camera moves.
+
+        The drag is read in the view of the camera of the moment.
+        """
+        if isinstance(event, core.ViewEvent):
+            return self._change(client, look=event)
         return self._change(client, lambda s: core.apply(self.tree, self.view, s, event))
 
     def set_method(self, client: str, method: str) -> dict:
@@ -193,21 +207,21 @@ class Playground:
         return self.snapshot()
 
     def stop(self, client: str) -> dict:
-        """Stop recording; write the trajectory script (JSON) and an mp4 beside it, atomically.
+        """Stop recording; write the trajectory script (JSON) and an mp4 beside it (the camera of now), atomically.
 
         Returns ``{"path": script, "video": mp4, "frames": n}``.
         """
         with self._export:
             with self._lock:
                 self._claim(client)
-                samples, self._recording = self._recording, None
+                samples, self._recording, camera = self._recording, None, self.camera
             if samples is None:
                 raise InputError("not recording; POST /record first")
             if self.closed:
                 raise InputError("the playground is shutting down; the recording is not written")
-            return self._write(samples)
+            return self._write(samples, camera)
 
-    def _write(self, samples: list[tuple[float, np.ndarray, np.ndarray]]) -> dict:
+    def _write(self, samples: list[tuple[float, np.ndarray, np.ndarray]], camera: core.Camera) -> dict:
         if len(samples) < 2:
             samples = samples + [samples[-1]] if samples else [(0.0, self.state.q, self._points(self.state))] * 2
         times = np.array([s[0] for s in samples])
@@ -224,7 +238,8 @@ class Playground:
         video_fps = 30.0
         pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
         overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
-        images = render.frames(self.tree, qs[pick], self.width, self.height, camera=self.camera, overlay=overlay)
+        images = render.frames(self.tree, qs[pick], self.width, self.height, camera=camera.mjv(self.tree.model),
+                               overlay=overlay)
         video = render.write_video(images, base.with_suffix(".mp4"), video_fps)
         script = traj.save(base.with_suffix(".json"))
         return {"path": str(script), "video": str(video), "frames": len(samples)}
@@ -241,12 +256,13 @@ class Playground:
     def snapshot(self) -> dict:
         """The state as the JSON of ``GET /state``."""
         with self._lock:
-            s, version, recording = self.state, self._version, self._recording is not None
+            s, version, recording, camera = self.state, self._version, self._recording is not None, self.camera
             controller = self._controller if time.monotonic() < self._lease_until else None
+        view = core.View.of(camera, self.tree.model, self.width, self.height)
         points = self._points(s)
-        screen = self.view.project(points)
+        screen = view.project(points)
         rotations = spatial.quat_to_mat(np.array([np.asarray(t, float)[3:] for t in s.targets.values()]))
-        tips = self.view.project(points[:, None, :] + AXIS_LENGTH * np.swapaxes(rotations, -1, -2))  # (n, 3, 2)
+        tips = view.project(points[:, None, :] + AXIS_LENGTH * np.swapaxes(rotations, -1, -2))  # (n, 3, 2)
         return {"model": self.tree.name, "q": s.q.tolist(),
                 "targets": {f: np.asarray(t, float).tolist() for f, t in s.targets.items()},
                 "error": list(s.error), "iterations": s.iterations, "method": s.method, "goal": s.goal,
@@ -254,7 +270,9 @@ class Playground:
                 "singular_values": list(s.singular), "manipulability": s.manipulability, "step": s.step,
                 "recording": recording, "controlled": controller is not None, "version": version,
                 "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
-                "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)}}
+                "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)},
+                "camera": {"lookat": list(camera.lookat), "distance": camera.distance, "azimuth": camera.azimuth,
+                           "elevation": camera.elevation}}
 
     def info(self) -> dict:
         """What the page needs once: methods, goal kinds, frames, sliders, image size."""
@@ -307,7 +325,7 @@ class Playground:
                     if core.needs_step(self.state):
                         self.state = core.solve_state(self.tree, self.state, max_iters=1)
                         self._version += 1
-                    state, version = self.state, self._version
+                    state, version, camera = self.state, self._version, self.camera
                     if self._recording is not None:
                         self._recording.append((tick - self._record_start, state.q.copy(), self._points(state)))
                     busy = core.needs_step(state) or self._recording is not None
@@ -315,7 +333,8 @@ class Playground:
                     tip = self.tree.pose(state.q, next(iter(state.targets)))[:3, 3]
                     if not trail or np.linalg.norm(tip - trail[-1]) >= TRAIL_STEP:
                         trail.append(tip)
-                    image = painter.draw(state.q, self.camera, self._points(state), np.array(trail), MARKERS)
+                    image = painter.draw(state.q, camera.mjv(self.tree.model), self._points(state), np.array(trail),
+                                         MARKERS)
                     jpeg = encode_jpeg(image)
                     number += 1
                     with self._frame_ready:
