@@ -506,6 +506,9 @@ def test_bad_json_unknown_route_and_bad_method(api):
     assert api.post("/nowhere")[0] == 404 and api.get("/nowhere")[0] == 404
     status, doc = api.post("/method", {"method": "dls"})
     assert status == 200 and doc["method"] == "dls"
+    status, doc = api.post("/method", {"method": "reach"})  # the 3-D hinge arm: refused, and nothing changes
+    assert status == 400 and "planar chains" in doc["error"] and "\n" not in doc["error"]
+    assert api.get("/state")[1]["method"] == "dls"
 
 
 def test_frame_jpg_shows_the_current_state(api):
