@@ -236,7 +236,7 @@ def bench_seeds(out: Path | None = None) -> Report:
         row: Row = {"sweep": i}
         for n, err in runs.items():
             row[f"n={n} error"] = f"{err[i]:.2e}"
-            row[f"n={n} ratio"] = f"{err[i] / err[i - 1]:.2g}" if i else ""
+            row[f"n={n} ratio"] = f"{err[i] / err[i - 1]:.2g}" if i and err[i - 1] > 0 else ""  # none once exact
         two.append(row)
     three = []
     for xyz in ([0.9, 0.8, 0.0], [2.0, 0.0, 0.0], [0.1, 0.1, 0.0]):
