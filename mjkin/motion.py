@@ -8,7 +8,6 @@ result is recorded as a script of joint values per frame and replayed without IK
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from collections.abc import Sequence
@@ -24,19 +23,10 @@ from .errors import InputError, MjkinIOError
 from .files import write_text
 from .ik import solve
 from .progress import track
-from .tree import Tree
+from .tree import Tree, fingerprint
 
 Array = NDArray[np.float64]
 FORMAT = "mjkin-trajectory"
-
-
-def fingerprint(tree: Tree) -> str:
-    """A short hash of the kinematic structure (bodies, joints, limits, sites): same model, same print."""
-    h = hashlib.sha256()
-    for a in (tree.body_parent, tree.body_pos, tree.body_rot, tree.jnt_type, tree.jnt_body, tree.jnt_pos,
-              tree.jnt_axis, tree.jnt_range, tree.qpos0, tree.site_body, tree.site_pos):
-        h.update(np.ascontiguousarray(np.round(a, 12)).tobytes())
-    return h.hexdigest()[:16]
 
 
 # ------------------------------------------------------------------- keyframes

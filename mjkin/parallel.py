@@ -1,8 +1,9 @@
 """How many threads the compiled solvers use, and splitting a batch across them.
 
 The count is, in order: :func:`set_threads`, ``MJKIN_NUM_THREADS``,
-``OMP_NUM_THREADS`` (what schedulers such as Ray or Slurm set for a worker),
-else the cores this process may run on. A batch of targets is cut into chunks
+``OMP_NUM_THREADS`` (what schedulers such as Ray or Slurm set for a worker; its
+first level when it lists several, ignored when it is not a count), else the
+cores this process may run on. A batch of targets is cut into chunks
 that threads take as they go; the compiled code releases the GIL.
 """
 
@@ -51,16 +52,14 @@ def threads() -> int:
     """The number of solver threads this process uses (see the module docstring)."""
     if _threads is not None:
         return _threads
-    for var in ("MJKIN_NUM_THREADS", "OMP_NUM_THREADS"):
-        text = os.environ.get(var, "").strip()
-        if text:
-            try:
-                n = int(text)
-            except ValueError:
-                raise InputError(f"{var} must be a positive integer, got {text!r}") from None
-            if n < 1:
-                raise InputError(f"{var} must be a positive integer, got {text!r}")
-            return n
+    text = os.environ.get("MJKIN_NUM_THREADS", "").strip()
+    if text:  # mjkin's own setting: a mistake in it is an error
+        if not (text.isdigit() and int(text) >= 1):
+            raise InputError(f"MJKIN_NUM_THREADS must be a positive integer, got {text!r}")
+        return int(text)
+    first = os.environ.get("OMP_NUM_THREADS", "").split(",")[0].strip()  # OpenMP's: "4,2" nests levels
+    if first.isdigit() and int(first) >= 1:  # another library's variable: used when it says a count, else ignored
+        return int(first)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 

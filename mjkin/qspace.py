@@ -113,9 +113,9 @@ def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
-def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | None = None,
+def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | tuple[int, ...] | None = None,
            spread: bool = False) -> Array:
-    """Configurations inside the joint limits: ``(n, nq)``, or ``(nq,)`` when ``n`` is None.
+    """Configurations inside the joint limits: ``(n, nq)`` (``n + (nq,)`` for a shape), or ``(nq,)`` when ``n`` is None.
 
     Limited hinges and slides are uniform in their range; unlimited hinges
     uniform in ``qpos0 ± π``; unlimited slides and free positions within
@@ -125,7 +125,8 @@ def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | No
     IK restarts cover the joint space better.
     """
     g, lay = _rng(rng), tree.layout
-    shape = (1 if n is None else int(n),)
+    batch = () if n is None else _batch_shape(n)
+    shape = (int(np.prod(batch)),)
     q = np.broadcast_to(tree.qpos0, shape + (tree.nq,)).copy()
     lo, hi = lay.scalar_lo, lay.scalar_hi
     half = np.where(lay.scalar_hinge, np.pi, UNLIMITED_SLIDE)
@@ -149,7 +150,15 @@ def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | No
     if nf:
         q[:, lay.free_q[:, :3]] += g.uniform(-UNLIMITED_FREE, UNLIMITED_FREE, shape + (nf, 3))
         q[:, lay.free_q[:, 3:]] = random_quat(g, shape + (nf,))
-    return q[0] if n is None else q
+    return q[0] if n is None else q.reshape(batch + (tree.nq,))
+
+
+def _batch_shape(n: object) -> tuple[int, ...]:
+    """``n`` (a count or a shape) as a shape tuple; :class:`InputError` unless whole numbers >= 0."""
+    dims = n if isinstance(n, tuple) else (n,)
+    if not all(isinstance(d, (int, np.integer)) and not isinstance(d, bool) and d >= 0 for d in dims):
+        raise InputError(f"n must be a count >= 0 or a shape tuple of them, got {n!r}")
+    return tuple(int(d) for d in dims)
 
 
 @njit

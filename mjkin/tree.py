@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from functools import cached_property
@@ -177,8 +178,8 @@ class Tree:
         """``q`` as float64 ``(..., nq)``; raises :class:`InputError` for a wrong shape or NaN/inf."""
         return qspace.check(self, q, name)
 
-    def random_q(self, rng: np.random.Generator | int | None = None, n: int | None = None) -> Array:
-        """Random configurations inside the joint limits, ``(n, nq)`` (``(nq,)`` when ``n`` is None)."""
+    def random_q(self, rng: np.random.Generator | int | None = None, n: int | tuple[int, ...] | None = None) -> Array:
+        """Random configurations inside the joint limits: ``(n, nq)``, ``n + (nq,)`` for a shape, ``(nq,)`` for None."""
         return qspace.random(self, rng, n)
 
     def clip(self, q: ArrayLike) -> Array:
@@ -227,6 +228,15 @@ class Tree:
         frame_jacobian_one(kinematic_arrays(self), np.ascontiguousarray(q).reshape(1, -1), body,
                            local if offset is None else moved(local, check_offset(offset)), J)
         return J
+
+
+def fingerprint(tree: Tree) -> str:
+    """A short hash of the kinematic structure (bodies, joints, limits, sites): same model, same print."""
+    h = hashlib.sha256()
+    for a in (tree.body_parent, tree.body_pos, tree.body_rot, tree.jnt_type, tree.jnt_body, tree.jnt_pos,
+              tree.jnt_axis, tree.jnt_range, tree.qpos0, tree.site_body, tree.site_pos):
+        h.update(np.ascontiguousarray(np.round(a, 12)).tobytes())
+    return h.hexdigest()[:16]
 
 
 def bundled_models() -> dict[str, Path]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import pickle
 
 import numpy as np
@@ -75,15 +76,62 @@ def test_generous_timeout_changes_nothing(rng):
     np.testing.assert_array_equal(a.status, b.status)
 
 
+def test_timeout_works_with_the_compiled_methods_only_and_inf_is_no_limit():
+    tree = tree_of("planar_3link")
+    goal = G.Position("tip", (10.0, 5.0, 0.0))
+    with pytest.raises(mjkin.InputError, match="timeout= works with the methods"):
+        mjkin.solve(tree, goal, timeout=1.0, method="ccd")
+    a, b = mjkin.solve(tree, goal), mjkin.solve(tree, goal, timeout=float("inf"))
+    np.testing.assert_array_equal(a.q, b.q)
+    assert b.success
+
+
+# options: (name, what a good value must be) -> the checks solve makes
+POSITIVE = ("tol", "rot_tol", "damping", "alpha")
+POSITIVE_OR_INF = ("timeout", "max_step", "goal_step")
+COUNTS = ("max_iters", "restarts", "seed")  # whole numbers >= 0
+bad_number = st.one_of(st.floats(max_value=0.0), st.just(float("nan")), st.just("1e-3"), st.just(True),
+                       st.just(None).map(lambda _: [1.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(name=st.sampled_from(POSITIVE + POSITIVE_OR_INF + COUNTS + ("patience",)), value=bad_number)
+def test_every_numeric_option_refuses_bad_values_in_one_line(name, value):
+    if name in COUNTS and isinstance(value, float) and value == 0.0:
+        return  # zero is a fine count
+    tree = tree_of("planar_3link")
+    with pytest.raises(mjkin.InputError, match=name) as info:
+        mjkin.solve(tree, G.Position("tip", (10.0, 5.0, 0.0)), **{name: value})
+    assert "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("kwargs, text", [
-    ({"timeout": 0.0}, "timeout must be a positive"),
-    ({"timeout": float("nan")}, "timeout must be a positive"),
-    ({"timeout": 1.0, "method": "ccd"}, "timeout= works with the methods"),
+    ({"damping": float("nan")}, "damping must be a number > 0"),  # gave NaN q with status "converged"
+    ({"method": "dls", "damping": 0.0}, "damping must be a number > 0"),  # ZeroDivisionError
+    ({"damping": -1.0}, "damping must be a number > 0"),  # accepted, then 692 iterations to nowhere
+    ({"max_iters": 1.5}, "max_iters must be a whole number >= 0"),  # truncated silently
+    ({"tol": "1e-3"}, "tol must be a number > 0"),  # TypeError
+    ({"seed": -1}, "seed must be a whole number >= 0"),  # numpy's ValueError
+    ({"halving": -1}, "halving must be True or False"),
+    ({"patience": 0}, "patience must be a whole number > 0"),
 ])
-def test_bad_timeout(kwargs, text):
+def test_bad_options_found_by_a_new_user(kwargs, text):
     tree = tree_of("planar_3link")
     with pytest.raises(mjkin.InputError, match=text):
         mjkin.solve(tree, G.Position("tip", (10.0, 5.0, 0.0)), **kwargs)
+
+
+def test_goals_that_are_not_goals_are_a_goal_error():
+    with pytest.raises(mjkin.GoalError, match="goals must be a mjkin.goals goal or a list of them, got NoneType"):
+        mjkin.solve(tree_of("planar_3link"), None)
+
+
+def test_large_seeds_are_taken_exactly():
+    from mjkin.ik.solve import _whole
+
+    assert _whole(2**64 + 1, "seed") == 2**64 + 1  # not through a float, where it would be 2**64
+    assert _whole(np.uint64(2**63 + 7), "seed") == 2**63 + 7
+    assert _whole(3.0, "seed") == 3
 
 
 # ------------------------------------------------ restarts move only what helps
@@ -201,6 +249,10 @@ def test_result_pickles_without_its_tree(rng):
     with pytest.raises(mjkin.InputError, match="with_tree"):
         back.singular_values()
     np.testing.assert_allclose(back.with_tree(tree).singular_values(), res.singular_values())
+    np.testing.assert_allclose(back.with_tree(mjkin.load("arm7")).q, res.q)  # the same model, loaded again
+    for result in (back, res):  # after pickling and before
+        with pytest.raises(mjkin.InputError, match="solved on another model .* not on 'panda'"):
+            result.with_tree(tree_of("panda"))
 
 
 def test_goal_take_slices_targets(rng):
@@ -262,6 +314,17 @@ def test_thread_setting(monkeypatch):
         mjkin.threads()
     with pytest.raises(mjkin.InputError, match="positive integer"):
         mjkin.set_threads(0)
+
+
+@pytest.mark.parametrize("omp, expected", [("4,2", 4), (" 3 ", 3), ("0", None), ("auto", None), ("", None)])
+def test_omp_num_threads_is_another_librarys_and_never_an_error(monkeypatch, omp, expected):
+    from mjkin import parallel
+
+    monkeypatch.setattr(parallel, "_threads", None)
+    monkeypatch.delenv("MJKIN_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", omp)
+    default = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    assert mjkin.threads() == (default if expected is None else expected)  # "4,2": OpenMP's nested levels
 
 
 def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):

@@ -125,6 +125,17 @@ def test_random_q_respects_limits_and_is_seeded(name):
             assert np.all(angle <= t.jnt_range[j, 1] + 1e-12) if t.jnt_limited[j] else np.all(angle <= np.pi)
 
 
+def test_random_q_takes_a_shape_and_refuses_bad_counts():
+    t = tree_of("primate")
+    Q = t.random_q(3, (2, 5))
+    assert Q.shape == (2, 5, t.nq)
+    np.testing.assert_array_equal(Q.reshape(10, t.nq), t.random_q(3, 10))  # the same draws, shaped
+    assert t.random_q(3, 0).shape == (0, t.nq) and t.random_q(3).shape == (t.nq,)
+    for bad in (-1, 2.5, True, (2, -1), "3"):
+        with pytest.raises(mjkin.InputError, match="n must be a count >= 0"):
+            t.random_q(3, bad)
+
+
 @pytest.mark.parametrize("name", ["primate", "ball_chain", "arm7"])
 def test_integrate_and_difference_match_mujoco(name, rng):
     t = tree_of(name)

@@ -10,10 +10,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
 from .. import qspace
-from ..errors import InputError
+from ..errors import GoalError, InputError
 from ..parallel import parallel_chunks
 from ..qspace import FREE, NQ, NV, clip_kernel
-from ..tree import Tree
+from ..tree import Tree, fingerprint
 from . import kernel
 from .kernel import STATUS_NAMES
 
@@ -86,11 +86,23 @@ class Result:
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
-        """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it)."""
-        return {**self.__dict__, "tree": None}
+        """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it).
+
+        The tree's :func:`~mjkin.tree.fingerprint` travels instead, for :meth:`with_tree` to check.
+        """
+        made_on = fingerprint(self.tree) if self.tree is not None else self.__dict__.get("_fingerprint")
+        return {**self.__dict__, "tree": None, "_fingerprint": made_on}
 
     def with_tree(self, tree: Tree) -> Result:
-        """This result with its tree attached again (after unpickling)."""
+        """This result with its tree attached again (after unpickling).
+
+        Raises:
+            InputError: ``tree`` is not the model the result was solved on.
+        """
+        made_on = fingerprint(self.tree) if self.tree is not None else self.__dict__.get("_fingerprint")
+        if made_on is not None and fingerprint(tree) != made_on:
+            raise InputError(f"this result was solved on another model (fingerprint {made_on}), not on "
+                             f"{tree.name!r} ({fingerprint(tree)})")
         return replace(self, tree=tree)
 
     def singular_values(self) -> NDArray:
@@ -113,6 +125,28 @@ class Result:
     def rotation_error(self) -> Array:
         """Worst rotation error (rad), ``(...)``."""
         return self.error[..., 1]
+
+
+_REAL = (int, float, np.integer, np.floating)
+
+
+def _number(value: object, name: str, *, whole: bool = False, zero: bool = False, inf: bool = False) -> float:
+    """An option checked: a real number > 0 (>= 0 with ``zero``), finite unless ``inf``, integral if ``whole``.
+
+    Raises :class:`InputError` naming the option otherwise (NaN, strings and bools included).
+    """
+    if isinstance(value, _REAL) and not isinstance(value, (bool, np.bool_)):
+        x = float(value)
+        if (x > 0 or (zero and x == 0)) and (inf or x < np.inf) and (not whole or x == int(x)):
+            return x
+    what = ("a whole number" if whole else "a number") + (" >= 0" if zero else " > 0")
+    raise InputError(f"{name} must be {what}, got {value!r}")
+
+
+def _whole(value: object, name: str, zero: bool = True) -> int:
+    """:func:`_number` for counts and seeds, as an ``int`` (exact for large integers)."""
+    _number(value, name, whole=True, zero=zero)
+    return int(value) if isinstance(value, (int, np.integer)) else int(float(value))  # type: ignore[arg-type]
 
 
 def _shaped(batch: tuple[int, ...], a: Array) -> Array:
@@ -290,13 +324,21 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     """
     if method not in METHODS:
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
-    if not (np.isfinite(tol) and tol > 0 and np.isfinite(rot_tol) and rot_tol > 0):
-        raise InputError(f"tol and rot_tol must be positive numbers, got {tol!r}, {rot_tol!r}")
+    tol, rot_tol = _number(tol, "tol"), _number(rot_tol, "rot_tol")
     if timeout is not None:
         if method not in _TIMED:
             raise InputError(f"timeout= works with the methods {', '.join(_TIMED)}, not {method!r}")
-        if not (np.isfinite(timeout) and timeout > 0):
-            raise InputError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        timeout = _number(timeout, "timeout (seconds)", inf=True)
+        timeout = None if timeout == np.inf else timeout
+    for value, label, inf in ((damping, "damping", False), (alpha, "alpha", False), (max_step, "max_step", True),
+                              (goal_step, "goal_step", True)):
+        if value is not None:
+            _number(value, label, inf=inf)
+    if not isinstance(halving, (bool, np.bool_)):
+        raise InputError(f"halving must be True or False, got {halving!r}")
+    seed = None if seed is None else _whole(seed, "seed")
+    if not isinstance(goals, (G.Goal, list, tuple)):
+        raise GoalError(f"goals must be a mjkin.goals goal or a list of them, got {type(goals).__name__}")
     goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
     if method == "analytic2":
         given = {"max_iters": max_iters, "damping": damping, "alpha": alpha, "max_step": max_step,
@@ -322,16 +364,10 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .analytic import solve_analytic2
 
         return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
-    patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else int(patience)
-    iters = _MAX_ITERS.get(name, 100) if max_iters is None else int(max_iters)
-    if iters < 0:
-        raise InputError(f"max_iters must be >= 0, got {max_iters}")
+    patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else _whole(patience, "patience", zero=False)
+    iters = _MAX_ITERS.get(name, 100) if max_iters is None else _whole(max_iters, "max_iters")
     n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
-        if restarts is None else int(restarts)
-    if n_restarts < 0:
-        raise InputError(f"restarts must be >= 0, got {restarts}")
-    if goal_step is not None and not goal_step > 0:
-        raise InputError(f"goal_step must be a positive number, got {goal_step!r}")
+        if restarts is None else _whole(restarts, "restarts")
     active, restart_q = _masks(tree, prog, base, joints, root is not None)
     starts = _random_starts(tree, seed, n_restarts)
     if name == "optimize":
