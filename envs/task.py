@@ -454,8 +454,9 @@ def check_region(region: Any) -> tuple[Array, Array]:
 
 
 def _vector(value: ArrayLike, n: int, what: str) -> Array:
+    """``value`` as a finite ``(n,)`` array; else a one-line error naming ``what``."""
     try:
-        a = np.array(value, dtype=np.float64).reshape(-1)
+        a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise mjkin.InputError(f"{what} must be {n} numbers, got {shown(value)}") from None
     if a.shape != (n,) or not np.isfinite(a).all():
