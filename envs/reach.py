@@ -114,7 +114,7 @@ class ReachEnv(gym.Env):
 
     Every argument is checked when the env is made: a bad one raises a one-line :class:`mjkin.InputError`
     naming it (numbers finite, sizes and tolerances positive, ``target_region`` low < high on every axis,
-    the ``table`` no higher than the arm's lowest moving body at home and below the top of ``target_region``).
+    the ``table`` no higher than the arm's lowest moving body at home nor than the top of ``target_region``).
 
     ## Version history
     v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).

@@ -165,8 +165,8 @@ class ReachTask:
         low = int(np.argmin(z))
         if table > z[low]:
             name = self.tree.model.body(int(moving[low])).name
-            raise mjkin.InputError(f"table must be at most {z[low]:.6g}, the height of the arm's body {name!r} at home "
-                                   f"(the arm stands on it), got {table!r}")
+            raise mjkin.InputError(f"table must be at most {z[low]:.6g} (the height of the arm's lowest moving body "
+                                   f"{name!r} at home), got {table!r}")
         if self.target_region is not None and self.target_region[1][2] < table:
             raise mjkin.InputError(f"target_region must reach above the table: its high z is "
                                    f"{self.target_region[1][2]:g}, the table is at {table:g}")

@@ -484,7 +484,7 @@ def test_non_finite_table_is_refused_when_made(env_id, bad):
 
 
 def test_table_must_leave_the_arm_and_the_target_region_above_it():
-    with pytest.raises(mjkin.InputError, match=r"table must be at most 0\.1, .*'link1'.* got 0\.5"):
+    with pytest.raises(mjkin.InputError, match=r"^table must be at most 0\.1 \(.*body 'link1' .*\), got 0\.5$"):
         gym.make("mjkin/Reach-v0", table=0.5)
     with pytest.raises(mjkin.InputError, match="target_region must reach above the table"):
         gym.make("mjkin/Reach-v0", table=0.0, target_region=([0.2, -0.4, -0.6], [0.6, 0.4, -0.1]))
@@ -494,6 +494,13 @@ def test_table_must_leave_the_arm_and_the_target_region_above_it():
 def test_inverted_target_region_is_refused_when_made():
     with pytest.raises(mjkin.InputError, match=r"target_region low must be below high on every axis, not on x, y, z"):
         gym.make("mjkin/Reach-v0", target_region=([0.65, 0.4, 0.6], [0.25, -0.4, 0.1]))
+
+
+def test_a_region_out_of_reach_names_the_settings_at_reset():
+    env = gym.make("mjkin/Reach-v0", table=0.0, target_region=([5.0, 5.0, 5.0], [6.0, 6.0, 6.0]))
+    with pytest.raises(mjkin.InputError, match=r"inside target_region=\[\[5\.0, 5\.0, 5\.0\], \[6\.0, 6\.0, 6\.0\]\], "
+                                               r"above table=0\.0 and outside the 0 obstacles"):
+        env.reset(seed=0)
 
 
 @pytest.mark.parametrize("bad", [-1, 0, NAN, INF])
