@@ -16,7 +16,7 @@ from mjkin import goals as G
 from mjkin import spatial
 from mjkin.render import Overlay, Painter, default_camera
 
-from .task import ReachTask
+from .task import ReachTask, check_choice, check_count
 
 Array = NDArray[np.float64]
 
@@ -112,6 +112,10 @@ class ReachEnv(gym.Env):
     | ``render_mode`` | ``None`` | ``"rgb_array"``; ``"human"``: a window where a display exists (else a warning) |
     | ``width``, ``height`` | 480, 360 | frame size |
 
+    Every argument is checked when the env is made: a bad one raises a one-line :class:`mjkin.InputError`
+    naming it (numbers finite, sizes and tolerances positive, ``target_region`` low < high on every axis,
+    the ``table`` no higher than the arm's lowest moving body at home nor than the top of ``target_region``).
+
     ## Version history
     v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).
     """
@@ -128,8 +132,8 @@ class ReachEnv(gym.Env):
                  obstacles: Sequence[tuple[ArrayLike, float]] | None = None, table: float | None = None,
                  target_region: tuple[ArrayLike, ArrayLike] | None = None, start_noise: float = 0.1,
                  render_mode: str | None = None, width: int = 480, height: int = 360) -> None:
-        if render_mode not in (None, "rgb_array", "human"):
-            raise mjkin.InputError(f"render_mode must be None, 'rgb_array' or 'human', not {render_mode!r}")
+        check_choice(render_mode, "render_mode", (None, "rgb_array", "human"))
+        width, height = check_count(width, "width"), check_count(height, "height")
         self.task = ReachTask(model, site, action_type, goal_type, step_size, rot_step, success_tol, rot_tol,
                               success_bonus, sparse, collision_penalty, obstacles, table, target_region, start_noise,
                               goal_conditioned)

@@ -9,6 +9,7 @@ numbers the same way.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -110,35 +111,43 @@ class ReachTask:
                  collision_penalty: float, obstacles: Sequence[tuple[ArrayLike, float]] | None,
                  table: float | None, target_region: tuple[ArrayLike, ArrayLike] | None, start_noise: float,
                  goal_conditioned: bool) -> None:
-        if action_type not in ("joint", "cartesian"):
-            raise mjkin.InputError(f"action_type must be 'joint' or 'cartesian', not {action_type!r}")
-        if goal_type not in ("position", "pose"):
-            raise mjkin.InputError(f"goal_type must be 'position' or 'pose', not {goal_type!r}")
-        self.obstacles = [(_vector(c, 3, "obstacle center"), _positive(r, "obstacle radius"))
-                          for c, r in (obstacles or [])]
+        self.action_type = check_choice(action_type, "action_type", ("joint", "cartesian"))
+        self.goal_type = check_choice(goal_type, "goal_type", ("position", "pose"))
+        self.goal_conditioned = check_flag(goal_conditioned, "goal_conditioned")
+        self.sparse = check_flag(sparse, "sparse")
+        self.rot_step = check_number(rot_step, "rot_step", 0.0, strict=True)
+        self.rot_tol = check_number(rot_tol, "rot_tol", 0.0, strict=True)
+        self.success_bonus = check_number(success_bonus, "success_bonus", 0.0)
+        self.collision_penalty = check_number(collision_penalty, "collision_penalty", 0.0)
+        self.start_noise = check_number(start_noise, "start_noise", 0.0)
+        self.table = None if table is None else check_number(table, "table")
+        self.obstacles = check_obstacles(obstacles)
+        self.target_region = None if target_region is None else check_region(target_region)
+        if step_size is not None:
+            check_number(step_size, "step_size", 0.0, strict=True)
+        if success_tol is not None:
+            check_number(success_tol, "success_tol", 0.0, strict=True)
+        if not isinstance(model, (str, os.PathLike)):
+            raise mjkin.InputError(f"model must be a bundled model name, an MJCF path or an XML string, "
+                                   f"not {shown(model)}")
         base = mjkin.load(model)
         extent = float(base.model.stat.extent) or 1.0
         self.tree = mjkin.load(model_spec(model, self.obstacles, table, extent)) \
             if self.obstacles or table is not None else base
+        if not isinstance(site, str):
+            raise mjkin.InputError(f"site must be a site or body name (a string), not {shown(site)}")
         self.site = site
         self.site_kind, self.site_id = self.tree.frame(site)  # unknown names fail here, with the list of names
         body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
         self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
-        self.action_type, self.goal_type, self.goal_conditioned = action_type, goal_type, bool(goal_conditioned)
         self.extent = extent
         self.step_size = float(step_size if step_size is not None else
                                (0.1 if action_type == "joint" else 0.05 * extent))
-        self.rot_step = _positive(rot_step, "rot_step")
-        self.success_tol = _positive(success_tol if success_tol is not None else 0.02 * extent, "success_tol")
-        self.rot_tol = _positive(rot_tol, "rot_tol")
-        self.success_bonus, self.sparse = float(success_bonus), bool(sparse)
-        self.collision_penalty = float(collision_penalty)
-        self.table = None if table is None else float(table)
-        self.target_region = None if target_region is None else (_vector(target_region[0], 3, "target_region low"),
-                                                                   _vector(target_region[1], 3, "target_region high"))
-        self.start_noise = float(start_noise)
+        self.success_tol = float(success_tol if success_tol is not None else 0.02 * extent)
         m = self.tree.model
         self.home = m.key_qpos[0].copy() if m.nkey else self.tree.qpos0.copy()
+        if self.table is not None:
+            self._check_table(self.table)
         self.scene = Scene(self.tree)
         self.goal_dim = 3 if goal_type == "position" else 7
         lay = self.tree.layout
@@ -148,6 +157,19 @@ class ReachTask:
         self.wrap_mask = np.isin(np.arange(self.tree.nq), self.wrap)
         self.q_lo, self.q_hi = self._q_bounds()
         self.spaces()
+
+    def _check_table(self, table: float) -> None:
+        """The table top must leave the arm's lowest moving body (at home) and the target region above it."""
+        moving = np.flatnonzero(self.tree.model.body_dofnum > 0)
+        z = self.tree.kinematics(self.home[None]).pos[0, moving, 2]
+        low = int(np.argmin(z))
+        if table > z[low]:
+            name = self.tree.model.body(int(moving[low])).name
+            raise mjkin.InputError(f"table must be at most {z[low]:.6g} (the height of the arm's lowest moving body "
+                                   f"{name!r} at home), got {table!r}")
+        if self.target_region is not None and self.target_region[1][2] < table:
+            raise mjkin.InputError(f"target_region must reach above the table: its high z is "
+                                   f"{self.target_region[1][2]:g}, the table is at {table:g}")
 
     # --------------------------------------------------------------- spaces
     def _q_bounds(self) -> tuple[Array, Array]:
@@ -240,19 +262,39 @@ class ReachTask:
                       self.collision_penalty, self.sparse, distance, angle, ok, reward)
         return distance, angle, ok, reward
 
+    def goals(self, achieved_goal: ArrayLike, desired_goal: ArrayLike) -> tuple[Array, Array]:
+        """The goal-env methods' goals as arrays: the same shape ``(..., 3|7)``, finite; else a one-line error."""
+        want = f"(..., {self.goal_dim}) for goal_type={self.goal_type!r}"
+        try:
+            achieved = np.asarray(achieved_goal, dtype=np.float64)
+            desired = np.asarray(desired_goal, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise mjkin.InputError(f"achieved_goal and desired_goal must be arrays of numbers {want}, got "
+                                   f"{shown(achieved_goal, 40)} and {shown(desired_goal, 40)}") from None
+        if achieved.shape != desired.shape or achieved.shape[-1:] != (self.goal_dim,):
+            raise mjkin.InputError(f"achieved_goal and desired_goal must have one shape {want}, got "
+                                   f"{achieved.shape} and {desired.shape}")
+        if not (np.isfinite(achieved).all() and np.isfinite(desired).all()):
+            raise mjkin.InputError("achieved_goal and desired_goal must be finite; they contain NaN or inf")
+        return achieved, desired
+
     def _flat(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any
               ) -> tuple[tuple[int, ...], tuple[Array, Array, NDArray[np.bool_], Array]]:
         """Measures of goals with any leading shape, flattened; and that shape."""
-        achieved = np.asarray(achieved_goal, dtype=np.float64)
-        desired = np.asarray(desired_goal, dtype=np.float64)
-        shape = np.broadcast_shapes(achieved.shape, desired.shape)
-        if shape[-1:] != (self.goal_dim,):
-            raise mjkin.InputError(f"goals have shape {shape}; expected (..., {self.goal_dim})")
-        a = np.ascontiguousarray(np.broadcast_to(achieved, shape)).reshape(-1, self.goal_dim)
-        d = np.ascontiguousarray(np.broadcast_to(desired, shape)).reshape(-1, self.goal_dim)
-        hit = np.zeros(len(a)) if not self.collision_penalty else \
-            np.broadcast_to(info_column(info, "in_collision"), shape[:-1]).reshape(-1).astype(np.float64)
-        return shape[:-1], self.measure(a, d, hit)
+        achieved, desired = self.goals(achieved_goal, desired_goal)
+        shape = achieved.shape[:-1]
+        a = np.ascontiguousarray(achieved).reshape(-1, self.goal_dim)
+        d = np.ascontiguousarray(desired).reshape(-1, self.goal_dim)
+        hit = np.zeros(len(a)) if not self.collision_penalty else self._hit(info, shape)
+        return shape, self.measure(a, d, hit)
+
+    def _hit(self, info: Any, shape: tuple[int, ...]) -> Array:
+        """``info``'s ``in_collision`` for goals of leading ``shape``, flat, as floats."""
+        try:
+            return np.broadcast_to(info_column(info, "in_collision"), shape).reshape(-1).astype(np.float64)
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise mjkin.InputError(f"info must give 'in_collision' for goals of batch shape {shape} (collision_penalty "
+                                   f"is set), got {shown(info, 60)}") from None
 
     def compute_reward(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Array | float:
         """Reward for goals ``(..., 3|7)``; ``info`` supplies ``in_collision`` when a collision penalty is set."""
@@ -266,7 +308,7 @@ class ReachTask:
 
     def compute_truncated(self, achieved_goal: ArrayLike, desired_goal: ArrayLike, info: Any) -> Any:
         """Never by the goals; the time limit truncates."""
-        shape = np.shape(np.asarray(achieved_goal))[:-1]
+        shape = self.goals(achieved_goal, desired_goal)[0].shape[:-1]
         return False if shape == () else np.zeros(shape, dtype=bool)
 
     def contacts(self, q: Array, frames: Frames | None = None) -> NDArray[np.int64]:
@@ -334,22 +376,89 @@ class ReachTask:
             if inside and all(np.linalg.norm(p - c) > r for c, r in self.obstacles) \
                     and not self.contacts(q)[0]:
                 return goal
-        raise mjkin.InputError("no reachable, collision-free target found inside target_region and outside the "
-                               "obstacles; widen target_region or move the obstacles")
+        region = None if self.target_region is None else [side.tolist() for side in self.target_region]
+        raise mjkin.InputError(f"no reachable, collision-free target found in 1000 draws inside target_region="
+                               f"{region}, above table={self.table} and outside the "
+                               f"{len(self.obstacles)} obstacles; widen target_region or move the obstacles")
+
+
+def shown(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` on one line, cut to ``limit`` characters (for error messages)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def check_number(value: Any, what: str, minimum: float | None = None, strict: bool = False) -> float:
+    """``value`` as a float: a finite real number (not a bool or a string), ``>= minimum`` (``>`` if ``strict``)."""
+    bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
+    is_number = np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes)) \
+        and np.issubdtype(np.asarray(value).dtype, np.number) and np.isrealobj(value)
+    x = float(value) if is_number else np.nan
+    if not np.isfinite(x) or (minimum is not None and (x <= minimum if strict else x < minimum)):
+        raise mjkin.InputError(f"{what} must be a finite number{bound}, got {shown(value)}")
+    return x
+
+
+def check_count(value: Any, what: str) -> int:
+    """``value`` as an int: a whole number >= 1 (not a bool or a float)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise mjkin.InputError(f"{what} must be a whole number >= 1, got {shown(value)}")
+    return int(value)
+
+
+def check_choice(value: Any, what: str, choices: tuple[str | None, ...]) -> Any:
+    """``value`` if it is one of ``choices`` (strings, or None)."""
+    if not (value is None or isinstance(value, str)) or value not in choices:
+        raise mjkin.InputError(f"{what} must be {' or '.join(repr(c) for c in choices)}, not {shown(value)}")
+    return value
+
+
+def check_flag(value: Any, what: str) -> bool:
+    """``value`` as a bool: True or False only (a string such as 'no' is a mistake, not a truth value)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise mjkin.InputError(f"{what} must be True or False, got {shown(value)}")
+    return bool(value)
+
+
+def check_obstacles(obstacles: Any) -> list[tuple[Array, float]]:
+    """``obstacles``: None or a list of ``(center [x, y, z], radius > 0)`` pairs."""
+    if obstacles is None:
+        return []
+    if isinstance(obstacles, (str, bytes, Mapping)) or not isinstance(obstacles, (Sequence, np.ndarray)):
+        raise mjkin.InputError(f"obstacles must be a list of (center [x, y, z], radius) pairs, got {shown(obstacles)}")
+    out = []
+    for i, item in enumerate(obstacles):
+        try:
+            center, radius = item
+        except (TypeError, ValueError):
+            raise mjkin.InputError(f"obstacles[{i}] must be a (center [x, y, z], radius) pair, got {shown(item)} "
+                                   "(obstacles is a list of such pairs)") from None
+        out.append((_vector(center, 3, f"obstacles[{i}] center"),
+                    check_number(radius, f"obstacles[{i}] radius", 0.0, strict=True)))
+    return out
+
+
+def check_region(region: Any) -> tuple[Array, Array]:
+    """``target_region``: a ``(low [x, y, z], high [x, y, z])`` box with low < high on every axis."""
+    try:
+        low, high = region
+    except (TypeError, ValueError):
+        raise mjkin.InputError(f"target_region must be a (low [x, y, z], high [x, y, z]) pair, "
+                               f"got {shown(region)}") from None
+    lo, hi = _vector(low, 3, "target_region low"), _vector(high, 3, "target_region high")
+    bad = [axis for axis, a, b in zip("xyz", lo, hi, strict=True) if not a < b]
+    if bad:
+        raise mjkin.InputError(f"target_region low must be below high on every axis, not on {', '.join(bad)}: "
+                               f"low {lo.tolist()}, high {hi.tolist()}")
+    return lo, hi
 
 
 def _vector(value: ArrayLike, n: int, what: str) -> Array:
+    """``value`` as a finite ``(n,)`` array; else a one-line error naming ``what``."""
     try:
-        a = np.array(value, dtype=np.float64).reshape(-1)
+        a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise mjkin.InputError(f"{what} must be {n} numbers, got {value!r}") from None
+        raise mjkin.InputError(f"{what} must be {n} numbers, got {shown(value)}") from None
     if a.shape != (n,) or not np.isfinite(a).all():
-        raise mjkin.InputError(f"{what} must be {n} finite numbers, got {value!r}")
+        raise mjkin.InputError(f"{what} must be {n} finite numbers, got {shown(value)}")
     return a
-
-
-def _positive(value: Any, what: str) -> float:
-    x = float(value)
-    if not (np.isfinite(x) and x > 0):
-        raise mjkin.InputError(f"{what} must be a positive number, got {value!r}")
-    return x

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 import mjkin
 
 from .reach import ReachEnv
+from .task import check_count
 
 Array = NDArray[np.float64]
 
@@ -39,12 +40,11 @@ class ReachVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = 100, render_mode: str | None = None,
                  **kwargs: Any) -> None:
-        if int(num_envs) < 1:
-            raise mjkin.InputError(f"num_envs must be at least 1, got {num_envs!r}")
+        self.num_envs = check_count(num_envs, "num_envs")
+        self.max_episode_steps = None if max_episode_steps is None else \
+            check_count(max_episode_steps, "max_episode_steps")
         self.env = ReachEnv(render_mode=render_mode, **kwargs)  # the template: settings, spaces, painter
         self.task = self.env.task
-        self.num_envs = int(num_envs)
-        self.max_episode_steps = max_episode_steps
         self.render_mode = render_mode
         self.metadata = {**self.env.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP}
         self.single_action_space = self.task.action_space

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import pickle
+import re
 import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mjkin
 import mjkin.envs
@@ -372,3 +375,154 @@ def test_docstring_states_the_extent_that_sets_the_bounds(env_id):
     env = gym.make(env_id).unwrapped
     assert f"{env.tree.name}: {env.extent:g}" in " ".join(type(env).__doc__.split())
     assert env.observation_space.high[env.tree.nq] == pytest.approx(4 * env.extent)
+
+
+# ------------------------------------------------------------------- argument checks
+NAN, INF = float("nan"), float("inf")
+NON_FINITE = st.sampled_from([NAN, INF, -INF])
+NOT_NUMBERS = st.sampled_from(["0.1", True, [0.1], {"x": 1}, 1j, b"1"])
+NEGATIVE = st.floats(max_value=-1e-9, allow_infinity=False)
+
+
+def positive_bad(optional: bool) -> st.SearchStrategy:
+    """Bad values of a number that must be > 0 (None is the default of optional ones)."""
+    return st.floats(max_value=0.0, allow_infinity=False, allow_nan=False) | NON_FINITE | NOT_NUMBERS | \
+        (st.nothing() if optional else st.none())
+
+
+def choice_bad(choices: tuple) -> st.SearchStrategy:
+    return st.text(max_size=12).filter(lambda s: s not in choices) | st.sampled_from([1, ["joint"], b"joint"])
+
+
+@st.composite
+def non_finite_vectors(draw: st.DrawFn, n: int = 3) -> list:
+    """``n`` numbers, one of them NaN or inf."""
+    v = draw(st.lists(st.floats(-2, 2), min_size=n, max_size=n))
+    v[draw(st.integers(0, n - 1))] = draw(NON_FINITE)
+    return v
+
+
+def vector_bad(n: int = 3) -> st.SearchStrategy:
+    """Bad ``[x, y, z]``: wrong length, NaN/inf entries, not numbers."""
+    return st.lists(st.floats(-2, 2), max_size=5).filter(lambda v: len(v) != n) | non_finite_vectors(n) | \
+        st.sampled_from(["abc", None, [[0.0, 0.0, 0.0]]])
+
+
+@st.composite
+def inverted_regions(draw: st.DrawFn) -> tuple:
+    """A box whose low is not below its high on at least one axis."""
+    lo = draw(st.lists(st.floats(-1, 1), min_size=3, max_size=3))
+    gap = draw(st.lists(st.floats(0.01, 1), min_size=3, max_size=3))
+    for axis in draw(st.sets(st.integers(0, 2), min_size=1)):
+        gap[axis] = -draw(st.floats(0, 1))
+    return lo, [a + g for a, g in zip(lo, gap, strict=True)]
+
+
+BAD_ARGS = {
+    "model": st.sampled_from([3, None, 1.5, ["arm7"]]),
+    "site": st.sampled_from([3, None, ["ee"]]),
+    "action_type": choice_bad(("joint", "cartesian")),
+    "goal_type": choice_bad(("position", "pose")),
+    # plain strings only: gym.make itself fails on other types (and on '%' in its warning) before the env is
+    # made (ReachEnv's own check: below); it turns "rgb_array_list" into a wrapper around "rgb_array"
+    "render_mode": st.text("abcdefghijklmnopqrstuvwxyz_ -", max_size=12)
+    .filter(lambda s: s not in ("rgb_array", "human") and not s.endswith("_list")),
+    "goal_conditioned": st.sampled_from(["no", "True", 1, 0, None, 1.0]),
+    "sparse": st.sampled_from(["no", "True", 1, 0, None, 1.0]),
+    "step_size": positive_bad(optional=True),
+    "success_tol": positive_bad(optional=True),
+    "rot_step": positive_bad(optional=False),
+    "rot_tol": positive_bad(optional=False),
+    "success_bonus": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
+    "collision_penalty": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
+    "start_noise": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
+    "table": NON_FINITE | NOT_NUMBERS | st.floats(2.0, 1e9),  # every arm's lowest moving body is below 2
+    "obstacles": st.sampled_from([0.1, "sphere", {"center": [0, 0, 1], "radius": 0.1}, ([0.3, 0.0, 0.5], 0.1)])
+    | vector_bad().map(lambda c: [(c, 0.1)])
+    | (positive_bad(optional=False) | st.none()).map(lambda r: [([0.3, 0.0, 0.5], r)])
+    | st.sampled_from([[[0.3, 0.0, 0.5]], [([0.3, 0.0, 0.5], 0.1, 2)], [None]]),
+    "target_region": inverted_regions() | vector_bad().map(lambda v: (v, [1.0, 1.0, 1.0]))
+    | vector_bad().map(lambda v: ([-1.0, -1.0, -1.0], v)) | st.sampled_from([0.5, "box", [[0, 0, 0]], ([0] * 3,) * 3]),
+    "width": st.integers(max_value=0) | st.sampled_from([160.0, "160", True, None, NAN]),
+    "height": st.integers(max_value=0) | st.sampled_from([120.0, "120", True, None, NAN]),
+}
+VECTOR_ARGS = {"num_envs": st.integers(max_value=0) | st.sampled_from([2.5, "2", True, None]),
+               "max_episode_steps": st.integers(max_value=0) | st.sampled_from([2.5, "100", True, NAN])}
+
+
+def make(env_id: str, vector: bool, **kwargs):
+    if vector:
+        return gym.make_vec(env_id, **{"num_envs": 2, **kwargs}, vectorization_mode="vector_entry_point")
+    return gym.make(env_id, **kwargs)
+
+
+@pytest.mark.parametrize("name", [*BAD_ARGS, *VECTOR_ARGS])
+@settings(max_examples=25)
+@given(data=st.data())
+def test_every_bad_argument_raises_one_line_naming_it_at_construction(name, data):
+    value = data.draw({**BAD_ARGS, **VECTOR_ARGS}[name], label=name)
+    env_id = data.draw(st.sampled_from(IDS), label="env_id")
+    vector = name in VECTOR_ARGS or data.draw(st.booleans(), label="vector")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gymnasium warns of a render_mode outside the metadata
+        with pytest.raises(mjkin.InputError) as err:
+            make(env_id, vector, **{name: value})
+    message = str(err.value)
+    assert name in message and "\n" not in message, message
+
+
+def test_render_mode_of_another_type_is_refused_by_the_env():
+    with pytest.raises(mjkin.InputError, match=r"^render_mode must be None or 'rgb_array' or 'human', not 1$"):
+        mjkin.envs.ReachEnv(render_mode=1)
+
+
+@pytest.mark.parametrize("bad", [NAN, INF, -INF])
+@pytest.mark.parametrize("env_id", IDS)
+def test_non_finite_table_is_refused_when_made(env_id, bad):
+    with pytest.raises(mjkin.InputError, match=r"^table must be a finite number, got (nan|inf|-inf)$"):
+        gym.make(env_id, table=bad)
+
+
+def test_table_must_leave_the_arm_and_the_target_region_above_it():
+    with pytest.raises(mjkin.InputError, match=r"^table must be at most 0\.1 \(.*body 'link1' .*\), got 0\.5$"):
+        gym.make("mjkin/Reach-v0", table=0.5)
+    with pytest.raises(mjkin.InputError, match="target_region must reach above the table"):
+        gym.make("mjkin/Reach-v0", table=0.0, target_region=([0.2, -0.4, -0.6], [0.6, 0.4, -0.1]))
+    gym.make("mjkin/PlanarReach-v0", table=0.0).reset(seed=0)  # the planar arm lies on z = 0: allowed
+
+
+def test_inverted_target_region_is_refused_when_made():
+    with pytest.raises(mjkin.InputError, match=r"target_region low must be below high on every axis, not on x, y, z"):
+        gym.make("mjkin/Reach-v0", target_region=([0.65, 0.4, 0.6], [0.25, -0.4, 0.1]))
+
+
+def test_a_region_out_of_reach_names_the_settings_at_reset():
+    env = gym.make("mjkin/Reach-v0", table=0.0, target_region=([5.0, 5.0, 5.0], [6.0, 6.0, 6.0]))
+    with pytest.raises(mjkin.InputError, match=r"inside target_region=\[\[5\.0, 5\.0, 5\.0\], \[6\.0, 6\.0, 6\.0\]\], "
+                                               r"above table=0\.0 and outside the 0 obstacles"):
+        env.reset(seed=0)
+
+
+@pytest.mark.parametrize("bad", [-1, 0, NAN, INF])
+def test_bad_step_size_is_refused_when_made(bad):
+    with pytest.raises(mjkin.InputError, match=r"^step_size must be a finite number > 0, got"):
+        gym.make("mjkin/Reach-v0", step_size=bad)
+
+
+@pytest.mark.parametrize("method", ["compute_reward", "compute_terminated", "compute_truncated"])
+def test_goal_methods_check_shapes_with_one_line(method):
+    env = gym.make("mjkin/Reach-v0", goal_type="pose", collision_penalty=1.0).unwrapped
+    f = getattr(env, method)
+    g = np.tile([0.3, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0], (4, 1))
+    info = {"in_collision": np.zeros(4, bool)}
+    for achieved, desired, want in [(np.zeros((4, 7)), np.zeros((5, 7)), r"\(4, 7\) and \(5, 7\)"),
+                                    (g, g[0], r"\(4, 7\) and \(7,\)"),  # no broadcasting
+                                    (g[:, :3], g[:, :3], r"\(\.\.\., 7\) for goal_type='pose'"),
+                                    ([[0, "a"]], g, "arrays of numbers"), (g * np.nan, g, "finite")]:
+        with pytest.raises(mjkin.InputError, match="achieved_goal and desired_goal") as err:
+            f(achieved, desired, info)
+        assert re.search(want, str(err.value)) and "\n" not in str(err.value), str(err.value)
+    if method != "compute_truncated":  # the collision penalty needs in_collision for every goal
+        with pytest.raises(mjkin.InputError, match=r"info must give 'in_collision' for goals of batch shape \(4,\)"):
+            f(g, g, [{}] * 4)
+    assert f(g, g, info).shape == (4,)
