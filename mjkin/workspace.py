@@ -75,9 +75,14 @@ def _plane_basis(normal: Array) -> tuple[Array, Array]:
     return u, np.cross(normal, u)
 
 
-def workspace(tree: Tree, frame: str, n: int = 20_000, seed: int = 0, dexterous_fraction: float = 1.0,
+def workspace(tree: Tree, frame: str, n: int = 100_000, seed: int = 0, dexterous_fraction: float = 1.0,
               kind: str | None = None) -> Workspace:
-    """Sample the workspace of ``frame`` (site or body) with ``n`` random configurations (seeded)."""
+    """Sample the workspace of ``frame`` (site or body) with ``n`` random configurations (seeded).
+
+    The dexterous part needs dense samples: with 20 000 on the seeds' three-link arm only 18 % of the
+    closed-form dexterous ring came out dexterous (too few samples per neighbourhood to see every
+    orientation bin), with the default 100 000 it matches the closed form up to the neighbourhood size.
+    """
     from .render import planar_axis
 
     if int(n) < 2:
