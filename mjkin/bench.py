@@ -21,7 +21,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .argtypes import positive_float, positive_int
+from .argtypes import nonnegative_int, positive_float, positive_int
 from .errors import InputError
 from .files import check_writable, write_text
 from .progress import track
@@ -389,7 +389,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     def common(s: argparse.ArgumentParser) -> None:
         s.add_argument("--json", metavar="FILE", help="also write the rows and settings to this .json file")
-        s.add_argument("--seed", type=int, default=0, help="seed of the random configurations (default 0)")
+        s.add_argument("--seed", type=nonnegative_int, default=0,
+                       help="seed (>= 0) of the random configurations (default 0)")
 
     s = sub.add_parser("fk", help="batched FK and one pose, beside mj_kinematics from Python")
     s.add_argument("--models", nargs="+", metavar="NAME|PATH", help=f"models (default: {', '.join(FK_MODELS)})")
@@ -434,7 +435,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     common(s)
 
     s = sub.add_parser("seeds", help="the seeds' examples as tables, and their figures")
-    s.add_argument("--out", default="mjkin-seeds", help="folder for the figures (default mjkin-seeds)")
+    s.add_argument("--out", default="mjkin-seeds",
+                   help="folder for the figures: an existing one, or a new one inside an existing folder "
+                        "(default mjkin-seeds)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
@@ -444,10 +447,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 
 
-def run(args: argparse.Namespace) -> Report:
-    """Run the benchmark ``args.which`` with its options (``--plot`` is checked before any work)."""
+def check_paths(args: argparse.Namespace) -> None:
+    """Check the files and folders the benchmark ``args.which`` writes (``--plot``, ``--out``), before any work.
+
+    ``--out`` may be an existing folder or a new one inside an existing folder (created by the run), never a file.
+    """
     if getattr(args, "plot", None):
         check_writable(args.plot, (".png",), "--plot")
+    if args.which == "seeds":
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise InputError(f"--out {args.out!r} is a file; give a folder (existing, or new inside an existing one)")
+        check_writable(out / "seed1_reach_frames.png" if out.is_dir() else out, what="--out")
+
+
+def run(args: argparse.Namespace) -> Report:
+    """Run the benchmark ``args.which`` with its options (:func:`main` checks their paths first)."""
     if args.which == "fk":
         return bench_fk(args.models, args.batch, args.seed)
     if args.which == "ik":
@@ -483,6 +498,8 @@ def main(args: argparse.Namespace) -> int:
         runs = [defaults.parse_args([name, "--seed", str(args.seed)]) for name in ALL]
     else:
         runs = [args]
+    for one in runs:
+        check_paths(one)  # all of them before the first benchmark starts
     out = {}
     for one in runs:
         report = run(one)

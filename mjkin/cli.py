@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
 from collections.abc import Callable, Sequence
 from importlib import metadata
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import bench, motion, progress, spatial
-from .argtypes import positive_float, positive_int
+from .argtypes import Once, nonnegative_int, positive_float, positive_int
 from .errors import InputError, MjkinError
 from .files import check_writable
 from .goals import Goal, Orientation, Position
@@ -33,10 +35,27 @@ Command = Callable[[argparse.Namespace], int]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_SIDE = 8192  # largest --width/--height: MuJoCo's offscreen buffer is raised to it, GL allows 16384 at least
 MAX_VIDEO_BYTES = 4 * 2**30  # rendered frames are held in memory until the video is encoded
+VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points")
+NEGATIVE_NUMBER = re.compile(r"-\.?\d")  # how a value such as "-20,5,0" starts (argparse takes it for an option)
 
 
 class Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line (no usage dump) with exit status 2."""
+    """An argument parser whose errors are one line (no usage dump) with exit status 2.
+
+    A single-valued option given twice is an error (:class:`~mjkin.argtypes.Once`), not the last one silently.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.register("action", None, Once)
+        self.register("action", "store", Once)
+
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
+        """argparse's, without the bookkeeping of :class:`~mjkin.argtypes.Once` in the result."""
+        parsed, rest = super().parse_known_args(args, namespace)
+        parsed.__dict__.pop("_given_once", None)
+        return parsed, rest
 
     def error(self, message: str) -> None:  # type: ignore[override]
         """Print ``mjkin <command>: error: message`` and exit 2."""
@@ -106,7 +125,7 @@ def describe(tree: Tree) -> str:
     m = tree.model
     bodies, joints, sites = tree.names("body"), tree.names("joint"), tree.names("site")
     lines = [f"model {tree.name or '(unnamed)'}: nq={tree.nq} nv={tree.nv} "
-             f"bodies={tree.nbody - 1} joints={tree.njnt} sites={m.nsite}"]
+             f"bodies={tree.nbody - 1} (+ world) joints={tree.njnt} sites={m.nsite}"]
     depth = np.zeros(tree.nbody, dtype=int)
     for b in range(1, tree.nbody):
         depth[b] = depth[tree.body_parent[b]] + 1
@@ -143,7 +162,7 @@ def cmd_fk(args: argparse.Namespace) -> int:
         out.append({"kind": kind, "name": tree.names(kind)[i], "pos": T[:3, 3].tolist(),
                     "quat": spatial.mat_to_quat(T[:3, :3]).tolist()})
     if args.json:
-        print(json.dumps({"q": q.tolist(), "frames": out}, indent=1))
+        print(dumps({"q": q.tolist(), "frames": out}, indent=1))
     else:
         for f in out:
             pos = " ".join(f"{v: .6f}" for v in f["pos"])  # type: ignore[union-attr]
@@ -155,7 +174,9 @@ def cmd_fk(args: argparse.Namespace) -> int:
 def cmd_ik(args: argparse.Namespace) -> int:
     """Solve IK for one frame: a position, and an orientation when ``--quat`` is given; print q and errors."""
     tree = load(args.model)
-    tree.frame(args.frame)  # a clear error for an unknown name
+    body = tree.frame_body(args.frame)[0]  # a clear error for an unknown name
+    if not len(tree.body_dofs[body]):
+        raise InputError(f"no joint moves {args.frame!r}: choose a site or body below a joint")
     q0 = tree.qpos0.copy() if args.q0 is None else parse_q(args.q0, tree, args.deg, args.seed, "--q0")
     goals: list[Goal] = [Position(args.frame, _vec(args.pos, "--pos"))]
     if args.quat is not None:
@@ -166,7 +187,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
               "method": res.method}
     if args.json:
-        print(json.dumps(report))
+        print(dumps(report))
     else:
         print(f"{'success' if res.success else 'failed'}: {res.status} after {report['iterations']} iterations, "
               f"{report['restarts']} restarts ({res.method})")
@@ -174,6 +195,21 @@ def cmd_ik(args: argparse.Namespace) -> int:
               + ("" if args.quat is not None else " (not a goal)"))
         print("q " + " ".join(f"{v:.6f}" for v in res.q))
     return 0
+
+
+def dumps(data: object, indent: int | None = None) -> str:
+    """Strict JSON text of ``data``: non-finite numbers (an infinite error, say) become null."""
+    return json.dumps(_finite(data), indent=indent, allow_nan=False)
+
+
+def _finite(data: object) -> object:
+    if isinstance(data, float) and not math.isfinite(data):
+        return None
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite(v) for v in data]
+    return data
 
 
 def _points(text: str) -> np.ndarray:
@@ -205,19 +241,26 @@ def check_output(args: argparse.Namespace, count: int | None) -> int | None:
 
     Returns the frame index to write for an image output, None for a video (or while ``count`` is None).
     """
-    from .render import VIDEO_SUFFIXES
+    from .render import VIDEO_SUFFIXES, check_video_size
 
     path = check_writable(args.output, VIDEO_SUFFIXES + IMAGE_SUFFIXES)
     for side in ("width", "height"):
         if getattr(args, side) > MAX_SIDE:
             raise InputError(f"--{side} must be at most {MAX_SIDE} pixels, got {getattr(args, side)}")
+    image = path.suffix.lower() in IMAGE_SUFFIXES
+    if not image:
+        check_video_size(path, args.width, args.height, "--width/--height")
+        if args.frame is not None:
+            raise InputError(f"--frame applies to {'/'.join(IMAGE_SUFFIXES)} output (a video has every frame), "
+                             f"got --frame {args.frame} with {str(path)!r}")
     if count is None:
         return None
-    if path.suffix.lower() in IMAGE_SUFFIXES:
-        if not -count <= args.frame < count:
+    if image:
+        frame = -1 if args.frame is None else args.frame
+        if not -count <= frame < count:
             raise InputError(f"--frame must be in [{-count}, {count - 1}] (-1 = the last) for {count} "
-                             f"frame{'s' * (count > 1)}, got {args.frame}")
-        return args.frame % count
+                             f"frame{'s' * (count > 1)}, got {frame}")
+        return frame % count
     need = count * args.width * args.height * 3
     if need > MAX_VIDEO_BYTES:
         raise InputError(f"{count} frames of {args.width}x{args.height} need {need / 2**30:.1f} GiB of memory "
@@ -347,6 +390,7 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
     from .workspace import plot, workspace
 
+    check_writable(args.output, IMAGE_SUFFIXES, "--output")
     tree = load(args.model)
     sites = [n for n in tree.names("site") if n]
     frame = args.frame or (sites[-1] if sites else tree.names("body")[-1])  # default: the last site, the tip
@@ -373,10 +417,15 @@ def cmd_play(args: argparse.Namespace) -> int:
 
 def cmd_warmup(args: argparse.Namespace) -> int:
     """Compile every kernel once (or load it from the cache), so later runs start at once."""
-    from .warmup import warmup
+    from .warmup import compilations, warmup
 
-    print("compiling mjkin's kernels (first run only, about a minute)...", flush=True)
-    print(f"done in {warmup():.1f} s")
+    print("preparing mjkin's kernels (compiling them takes about a minute, loading them from the cache a second)...",
+          flush=True)
+    before = compilations()
+    seconds = warmup()
+    compiled = compilations() - before
+    done = f"compiled {compiled} kernel{'s' * (compiled > 1)}" if compiled else "none compiled: cached or loaded"
+    print(f"kernels ready in {seconds:.1f} s ({done})")
     return 0
 
 
@@ -400,7 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
         where.add_argument(flag, help=f"configuration (qpos): nq numbers, a keyframe name (e.g. home) or 'random' "
                                       f"(inside the joint limits); default {default}")
         s.add_argument("--deg", action="store_true", help=f"hinge values in {flag} are degrees")
-        s.add_argument("--seed", type=int, help=f"seed for {flag} random{seed_help} (default: a new draw each run)")
+        s.add_argument("--seed", type=nonnegative_int,
+                       help=f"seed (>= 0) for {flag} random{seed_help} (default: a new draw each run)")
 
     s = sub.add_parser("info", help="outline a model's bodies, joints and sites")
     s.add_argument("model", help=model_help)
@@ -436,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--width", type=positive_int, default=640, help=f"pixels, at most {MAX_SIDE} (default 640)")
         s.add_argument("--height", type=positive_int, default=480, help=f"pixels, at most {MAX_SIDE} (default 480)")
         s.add_argument("--fps", type=positive_float, default=30.0, help="frames per second (default 30)")
-        s.add_argument("--frame", type=int, default=-1,
+        s.add_argument("--frame", type=int,
                        help="for an image output: which frame, from 0, negative from the end (default -1, the last); "
                             "only that frame is rendered")
 
@@ -507,10 +557,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def join_negative_vectors(argv: Sequence[str]) -> list[str]:
+    """``--pos -20,5,0`` as ``--pos=-20,5,0``: argparse takes a value starting with '-' for an option."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in VECTOR_OPTIONS and NEGATIVE_NUMBER.match(arg) and "--" not in out:
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mjkin`` console command."""
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(join_negative_vectors(sys.argv[1:] if argv is None else argv))
     except SystemExit as e:  # --help, --version, or a usage error already printed as one line
         return e.code if isinstance(e.code, int) else 2
     progress.enable(True)

@@ -395,14 +395,30 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     return out
 
 
+def check_video_size(path: str | os.PathLike[str], width: int, height: int, what: str = "frame size") -> None:
+    """Raise :class:`InputError` for a size the video format cannot hold as it is (odd sides in an .mp4).
+
+    H.264 in yuv420p (what players expect) needs even sides, and mjkin writes
+    exactly the size asked for: it neither pads nor scales frames.
+    """
+    if Path(path).suffix.lower() == ".mp4" and (width % 2 or height % 2):
+        raise InputError(f"{what} of an .mp4 must be even (H.264 yuv420p), got {width}x{height}; "
+                         "use an even size or .gif")
+
+
 def write_video(images: NDArray[np.uint8] | Sequence[NDArray[np.uint8]], path: str | os.PathLike[str],
                 fps: float = 30.0) -> Path:
-    """Write frames to ``.mp4`` or ``.gif`` atomically (a temporary file, renamed when complete)."""
+    """Write frames to ``.mp4`` or ``.gif`` atomically (a temporary file, renamed when complete), at their size.
+
+    Raises :class:`InputError` for odd sides in an ``.mp4`` (:func:`check_video_size`).
+    """
     target = Path(path)
     if target.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"video file must end in {' or '.join(VIDEO_SUFFIXES)}, got {str(target)!r}")
     if len(images) == 0:
         raise InputError("no frames to write")
+    height, width = np.shape(images[0])[:2]
+    check_video_size(target, width, height)
     import imageio.v2 as imageio
 
     with atomic_path(target) as tmp:
@@ -410,7 +426,7 @@ def write_video(images: NDArray[np.uint8] | Sequence[NDArray[np.uint8]], path: s
             if target.suffix.lower() == ".gif":
                 imageio.mimsave(tmp, list(images), duration=1.0 / fps, loop=0)
             else:
-                with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=8) as w:
+                with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=1) as w:
                     for im in images:
                         w.append_data(np.asarray(im))  # type: ignore[attr-defined]
         except OSError as e:

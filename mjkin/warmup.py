@@ -9,10 +9,12 @@ models (a hinge chain and a tree with ball and free joints) reach all of them.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 
 from . import goals as G
 from . import progress
@@ -36,13 +38,20 @@ def _steps(chain: Tree, figure: Tree) -> list[tuple[str, Callable[[], object]]]:
     ]
 
 
+def compilations() -> int:
+    """Kernel versions compiled so far in this process, over mjkin's modules (numba's cache misses)."""
+    return sum(sum(kernel.stats.cache_misses.values())
+               for name, module in list(sys.modules.items()) if name == "mjkin" or name.startswith("mjkin.")
+               for kernel in vars(module).values() if isinstance(kernel, Dispatcher))
+
+
 def warmup() -> float:
-    """Compile (or load from the cache) every kernel; returns the seconds it took.
+    """Compile (or load from the cache) every kernel; returns the seconds it took (see :func:`compilations`).
 
     From the CLI a progress bar names each group on a terminal.
     """
     start = time.perf_counter()
     chain, figure = load("arm7"), load("primate")
-    for _, run in progress.track(_steps(chain, figure), "compiling kernels"):
+    for _, run in progress.track(_steps(chain, figure), "preparing kernels"):
         run()
     return time.perf_counter() - start

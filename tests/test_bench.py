@@ -205,6 +205,18 @@ def test_cli_rejects_bad_settings_before_any_work(argv, capsys):
     assert "Traceback" not in capsys.readouterr().err
 
 
+def test_seeds_out_is_an_existing_folder_or_a_new_one_inside_one(tmp_path):
+    parse = cli.build_parser().parse_args
+    (tmp_path / "old").mkdir()
+    for out in (tmp_path / "old", tmp_path / "new"):  # both fine, and nothing is created by the check
+        bench.check_paths(parse(["bench", "seeds", "--out", str(out)]))
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["old"]
+    (tmp_path / "file").write_text("")
+    for out, text in ((tmp_path / "file", "is a file; give a folder"), (tmp_path / "no" / "new", "does not exist")):
+        with pytest.raises(mjkin.MjkinError, match=text):
+            bench.check_paths(parse(["bench", "seeds", "--out", str(out)]))
+
+
 def test_fk_baselines_do_the_same_work_as_mjkin():
     tree = ARM7.tree
     Q = tree.random_q(np.random.default_rng(1), 3)

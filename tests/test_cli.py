@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import importlib.metadata
 import json
 import subprocess
@@ -10,10 +11,13 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import mjkin
 from mjkin import motion
-from mjkin.cli import build_parser, main
+from mjkin.argtypes import nonnegative_int
+from mjkin.cli import build_parser, join_negative_vectors, main
 
 
 def test_info_outlines_the_tree(capsys):
@@ -115,6 +119,35 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--method", "magic"], "--method: invalid choice"),
     (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--q0", "hme"], "a keyframe name (home)"),
     (["fk", "planar_2link", "--q", "home"], "(the model has no named keyframes)"),
+    # a negative --seed, on every command that takes one (numpy's generators refuse it with a traceback)
+    (["fk", "arm7", "--q", "random", "--seed", "-1"], "--seed: must be an integer >= 0, got -1"),
+    (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0.1,0.4", "--q0", "random", "--seed", "-5"],
+     "--seed: must be an integer >= 0, got -5"),
+    (["render", "arm7", "--q", "random", "--seed", "-5", "-o", "r.png"], "--seed: must be an integer >= 0"),
+    (["trajectory", "arm7", "--site", "ee", "--path", "circle", "--q0", "random", "--seed", "-1", "-o", "t.json"],
+     "--seed: must be an integer >= 0"),
+    (["bench", "ik", "--models", "arm7", "--targets", "5", "--seed", "-1"], "--seed: must be an integer >= 0"),
+    (["bench", "all", "--seed", "x"], "--seed: must be an integer >= 0, got 'x'"),
+    # workspace checks its output like the others
+    (["workspace", "arm7", "-o", "ws.mp4"], "--output must end in .png"),
+    (["workspace", "arm7", "-o", "/proc/ws.png"], "folder '/proc' is not writable"),
+    (["workspace", "arm7", "-o", "missing/ws.png"], "folder 'missing' does not exist"),
+    # bench seeds --out: an existing folder or a new one inside an existing folder
+    (["bench", "seeds", "--out", "missing/figures"], "folder 'missing' does not exist"),
+    (["bench", "seeds", "--out", "/proc/figures"], "folder '/proc' is not writable"),
+    (["bench", "seeds", "--out", "{script}"], "is a file; give a folder"),
+    (["bench", "all", "--out", "x"], "unrecognized arguments"),
+    # videos are written at the size asked for: H.264 needs even sides
+    (["render", "arm7", "--q", "home", "-o", "odd.mp4", "--width", "101", "--height", "77"],
+     "--width/--height of an .mp4 must be even (H.264 yuv420p), got 101x77"),
+    (["demo", "--width", "640", "--height", "481"], "must be even"),
+    # --frame picks the frame of an image; a video has them all
+    (["replay", "{script}", "-o", "x.mp4", "--frame", "5"], "--frame applies to .png/.jpg/.jpeg output"),
+    (["render", "planar_2link", "--script", "{script}", "-o", "x.gif", "--frame", "0"], "--frame applies to"),
+    # a single-valued option given twice
+    (["ik", "arm7", "--frame", "ee", "--frame", "link3", "--pos", "0,0,0.5"],
+     "argument --frame: given twice ('ee', then 'link3'); give it once"),
+    (["fk", "arm7", "--q", "home", "--q", "random"], "argument --q: given twice"),
 ]
 
 BAD_SCRIPTS = [  # changes to a good script, text in the one line
@@ -148,6 +181,9 @@ def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkey
     monkeypatch.setattr("mjkin.motion.walk_cycle", lambda *a, **k: pytest.fail("the walk ran before the checks"))
     monkeypatch.setattr("mjkin.motion.follow", lambda *a, **k: pytest.fail("IK ran before the checks"))
     monkeypatch.setattr("mjkin.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
+    monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
+                        lambda *a, **k: pytest.fail("sampling ran before the checks"))
+    monkeypatch.setattr("mjkin.bench.bench_seeds", lambda *a, **k: pytest.fail("the seeds ran before the checks"))
     argv = [a.format(script=script) for a in argv]
     one_line_exit_2(argv, text, capsys, tmp_path, keep=["five.json"])
 
@@ -184,6 +220,59 @@ def test_every_option_of_every_command_has_help():
 
 
 # ------------------------------------------------------------------ ik, keyframes, random, limits
+@pytest.mark.parametrize("model, frame", [("arm7", "world"), ("primate", "world")])
+def test_ik_refuses_a_frame_no_joint_moves(model, frame, capsys, monkeypatch):
+    monkeypatch.setattr("mjkin.cli.solve", lambda *a, **k: pytest.fail("IK ran for a frame nothing moves"))
+    assert main(["ik", model, "--frame", frame, "--pos", "0,0,0.5"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mjkin: error: no joint moves {frame!r}: choose a site or body below a joint\n"
+
+
+def test_ik_json_is_strict_json_even_for_absurd_targets(capsys):
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "1e308,0,0", "--json", "--method", "dls"]) == 0
+    out = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    assert out["success"] is False and out["error"][0] is None  # an infinite error is null
+
+
+def test_negative_numbers_in_vector_options(capsys):
+    assert main(["ik", "planar_3link", "--frame", "tip", "--pos", "-20,5,0", "--json"]) == 0  # the seeds' target
+    out = json.loads(capsys.readouterr().out)
+    assert out["success"] is True
+    np.testing.assert_allclose(mjkin.load("planar_3link").pose(out["q"], "tip")[:3, 3], [-20, 5, 0], atol=1e-5)
+    args = build_parser().parse_args(join_negative_vectors(
+        ["trajectory", "arm7", "--site", "ee", "--path", "line", "--start", "-.1,0,0", "--end", "-0.1,-0.2,0.3",
+         "--q0", "-0.1 0 0 0 0 0 0", "--center", "-1,0,0", "--normal", "-1,0,0", "-o", "t.json"]))
+    assert (args.start, args.end, args.q0, args.center, args.normal) == \
+        ("-.1,0,0", "-0.1,-0.2,0.3", "-0.1 0 0 0 0 0 0", "-1,0,0", "-1,0,0")
+
+
+@pytest.mark.parametrize("argv", [
+    ["replay", "t.json", "-o", "x.png", "--frame", "-1"],  # not a vector option: argparse reads -1 itself
+    ["ik", "arm7", "--frame", "ee", "--pos", "--quat"],  # not a number: a missing value stays an error
+    ["ik", "arm7", "--", "--pos", "-1,0,0"],  # after --, nothing is an option
+])
+def test_negative_vectors_leave_other_arguments_alone(argv):
+    assert join_negative_vectors(argv) == argv
+
+
+@given(st.integers())
+def test_seed_is_an_integer_at_least_zero(value):
+    if value >= 0:
+        assert nonnegative_int(str(value)) == value
+    else:
+        with pytest.raises(argparse.ArgumentTypeError, match=f"must be an integer >= 0, got {value}$"):
+            nonnegative_int(str(value))
+
+
+def test_info_counts_bodies_without_world(capsys):
+    assert main(["info", "arm7"]) == 0
+    assert "bodies=7 (+ world) joints=7" in capsys.readouterr().out
+    assert mjkin.load("arm7").fk(mjkin.load("arm7").qpos0).shape[0] == 8  # what fk returns: world too
+
+
 def test_ik_json_reaches_the_target(capsys):
     pos, quat = [0.4, 0.2, 0.5], [0.0, 1.0, 0.0, 0.0]
     assert main(["ik", "arm7", "--frame", "ee", "--pos", ",".join(map(str, pos)), "--quat", "0,1,0,0",

@@ -74,6 +74,31 @@ def test_video_round_trip_and_atomic_writes(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4"]  # no temporary left behind
 
 
+def test_videos_are_written_at_the_size_asked_for(tmp_path, capfd):
+    import imageio.v2 as imageio
+
+    img = np.zeros((2, 78, 102, 3), np.uint8)  # even, but not a multiple of 16: imageio would scale it up
+    for name in ("a.mp4", "a.gif"):
+        render.write_video(img, tmp_path / name)
+        assert imageio.mimread(tmp_path / name)[0].shape[:2] == (78, 102)
+    assert "resizing" not in capfd.readouterr().err  # imageio's warning stays out of the user's terminal
+    odd = np.zeros((2, 77, 101, 3), np.uint8)
+    with pytest.raises(mjkin.InputError, match=r"frame size of an \.mp4 must be even \(H\.264 yuv420p\), got 101x77"):
+        render.write_video(odd, tmp_path / "odd.mp4")
+    render.write_video(odd, tmp_path / "odd.gif")  # a GIF holds any size
+    assert imageio.mimread(tmp_path / "odd.gif")[0].shape[:2] == (77, 101)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4", "odd.gif"]
+
+
+def test_cli_says_the_size_it_wrote(tmp_path, capsys):
+    import imageio.v2 as imageio
+
+    out = tmp_path / "even.mp4"
+    assert main(["render", "planar_2link", "-o", str(out), "--width", "102", "--height", "78"]) == 0
+    assert "(1 frame, 102x78)" in capsys.readouterr().out
+    assert imageio.mimread(out)[0].shape[:2] == (78, 102)
+
+
 def test_interpolation_hits_keys_and_keeps_quaternions_unit(rng):
     tree = tree_of("primate")
     keys = tree.random_q(rng, 4)

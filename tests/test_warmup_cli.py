@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import re
+import sys
+import types
 
 import numba
 
+from mjkin import warmup
 from mjkin.cli import main
 from mjkin.ik import kernel
 
@@ -13,7 +16,22 @@ from mjkin.ik import kernel
 def test_warmup_compiles_the_solver_and_reports_seconds(capsys):
     assert main(["warmup"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == "compiling mjkin's kernels (first run only, about a minute)..."
-    assert re.fullmatch(r"done in \d+\.\d s", out[1])
+    assert out[0].startswith("preparing mjkin's kernels")
+    done = r"\((compiled \d+ kernels?|none compiled: cached or loaded)\)"
+    assert re.fullmatch(rf"kernels ready in \d+\.\d s {done}", out[1])
     solver = kernel.solve_batch
     assert isinstance(solver, numba.core.registry.CPUDispatcher) and len(solver.signatures) >= 1
+
+
+def test_warmup_says_whether_it_compiled(capsys, monkeypatch):
+    """A second warmup compiles nothing and says so; a kernel compiled during the warmup is counted."""
+    assert main(["warmup"]) == 0
+    assert main(["warmup"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].endswith("(none compiled: cached or loaded)")
+    probe = types.ModuleType("mjkin._warmup_probe")
+    probe.kernel = numba.njit(lambda x: x + 1)  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, probe.__name__, probe)
+    steps = warmup._steps
+    monkeypatch.setattr(warmup, "_steps", lambda *a: [*steps(*a), ("probe", lambda: probe.kernel(1.5))])
+    assert main(["warmup"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].endswith("(compiled 1 kernel)")

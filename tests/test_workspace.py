@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 
@@ -64,3 +66,16 @@ def test_cli_workspace_plot(tmp_path, capsys):
     assert "annulus" in capsys.readouterr().out  # the last site (the tip) by default
     assert main(["workspace", "arm7", "--frame", "nope", "-o", str(tmp_path / "x.png")]) == 2
     assert "unknown site or body 'nope'" in capsys.readouterr().err and not (tmp_path / "x.png").exists()
+
+
+def test_cli_workspace_checks_the_output_before_sampling(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
+                        lambda *a, **k: pytest.fail("sampling ran before the output was checked"))
+    (tmp_path / "dir.png").mkdir()
+    for out, text in (("dir.png", "--output '{}' is a folder; give a file name"), ("ws.mp4", "must end in .png"),
+                      ("no/ws.png", "folder '{}' does not exist")):
+        path = tmp_path / out
+        assert main(["workspace", "arm7", "-o", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert text.format(path if out == "dir.png" else path.parent) in err and err.count("\n") == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["dir.png"]
