@@ -184,3 +184,15 @@ def test_no_nan_for_any_valid_target(xyz, method, scale):
                     method=method, max_iters=60)
     assert np.isfinite(r.q).all() and np.isfinite(r.error).all()
     np.testing.assert_allclose(tree.clip(r.q), r.q, atol=1e-12)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # numpy's overflow warnings, in SciPy's cost
+@settings(max_examples=20, deadline=None)
+@given(st.floats(1e150, 1e308), st.sampled_from(["auto", "lm", "dls", "pinv", "transpose", "ccd", "optimize"]))
+def test_absurdly_far_targets_fail_cleanly(far, method):
+    """A target beyond floating point's squares (found by a user: dls returned NaN q as "converged", pinv
+    raised LinAlgError, optimize returned NaN marked converged): a finite q in the limits, and no success."""
+    tree = tree_of("arm7")
+    r = mjkin.solve(tree, G.Position("ee", [far, 0.0, 0.0]), method=method, max_iters=20)
+    assert np.isfinite(r.q).all() and not r.success and r.status != "converged"
+    np.testing.assert_allclose(tree.clip(r.q), r.q, atol=1e-12)

@@ -489,12 +489,21 @@ def _max_abs(x: Array) -> float:
 
 
 @njit
+def _finite_row(x: Array) -> bool:
+    """Whether every entry of a ``(1, n)`` row is finite (no NaN, no inf)."""
+    for j in range(x.shape[1]):
+        if not abs(x[0, j]) < np.inf:
+            return False
+    return True
+
+
+@njit
 def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: Index, tol: float,
                 rot_tol: float) -> int:
     """How many levels, from the top, have every counted goal within tolerance."""
     met = level_rows.shape[0] - 1
     for i in range(err.shape[0]):
-        if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
+        if counted[i] and not (err[i, 0] <= tol and err[i, 1] <= rot_tol):  # NaN is never met
             lv = 0
             while level_rows[lv + 1] <= row[i]:
                 lv += 1
@@ -530,7 +539,7 @@ def _scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
 @njit
 def _converged(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
     for i in range(err.shape[0]):
-        if counted[i] and (err[i, 0] > tol or err[i, 1] > rot_tol):
+        if counted[i] and not (err[i, 0] <= tol and err[i, 1] <= rot_tol):  # NaN is never converged
             return False
     return True
 
@@ -645,6 +654,10 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             locked[d] = not active[d]
         for _ in range(3):  # lock joints the step would push through a limit, then re-solve
             _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
+            if not _finite_row(dq):  # beyond floating point (a target ~1e300 m away): no step, the run ends
+                dq[:] = 0.0
+                since_best = patience
+                break
             big = _max_abs(dq)
             if big > max_step:
                 dq[0] *= max_step / big

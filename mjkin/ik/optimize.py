@@ -119,7 +119,8 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     iters = np.zeros(B, np.int64)
     for b in range(B):
         one = _target(prog, b)
-        best, best_cost = None, np.inf
+        _, _, e = evaluate_program(tree, one, q[b][None])  # the start stands until a run ends with a finite cost
+        best, best_cost, err[b], status[b] = q[b], np.inf, e[0], UNREACHABLE
         starts = [q[b], *np.where(restart_q, restarts, q[b])]
         for k, start in enumerate(starts):
             qb, hit, n = _solve_one(tree, one, start, max_iters, active)
