@@ -5,8 +5,8 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
-  ``manipulability``, ``step``, ``recording``, ``screen``: each target's image point ``[u, v]``, ``camera``:
-  ``{"lookat", "distance", "azimuth", "elevation"}``).
+  ``manipulability``, ``step``, ``recording``, ``screen``:
+  each target's image point ``[u, v]``, ``camera``: ``{"lookat", "distance", "azimuth", "elevation"}``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
 - ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
   (along the line of sight) or ``{"frame", "turn": rad}`` (about it, for pose goals).
@@ -20,13 +20,15 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
 A bad request is a 400 with ``{"error": "one line"}``; a change while another client
-holds control is a 409 (see :mod:`mjkin.play.session`).
+holds control is a 409 (see :mod:`mjkin.play.session`). Every reply is strict JSON: a number that is not finite
+(an image point of a target level with the camera, say) is sent as ``null``.
 """
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import math
 import os
 import select
 import socket
@@ -65,6 +67,17 @@ class PlayServer(ThreadingHTTPServer):
         host, port = self.server_address[:2]
         host = str(host)
         return f"http://{f'[{host}]' if ':' in host else host}:{port}/"
+
+
+def finite(doc: Any) -> Any:
+    """``doc`` with every float that is not finite (inf, NaN) replaced by None, so it is strict JSON."""
+    if isinstance(doc, float):
+        return doc if math.isfinite(doc) else None
+    if isinstance(doc, dict):
+        return {k: finite(v) for k, v in doc.items()}
+    if isinstance(doc, (list, tuple)):
+        return [finite(v) for v in doc]
+    return doc
 
 
 def _number(value: Any, what: str) -> float:
@@ -123,7 +136,7 @@ class Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, doc: object, status: int = 200) -> None:
-        self._send(status, json.dumps(doc).encode(), "application/json")
+        self._send(status, json.dumps(finite(doc), allow_nan=False).encode(), "application/json")
 
     def _error(self, status: int, message: str) -> None:
         self._json({"error": " ".join(message.split())}, status)
