@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import tree_of
 from mjkin import build, motion, render
-from mjkin.errors import InputError, UnknownNameError
+from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.play import browser, core
 from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, finite, is_loopback, start_server, stop_server
 from mjkin.play.session import Playground, view_camera
@@ -754,6 +754,73 @@ def test_a_target_level_with_the_camera_has_null_image_points(api):
     assert all(np.isfinite(doc["q"])) and np.isfinite(doc["error"]).all()
 
 
+def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, served, monkeypatch):
+    """The folder went away: /stop was a 500 and the recording was gone. Now the error says it is kept."""
+    _, out = served
+    before = set(out.iterdir())
+    assert api.post("/record")[0] == 200
+    for k in range(3):
+        api.post("/target", {"frame": "ee", "pos": [0.4, 0.1 * k, 0.5]})
+        time.sleep(0.05)
+    away = out.with_name(out.name + "-away")
+    out.rename(away)
+    try:
+        status, doc = api.post("/stop")
+    finally:
+        away.rename(out)
+    assert status == 500 and "does not exist" in doc["error"] and "\n" not in doc["error"]
+    assert "the recording is kept" in doc["error"] and "POST /stop" in doc["error"]
+    _, state = api.get("/state")
+    assert state["unsaved"] and not state["recording"]
+    status, doc = api.post("/record")  # a new recording would hide the unsaved one
+    assert status == 400 and "not written yet" in doc["error"]
+    saved_script = motion.Trajectory.save
+
+    def fail_once(self, path):  # the video is written, then the script fails (disk full, say)
+        monkeypatch.setattr(motion.Trajectory, "save", saved_script)
+        raise MjkinIOError(f"cannot write {str(path)!r}: [Errno 28] No space left on device")
+
+    monkeypatch.setattr(motion.Trajectory, "save", fail_once)
+    status, doc = api.post("/stop")
+    assert status == 500 and "No space left" in doc["error"] and "the recording is kept" in doc["error"]
+    assert set(out.iterdir()) == before  # no video without its script, no temporary file
+    status, saved = api.post("/stop")  # the retry
+    assert status == 200 and saved["frames"] >= 2
+    traj = motion.Trajectory.load(saved["path"], arm())
+    np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
+    assert imageio.imread(saved["video"], index=None).shape[1:] == (H, W, 3)
+    assert not api.get("/state")[1]["unsaved"]
+    assert api.post("/stop")[0] == 400  # written: nothing left to stop
+
+
+def unwritable(tmp_path) -> str:
+    """A folder made read-only; skips when this user writes there anyway (root ignores permission bits)."""
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        (folder / "probe").write_text("")
+    except PermissionError:
+        return str(folder)
+    pytest.skip("this user (root?) writes into a read-only folder: chmod cannot make one unwritable here")
+
+
+@pytest.mark.parametrize(("out", "needle"), [
+    ("{tmp}/missing", "does not exist"),
+    ("/proc", "folder '/proc' is not writable"),  # not even root writes there
+    ("read-only", "is not writable (Permission denied)"),
+])
+def test_an_unwritable_recordings_folder_is_refused_at_the_start(tmp_path, out, needle):
+    out = unwritable(tmp_path) if out == "read-only" else out.format(tmp=tmp_path)
+    with pytest.raises(MjkinIOError, match="--out") as e:
+        Playground(arm(), W, H, out_dir=out)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+    proc = subprocess.run([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
+                           "--out", out], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.strip().count("\n") == 0
+    assert needle in proc.stderr and "Traceback" not in proc.stderr
+
+
 def test_frames_and_step_routes(api):
     status, doc = api.post("/frames", {"frames": ["ee", "link4"]})
     assert status == 200 and list(doc["targets"]) == ["ee", "link4"]
@@ -932,13 +999,14 @@ def test_browser_shows_numbers_the_server_sends_as_null_as_dashes(served):
             page.wait_for_function("state && state.screen.ee[0] === null")  # the page parsed it, no marker drawn
             shown = page.evaluate("""() => {
                 show({...state, goal: "pose", error: [null, null], manipulability: null, singular_values: [null, 1],
-                      q: state.q.map(() => null), screen_axes: {ee: [null, [0.5, null], [0.2, 0.3]]}});
+                      q: state.q.map(() => null), screen_axes: {ee: [null, [0.5, null], [0.2, 0.3]]},
+                      recording: false, unsaved: true});
                 return ["perr", "rerr", "manip", "smin"].map(id => $(id).textContent).concat(
-                    [document.querySelector("#sliders .v").textContent]);
+                    [document.querySelector("#sliders .v").textContent, $("record").disabled, $("stop").disabled]);
             }""")
             page.wait_for_timeout(700)  # a few polls of /state, with its null image point
         finally:
             chromium.close()
     client.post("/reset")
-    assert shown == ["-", "-", "-", "-", "-"]
+    assert shown == ["-", "-", "-", "-", "-", True, False]  # an unsaved recording: Stop & save writes it again
     assert errors == []

@@ -5,7 +5,7 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
-  ``manipulability``, ``step``, ``recording``, ``screen``:
+  ``manipulability``, ``step``, ``recording``, ``unsaved`` (a stopped recording not yet written), ``screen``:
   each target's image point ``[u, v]``, ``camera``: ``{"lookat", "distance", "azimuth", "elevation"}``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
 - ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
@@ -15,12 +15,13 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
 - ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
-  ``{"path", "video", "frames"}``.
+  ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
 A bad request is a 400 with ``{"error": "one line"}``; a change while another client
-holds control is a 409 (see :mod:`mjkin.play.session`). Every reply is strict JSON: a number that is not finite
+holds control is a 409 (see :mod:`mjkin.play.session`); a recording that cannot be written is a 500
+(it is kept: ``POST /stop`` again writes it). Every reply is strict JSON: a number that is not finite
 (an image point of a target level with the camera, say) is sent as ``null``.
 """
 
@@ -43,7 +44,7 @@ from typing import Any
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..tree import Tree, load
 from . import core
-from .session import Busy, Playground
+from .session import Busy, Playground, recordings_folder
 
 MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"
@@ -325,8 +326,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
-    if not Path(out_dir).is_dir():
-        raise MjkinIOError(f"recordings folder {str(out_dir)!r} does not exist")
+    recordings_folder(out_dir, tree.name or "model")  # before the long start (the Playground checks again)
     if not is_loopback(host):
         print(f"mjkin play: warning: serving on {host}, not loopback: anyone who can reach it can control "
               "the playground (there is no login)", file=sys.stderr)
@@ -349,6 +349,9 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     finally:
         if playground.recording:
             print("mjkin play: a recording was on; nothing was written (POST /stop writes it)", file=sys.stderr)
+        if playground.unsaved:
+            print("mjkin play: a stopped recording could not be written and is lost (see the page's error)",
+                  file=sys.stderr)
         if playground.exporting:
             print("mjkin play: finishing the recording being written...", file=sys.stderr)
         playground.close()
