@@ -25,7 +25,7 @@ from mjkin import build, motion, render
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.play import browser, core
 from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, finite, is_loopback, start_server, stop_server
-from mjkin.play.session import Playground, view_camera
+from mjkin.play.session import Playground, recordings_folder, view_camera
 
 IK_TOL = 1e-6
 W, H = 320, 240
@@ -813,10 +813,10 @@ def unwritable(tmp_path) -> str:
 def test_an_unwritable_recordings_folder_is_refused_at_the_start(tmp_path, out, needle):
     out = unwritable(tmp_path) if out == "read-only" else out.format(tmp=tmp_path)
     with pytest.raises(MjkinIOError, match="--out") as e:
-        Playground(arm(), W, H, out_dir=out)
+        recordings_folder(out, "arm7")
     assert needle in str(e.value) and "\n" not in str(e.value)
     proc = subprocess.run([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
-                           "--out", out], capture_output=True, text=True, timeout=300)
+                           "--out", out], capture_output=True, text=True, timeout=300)  # serves forever if accepted
     assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.strip().count("\n") == 0
     assert needle in proc.stderr and "Traceback" not in proc.stderr
 

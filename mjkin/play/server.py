@@ -326,7 +326,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
-    recordings_folder(out_dir, tree.name or "model")  # before the long start (the Playground checks again)
+    recordings_folder(out_dir, tree.name or "model")  # before the long start
     if not is_loopback(host):
         print(f"mjkin play: warning: serving on {host}, not loopback: anyone who can reach it can control "
               "the playground (there is no login)", file=sys.stderr)

@@ -114,7 +114,7 @@ class Playground:
         if not fps > 0 or not lease >= 0:
             raise InputError(f"fps must be > 0 and lease >= 0, got {fps!r}, {lease!r}")
         self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
-        self.out_dir = recordings_folder(out_dir, tree.name or "model")  # before the solver compiles
+        self.out_dir = Path(out_dir)  # checked by serve(); not here: benchmarks and stills never record
         home = core.initial_state(tree, frames)
         self.home = core.Camera.of(view_camera(tree, home.q))  # the initial camera, where "reset view" goes
         self.camera = self.home  # the camera of the moment (orbit, zoom); guarded by the lock like the state
