@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import signal
 import subprocess
@@ -20,11 +21,11 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import tree_of
-from mjkin import motion, render
-from mjkin.errors import InputError, UnknownNameError
+from mjkin import build, motion, render
+from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.play import browser, core
-from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, is_loopback, start_server, stop_server
-from mjkin.play.session import Playground, view_camera
+from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, finite, is_loopback, start_server, stop_server
+from mjkin.play.session import Playground, recordings_folder, view_camera
 
 IK_TOL = 1e-6
 W, H = 320, 240
@@ -395,7 +396,58 @@ def test_bad_events_are_input_errors(bad):
         core.with_frames(tree, state, [])
 
 
+def test_targets_beyond_far_are_refused_and_nearer_ones_solve_to_finite_numbers():
+    """1e308 m away the position error overflowed to inf (sent as Infinity); the solvers are finite up to FAR."""
+    tree, view = arm(), arm_view()
+    state = core.initial_state(tree)
+    centre, reach = tree.model.stat.center, core.FAR * tree.model.stat.extent
+    for event in (core.Place("ee", (1e308, 0.1, 0.4)), core.Place("ee", tuple(centre + [0, 0, 1.001 * reach])),
+                  core.Push("ee", 1e308), core.Push("ee", -2 * reach), core.Drag("ee", (0.5, 1e6))):
+        with pytest.raises(InputError, match=r"more than 1000 model extents \(1\.43e\+03 m\) from the model"):
+            core.move(tree, view, state, event)
+    for method in ("auto", "dls", "pinv", "transpose", "optimize"):
+        for goal in ("position", "pose"):
+            far = core.with_goal(core.with_method(state, method), goal)
+            solved = core.apply(tree, view, far, core.Place("ee", tuple(centre + 0.999 * reach * np.ones(3) / 3**0.5)))
+            assert np.isfinite([*solved.q, *solved.error, *solved.singular, solved.manipulability]).all()
+            assert not solved.success
+    slider = mjkin.load(build.dh_chain([[0, 0, 0.1, 0], [0.3, 0, 0, 0]], "PR"))  # an unlimited slide
+    assert not slider.jnt_limited[0]
+    state = core.initial_state(slider, ["ee"])
+    assert core.with_joint(slider, state, slider.names("joint")[0], 5.0).targets["ee"][2] == pytest.approx(5.1)
+    with pytest.raises(InputError, match="the target of 'ee' would be at \\[0.3, 0, 1e\\+308\\], more than"):
+        core.with_joint(slider, state, slider.names("joint")[0], 1e308)
+
+
+@settings(deadline=None, max_examples=40)
+@given(pos=st.lists(st.floats(allow_nan=False, allow_infinity=False) | st.floats(-2000, 2000), min_size=3, max_size=3))
+def test_a_placed_target_anywhere_is_refused_or_solved_to_finite_numbers(pos):
+    tree = arm()
+    try:
+        solved = core.apply(tree, arm_view(), core.initial_state(tree), core.Place("ee", tuple(pos)))
+    except InputError as e:
+        assert "model extents" in str(e) and "\n" not in str(e)
+        assert math.hypot(*(np.array(pos) - tree.model.stat.center)) > core.FAR * tree.model.stat.extent
+        return
+    assert np.isfinite([*solved.q, *solved.error, *solved.singular]).all()
+
+
+def test_a_target_level_with_the_camera_projects_to_non_finite_numbers_that_go_out_as_null():
+    view = arm_view()
+    point = view.project(view.pos)
+    assert not np.isfinite(point).any()
+    doc = finite({"screen": {"ee": point.tolist()}, "error": (float("inf"), 0.5), "n": 3, "ok": True})
+    assert doc == {"screen": {"ee": [None, None]}, "error": [None, 0.5], "n": 3, "ok": True}
+
+
 # ------------------------------------------------------------------- HTTP (real server)
+def strict_json(payload: bytes) -> object:
+    """Parse JSON as browsers do: ``Infinity`` and ``NaN`` (which Python's json writes by default) are errors."""
+    def refuse(word: str) -> None:
+        raise ValueError(f"not JSON: {word}")
+    return json.loads(payload, parse_constant=refuse)
+
+
 class Client:
     def __init__(self, port: int, name: str = "test") -> None:
         self.port, self.name = port, name
@@ -408,7 +460,7 @@ class Client:
         payload = resp.read()
         conn.close()
         kind = resp.getheader("Content-Type") or ""
-        return resp.status, json.loads(payload) if kind.startswith("application/json") else payload
+        return resp.status, strict_json(payload) if kind.startswith("application/json") else payload
 
     def get(self, path: str):
         return self.request("GET", path)
@@ -670,6 +722,105 @@ def test_record_and_stop_write_a_script_and_a_video(api, served):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary files left
 
 
+def test_absurd_numbers_get_one_line_400s_and_every_reply_is_strict_json(api):
+    """A target 1e308 m away was a 200 with Infinity in it, and /state kept it: the page's r.json() failed."""
+    refused = [("/target", {"frame": "ee", "pos": [1e308, 0.1, 0.4]}), ("/drag", {"frame": "ee", "depth": 1e308}),
+               ("/drag", {"frame": "ee", "uv": [0.5, 1e6]})]
+    for path, body in refused:
+        status, doc = api.post(path, body)  # the client parses strictly: Infinity or NaN would raise
+        assert status == 400 and "model extents" in doc["error"] and "\n" not in doc["error"], (path, doc)
+    for path in ("/state", "/info"):
+        assert api.get(path)[0] == 200
+    accepted = [("/view", {"orbit": [1e308, -1e308]}), ("/view", {"zoom": 1e308}),
+                ("/joint", {"joint": "j1", "value": 1e308}), ("/method", {"method": "dls"}),
+                ("/goal", {"goal": "pose"}),
+                ("/target", {"frame": "ee", "pos": [0.4, 0.1, 0.4], "quat": [1e308, 0, 0, 1e308]}),
+                ("/frames", {"frames": ["ee", "link4"]}), ("/step", {"on": False}), ("/reset", {}),
+                ("/view", {"reset": True})]
+    for path, body in accepted:
+        status, doc = api.post(path, body)
+        assert status == 200, (path, doc)
+        if path == "/target":  # the huge quaternion, made unit without overflowing to zeros
+            np.testing.assert_allclose(doc["targets"]["ee"][3:], [0.5**0.5, 0, 0, 0.5**0.5], atol=1e-12)
+    assert api.get("/state")[0] == 200
+
+
+def test_a_target_level_with_the_camera_has_null_image_points(api):
+    _, state = api.get("/state")
+    eye = view_of(state["camera"]).pos
+    status, doc = api.post("/target", {"frame": "ee", "pos": eye.tolist()})
+    assert status == 200 and doc["screen"]["ee"] == [None, None]
+    assert api.get("/state")[1]["screen"]["ee"] == [None, None]
+    assert all(np.isfinite(doc["q"])) and np.isfinite(doc["error"]).all()
+
+
+def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, served, monkeypatch):
+    """The folder went away: /stop was a 500 and the recording was gone. Now the error says it is kept."""
+    _, out = served
+    before = set(out.iterdir())
+    assert api.post("/record")[0] == 200
+    for k in range(3):
+        api.post("/target", {"frame": "ee", "pos": [0.4, 0.1 * k, 0.5]})
+        time.sleep(0.05)
+    away = out.with_name(out.name + "-away")
+    out.rename(away)
+    try:
+        status, doc = api.post("/stop")
+    finally:
+        away.rename(out)
+    assert status == 500 and "does not exist" in doc["error"] and "\n" not in doc["error"]
+    assert "the recording is kept" in doc["error"] and "POST /stop" in doc["error"]
+    _, state = api.get("/state")
+    assert state["unsaved"] and not state["recording"]
+    status, doc = api.post("/record")  # a new recording would hide the unsaved one
+    assert status == 400 and "not written yet" in doc["error"]
+    saved_script = motion.Trajectory.save
+
+    def fail_once(self, path):  # the video is written, then the script fails (disk full, say)
+        monkeypatch.setattr(motion.Trajectory, "save", saved_script)
+        raise MjkinIOError(f"cannot write {str(path)!r}: [Errno 28] No space left on device")
+
+    monkeypatch.setattr(motion.Trajectory, "save", fail_once)
+    status, doc = api.post("/stop")
+    assert status == 500 and "No space left" in doc["error"] and "the recording is kept" in doc["error"]
+    assert set(out.iterdir()) == before  # no video without its script, no temporary file
+    status, saved = api.post("/stop")  # the retry
+    assert status == 200 and saved["frames"] >= 2
+    traj = motion.Trajectory.load(saved["path"], arm())
+    np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
+    assert imageio.imread(saved["video"], index=None).shape[1:] == (H, W, 3)
+    assert not api.get("/state")[1]["unsaved"]
+    assert api.post("/stop")[0] == 400  # written: nothing left to stop
+
+
+def unwritable(tmp_path) -> str:
+    """A folder made read-only; skips when this user writes there anyway (root ignores permission bits)."""
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        (folder / "probe").write_text("")
+    except PermissionError:
+        return str(folder)
+    pytest.skip("this user (root?) writes into a read-only folder: chmod cannot make one unwritable here")
+
+
+@pytest.mark.parametrize(("out", "needle"), [
+    ("{tmp}/missing", "does not exist"),
+    ("/proc", "folder '/proc' is not writable"),  # not even root writes there
+    ("read-only", "is not writable (Permission denied)"),
+])
+def test_an_unwritable_recordings_folder_is_refused_at_the_start(tmp_path, out, needle):
+    out = unwritable(tmp_path) if out == "read-only" else out.format(tmp=tmp_path)
+    with pytest.raises(MjkinIOError, match="--out") as e:
+        recordings_folder(out, "arm7")
+    assert needle in str(e.value) and "\n" not in str(e.value)
+    proc = subprocess.run([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
+                           "--out", out], capture_output=True, text=True, timeout=300)  # serves forever if accepted
+    assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.strip().count("\n") == 0
+    assert needle in proc.stderr and "Traceback" not in proc.stderr
+
+
 def test_frames_and_step_routes(api):
     status, doc = api.post("/frames", {"frames": ["ee", "link4"]})
     assert status == 200 and list(doc["targets"]) == ["ee", "link4"]
@@ -822,3 +973,40 @@ def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_targ
     assert alt["camera"]["distance"] == pytest.approx(cam["distance"] * np.exp(100 * 0.0025), rel=1e-9)
     assert alt["targets"] == after["targets"]  # neither grabbed the target
     assert client.get("/state")[1]["camera"] == home  # the "Reset view" button
+
+
+def test_browser_shows_numbers_the_server_sends_as_null_as_dashes(served):
+    """The page reads strict JSON (null for a number that is not finite) and keeps working."""
+    reason = browser.missing()
+    if reason:
+        print(f"browser test skipped: {reason}")
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    server, _ = served
+    client = Client(server.server_address[1], "watcher")
+    time.sleep(0.6)  # the other tests' lease has run out
+    client.post("/reset")
+    _, state = client.post("/view", {"reset": True})
+    eye = view_of(state["camera"]).pos
+    assert client.post("/target", {"frame": "ee", "pos": eye.tolist()})[1]["screen"]["ee"] == [None, None]
+    with sync_playwright() as p:
+        chromium = browser.launch(p)
+        try:
+            page = browser.open_page(chromium, server.url)
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.wait_for_function("state && state.screen.ee[0] === null")  # the page parsed it, no marker drawn
+            shown = page.evaluate("""() => {
+                show({...state, goal: "pose", error: [null, null], manipulability: null, singular_values: [null, 1],
+                      q: state.q.map(() => null), screen_axes: {ee: [null, [0.5, null], [0.2, 0.3]]},
+                      recording: false, unsaved: true});
+                return ["perr", "rerr", "manip", "smin"].map(id => $(id).textContent).concat(
+                    [document.querySelector("#sliders .v").textContent, $("record").disabled, $("stop").disabled]);
+            }""")
+            page.wait_for_timeout(700)  # a few polls of /state, with its null image point
+        finally:
+            chromium.close()
+    client.post("/reset")
+    assert shown == ["-", "-", "-", "-", "-", True, False]  # an unsaved recording: Stop & save writes it again
+    assert errors == []

@@ -11,6 +11,7 @@ a thread or a GL context, so all of it is tested without a browser.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -31,6 +32,9 @@ PANEL_METHODS = tuple(m for m in ("auto", "dls", "pinv", "transpose", "ccd", "re
 GOAL_KINDS = ("position", "pose", "aim")
 AUTO_ITERS = 200  # auto follows without restarts, so it gets more iterations than its 50 per restart
 AIM_AXIS = (0.0, 0.0, 1.0)  # the effector axis that aim goals point at the target (z: out of the flange)
+# targets farther than this many model extents from the model's centre are refused: no figure reaches them, and
+# at ~1e154 m the position error overflows (every panel method still gives finite results at this distance)
+FAR = 1000.0
 
 
 # ---------------------------------------------------------------------- camera
@@ -111,12 +115,13 @@ class View:
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def project(self, points: ArrayLike) -> Array:
-        """Image points ``(..., 2)`` of world ``points (..., 3)`` (in front of the camera)."""
+        """Image points ``(..., 2)`` of world ``points (..., 3)`` (in front of the camera; level with it: inf, NaN)."""
         rel = np.asarray(points, float) - self.pos
         z = rel @ self.forward
         t = np.tan(np.radians(self.fovy) / 2)
-        x = (rel @ self.right) / (z * t * self.aspect)
-        y = (rel @ self.up) / (z * t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = (rel @ self.right) / (z * t * self.aspect)
+            y = (rel @ self.up) / (z * t)
         return np.stack([(x + 1) / 2, (1 - y) / 2], axis=-1)
 
 
@@ -266,6 +271,15 @@ def frame_target(tree: Tree, q: Array, frame: str) -> Array:
     return np.concatenate([T[:3, 3], spatial.mat_to_quat(T[:3, :3])])
 
 
+def check_near(tree: Tree, frame: str, pos: Array) -> None:
+    """Refuse a target of ``frame`` at ``pos (3,)`` farther than :data:`FAR` model extents from the model's centre."""
+    centre, reach = tree.model.stat.center, FAR * (float(tree.model.stat.extent) or 1.0)
+    if not math.hypot(*(np.asarray(pos, float) - centre)) <= reach:  # hypot: no overflow on the way
+        at = ", ".join(f"{x:.3g}" for x in pos)
+        raise InputError(f"the target of {frame!r} would be at [{at}], more than {FAR:g} model extents "
+                         f"({reach:.3g} m) from the model; keep targets within that")
+
+
 def initial_state(tree: Tree, frames: Sequence[str] | None = None, method: str = "auto") -> State:
     """The first keyframe (else ``qpos0``), with targets where the effector frames are."""
     q = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
@@ -298,7 +312,10 @@ def with_goal(state: State, goal: str) -> State:
 
 
 def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
-    """Forward kinematics: set one hinge or slide joint (clipped to its range); the targets follow the frames."""
+    """Forward kinematics: set one hinge or slide joint (clipped to its range); the targets follow the frames.
+
+    A slide that would take a frame beyond :data:`FAR` is refused.
+    """
     j = tree.id(joint, "joint")
     if int(tree.jnt_type[j]) not in (HINGE, SLIDE):
         raise InputError(f"joint {joint!r} is a ball or free joint; sliders move hinge and slide joints only")
@@ -308,12 +325,14 @@ def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
     q[tree.jnt_qadr[j]] = value
     q = tree.clip(q)
     targets = {f: frame_target(tree, q, f) for f in state.targets}
+    for f, t in targets.items():
+        check_near(tree, f, t[:3])
     return replace(state, q=q, targets=targets, error=(0.0, 0.0), iterations=0, status="converged",
                    success=True, stalled=False)
 
 
 def move(tree: Tree, view: View, state: State, event: Event) -> State:
-    """New targets after a drag, a push, a turn or a placement (``q`` unchanged)."""
+    """New targets after a drag, a push, a turn or a placement (``q`` unchanged); none beyond :data:`FAR`."""
     if event.frame not in state.targets:
         tree.frame(event.frame)  # an unknown name: the error lists the names that exist
         state = with_frames(tree, state, [*state.targets, event.frame])
@@ -339,9 +358,11 @@ def move(tree: Tree, view: View, state: State, event: Event) -> State:
         new[:3] = pos
         if event.quat is not None:
             quat = np.asarray(event.quat, float)
-            if quat.shape != (4,) or not np.isfinite(quat).all() or np.linalg.norm(quat) < 1e-9:
+            if quat.shape != (4,) or not np.isfinite(quat).all() or np.abs(quat).max() < 1e-9:
                 raise InputError(f"quat must be 4 finite numbers [w, x, y, z], not all zero, got {event.quat!r}")
+            quat = quat / np.abs(quat).max()  # first to ~1: the norm of [1e308, 0, 0, 1e308] would overflow
             new[3:] = quat / np.linalg.norm(quat)
+    check_near(tree, event.frame, new[:3])
     return pending(replace(state, targets={**state.targets, event.frame: new}))
 
 

@@ -5,8 +5,8 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
-  ``manipulability``, ``step``, ``recording``, ``screen``: each target's image point ``[u, v]``, ``camera``:
-  ``{"lookat", "distance", "azimuth", "elevation"}``).
+  ``manipulability``, ``step``, ``recording``, ``unsaved`` (a stopped recording not yet written), ``screen``:
+  each target's image point ``[u, v]``, ``camera``: ``{"lookat", "distance", "azimuth", "elevation"}``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
 - ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
   (along the line of sight) or ``{"frame", "turn": rad}`` (about it, for pose goals).
@@ -15,18 +15,21 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
 - ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
-  ``{"path", "video", "frames"}``.
+  ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
 A bad request is a 400 with ``{"error": "one line"}``; a change while another client
-holds control is a 409 (see :mod:`mjkin.play.session`).
+holds control is a 409 (see :mod:`mjkin.play.session`); a recording that cannot be written is a 500
+(it is kept: ``POST /stop`` again writes it). Every reply is strict JSON: a number that is not finite
+(an image point of a target level with the camera, say) is sent as ``null``.
 """
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import math
 import os
 import select
 import socket
@@ -41,7 +44,7 @@ from typing import Any
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..tree import Tree, load
 from . import core
-from .session import Busy, Playground
+from .session import Busy, Playground, recordings_folder
 
 MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"
@@ -65,6 +68,17 @@ class PlayServer(ThreadingHTTPServer):
         host, port = self.server_address[:2]
         host = str(host)
         return f"http://{f'[{host}]' if ':' in host else host}:{port}/"
+
+
+def finite(doc: Any) -> Any:
+    """``doc`` with every float that is not finite (inf, NaN) replaced by None, so it is strict JSON."""
+    if isinstance(doc, float):
+        return doc if math.isfinite(doc) else None
+    if isinstance(doc, dict):
+        return {k: finite(v) for k, v in doc.items()}
+    if isinstance(doc, (list, tuple)):
+        return [finite(v) for v in doc]
+    return doc
 
 
 def _number(value: Any, what: str) -> float:
@@ -123,7 +137,7 @@ class Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, doc: object, status: int = 200) -> None:
-        self._send(status, json.dumps(doc).encode(), "application/json")
+        self._send(status, json.dumps(finite(doc), allow_nan=False).encode(), "application/json")
 
     def _error(self, status: int, message: str) -> None:
         self._json({"error": " ".join(message.split())}, status)
@@ -312,8 +326,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
-    if not Path(out_dir).is_dir():
-        raise MjkinIOError(f"recordings folder {str(out_dir)!r} does not exist")
+    recordings_folder(out_dir, tree.name or "model")  # before the long start
     if not is_loopback(host):
         print(f"mjkin play: warning: serving on {host}, not loopback: anyone who can reach it can control "
               "the playground (there is no login)", file=sys.stderr)
@@ -336,6 +349,9 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     finally:
         if playground.recording:
             print("mjkin play: a recording was on; nothing was written (POST /stop writes it)", file=sys.stderr)
+        if playground.unsaved:
+            print("mjkin play: a stopped recording could not be written and is lost (see the page's error)",
+                  file=sys.stderr)
         if playground.exporting:
             print("mjkin play: finishing the recording being written...", file=sys.stderr)
         playground.close()

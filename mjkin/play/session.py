@@ -16,7 +16,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -24,7 +24,8 @@ import mujoco
 import numpy as np
 
 from .. import motion, render, spatial
-from ..errors import InputError, MjkinError
+from ..errors import InputError, MjkinError, MjkinIOError
+from ..files import check_writable
 from ..tree import Tree
 from . import core
 
@@ -37,6 +38,35 @@ MARKERS = render.Overlay(point_size=0.03, point_rgba=(0.95, 0.2, 0.2, 1.0), trai
 
 class Busy(MjkinError):
     """Another client controls the playground for now."""
+
+
+Sample = tuple[float, np.ndarray, np.ndarray]  # (seconds since the start, q, target points (n, 3))
+
+
+@dataclass(frozen=True)
+class Take:
+    """A stopped recording until it is written: its samples, and the camera and state when it stopped."""
+
+    samples: list[Sample]
+    camera: core.Camera
+    state: core.State
+
+
+def recordings_folder(folder: str | Path, model: str) -> Path:
+    """``folder`` once a recording can be written there (a probe file is made and removed), else one-line errors.
+
+    Raises:
+        MjkinIOError: ``folder`` is missing, not a folder, or not writable.
+    """
+    path = Path(folder)
+    if not path.is_dir():
+        raise MjkinIOError(f"recordings folder {str(folder)!r} does not exist or is not a folder; "
+                           "give an existing one (--out)")
+    try:
+        check_writable(path / f"mjkin-play-{model}.mp4")
+    except MjkinIOError as e:
+        raise MjkinIOError(f"{e}; recordings go there: give a folder you can write (--out)") from None
+    return path
 
 
 def encode_jpeg(image: np.ndarray, quality: int = 80) -> bytes:
@@ -84,7 +114,7 @@ class Playground:
         if not fps > 0 or not lease >= 0:
             raise InputError(f"fps must be > 0 and lease >= 0, got {fps!r}, {lease!r}")
         self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
-        self.out_dir = Path(out_dir)
+        self.out_dir = Path(out_dir)  # checked by serve(); not here: benchmarks and stills never record
         home = core.initial_state(tree, frames)
         self.home = core.Camera.of(view_camera(tree, home.q))  # the initial camera, where "reset view" goes
         self.camera = self.home  # the camera of the moment (orbit, zoom); guarded by the lock like the state
@@ -97,7 +127,8 @@ class Playground:
         self._frame: tuple[int, int, bytes] = (-1, -1, b"")  # (state version, frame number, jpeg)
         self._controller: str | None = None
         self._lease_until = 0.0
-        self._recording: list[tuple[float, np.ndarray, np.ndarray]] | None = None
+        self._recording: list[Sample] | None = None
+        self._unsaved: Take | None = None  # stopped, not yet written (the folder failed): POST /stop retries
         self._record_start = 0.0
         self._error: BaseException | None = None
         self._export = threading.Lock()  # held while a recording is written; close() waits for it
@@ -202,52 +233,75 @@ class Playground:
             self._claim(client)
             if self._recording is not None:
                 raise InputError("already recording; POST /stop first")
+            if self._unsaved is not None:
+                raise InputError("the last recording is not written yet; Stop & save (POST /stop) writes it")
             self._recording, self._record_start = [], time.monotonic()
         self._wake.set()
         return self.snapshot()
 
     def stop(self, client: str) -> dict:
-        """Stop recording; write the trajectory script (JSON) and an mp4 beside it (the camera of now), atomically.
+        """Stop recording; write the trajectory script (JSON) and an mp4 beside it (the camera at the stop), atomically.
 
-        Returns ``{"path": script, "video": mp4, "frames": n}``.
+        Returns ``{"path": script, "video": mp4, "frames": n}``. When writing fails
+        (disk full, folder gone) the recording is kept and the error says so; calling
+        again writes it.
         """
         with self._export:
             with self._lock:
                 self._claim(client)
-                samples, self._recording, camera = self._recording, None, self.camera
-            if samples is None:
+                if self._recording is not None:
+                    self._unsaved = Take(self._recording, self.camera, self.state)
+                    self._recording = None
+                take = self._unsaved
+            if take is None:
                 raise InputError("not recording; POST /record first")
             if self.closed:
                 raise InputError("the playground is shutting down; the recording is not written")
-            return self._write(samples, camera)
+            try:
+                saved = self._write(take)
+            except MjkinIOError as e:
+                raise MjkinIOError(f"{e}; the recording is kept: free space or fix the folder, then Stop & save "
+                                   "again (POST /stop)") from None
+            with self._lock:
+                self._unsaved = None
+            return saved
 
-    def _write(self, samples: list[tuple[float, np.ndarray, np.ndarray]], camera: core.Camera) -> dict:
+    def _write(self, take: Take) -> dict:
+        samples, state = take.samples, take.state
         if len(samples) < 2:
-            samples = samples + [samples[-1]] if samples else [(0.0, self.state.q, self._points(self.state))] * 2
+            samples = samples + [samples[-1]] if samples else [(0.0, state.q, self._points(state))] * 2
         times = np.array([s[0] for s in samples])
         qs = np.array([s[1] for s in samples])
         counts = {len(s[2]) for s in samples}
         targets = np.array([s[2] for s in samples]) if len(counts) == 1 else None
         stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
         base = self.out_dir / f"mjkin-play-{self.tree.name or 'model'}-{stamp}"
-        frames = list(self.state.targets)
+        frames = list(state.targets)
         traj = motion.Trajectory(times=times - times[0], q=qs, fingerprint=motion.fingerprint(self.tree),
                                  model=self.tree.name, site=frames[0], targets=targets,
-                                 meta={"play": {"frames": frames, "method": self.state.method,
-                                                "goal": self.state.goal}})
+                                 meta={"play": {"frames": frames, "method": state.method, "goal": state.goal}})
         video_fps = 30.0
         pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
         overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
-        images = render.frames(self.tree, qs[pick], self.width, self.height, camera=camera.mjv(self.tree.model),
-                               overlay=overlay)
+        images = render.frames(self.tree, qs[pick], self.width, self.height,
+                               camera=take.camera.mjv(self.tree.model), overlay=overlay)
         video = render.write_video(images, base.with_suffix(".mp4"), video_fps)
-        script = traj.save(base.with_suffix(".json"))
+        try:
+            script = traj.save(base.with_suffix(".json"))
+        except BaseException:
+            video.unlink(missing_ok=True)  # no video without its script: the retry writes both
+            raise
         return {"path": str(script), "video": str(video), "frames": len(samples)}
 
     @property
     def recording(self) -> bool:
         """A recording is on."""
         return self._recording is not None
+
+    @property
+    def unsaved(self) -> bool:
+        """A stopped recording could not be written yet (:meth:`stop` again writes it)."""
+        return self._unsaved is not None
 
     # --------------------------------------------------------------- output
     def _points(self, state: core.State) -> np.ndarray:
@@ -256,7 +310,8 @@ class Playground:
     def snapshot(self) -> dict:
         """The state as the JSON of ``GET /state``."""
         with self._lock:
-            s, version, recording, camera = self.state, self._version, self._recording is not None, self.camera
+            s, version, camera = self.state, self._version, self.camera
+            recording, unsaved = self._recording is not None, self._unsaved is not None
             controller = self._controller if time.monotonic() < self._lease_until else None
         view = core.View.of(camera, self.tree.model, self.width, self.height)
         points = self._points(s)
@@ -268,7 +323,7 @@ class Playground:
                 "error": list(s.error), "iterations": s.iterations, "method": s.method, "goal": s.goal,
                 "status": s.status, "success": s.success, "stepping": core.needs_step(s),
                 "singular_values": list(s.singular), "manipulability": s.manipulability, "step": s.step,
-                "recording": recording, "controlled": controller is not None, "version": version,
+                "recording": recording, "unsaved": unsaved, "controlled": controller is not None, "version": version,
                 "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
                 "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)},
                 "camera": {"lookat": list(camera.lookat), "distance": camera.distance, "azimuth": camera.azimuth,
