@@ -535,7 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
     s.add_argument("model", help=model_help)
     s.add_argument("--frame", help="the site or body whose workspace is sampled (default: the model's last site)")
-    s.add_argument("--samples", type=positive_int, default=20_000, help="random configurations (default 20000)")
+    s.add_argument("--samples", type=positive_int, default=100_000, help="random configurations (default 100000)")
     s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
     s.set_defaults(run=cmd_workspace)
 
