@@ -8,8 +8,6 @@ traceback.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -21,7 +19,7 @@ import numpy as np
 from . import bench, motion, progress, spatial
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
 from .errors import InputError, MjkinError
-from .files import check_writable
+from .files import check_writable, strict_json
 from .goals import Goal, Orientation, Position
 from .ik.solve import METHODS, solve
 from .qspace import HINGE, JOINT_NAMES
@@ -162,7 +160,7 @@ def cmd_fk(args: argparse.Namespace) -> int:
         out.append({"kind": kind, "name": tree.names(kind)[i], "pos": T[:3, 3].tolist(),
                     "quat": spatial.mat_to_quat(T[:3, :3]).tolist()})
     if args.json:
-        print(dumps({"q": q.tolist(), "frames": out}, indent=1))
+        print(strict_json({"q": q.tolist(), "frames": out}, indent=1))
     else:
         for f in out:
             pos = " ".join(f"{v: .6f}" for v in f["pos"])  # type: ignore[union-attr]
@@ -187,7 +185,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
               "method": res.method}
     if args.json:
-        print(dumps(report))
+        print(strict_json(report))
     else:
         print(f"{'success' if res.success else 'failed'}: {res.status} after {report['iterations']} iterations, "
               f"{report['restarts']} restarts ({res.method})")
@@ -195,21 +193,6 @@ def cmd_ik(args: argparse.Namespace) -> int:
               + ("" if args.quat is not None else " (not a goal)"))
         print("q " + " ".join(f"{v:.6f}" for v in res.q))
     return 0
-
-
-def dumps(data: object, indent: int | None = None) -> str:
-    """Strict JSON text of ``data``: non-finite numbers (an infinite error, say) become null."""
-    return json.dumps(_finite(data), indent=indent, allow_nan=False)
-
-
-def _finite(data: object) -> object:
-    if isinstance(data, float) and not math.isfinite(data):
-        return None
-    if isinstance(data, dict):
-        return {k: _finite(v) for k, v in data.items()}
-    if isinstance(data, list | tuple):
-        return [_finite(v) for v in data]
-    return data
 
 
 def _points(text: str) -> np.ndarray:

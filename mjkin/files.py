@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
+import math
 import os
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 from .errors import InputError, MjkinIOError
 
@@ -84,3 +87,18 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[Path], object]) -
         except OSError as e:
             raise MjkinIOError(f"cannot write {str(path)!r}: {e}") from None
     return Path(path)
+
+
+def strict_json(data: Any, indent: int | None = None) -> str:
+    """JSON text of ``data`` that every parser takes: non-finite numbers (an infinite error, say) become null."""
+    return json.dumps(_finite(data), indent=indent, allow_nan=False)
+
+
+def _finite(data: Any) -> Any:
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite(v) for v in data]
+    return data

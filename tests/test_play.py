@@ -23,8 +23,9 @@ import mjkin
 from conftest import tree_of
 from mjkin import build, motion, render
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
+from mjkin.files import strict_json as to_strict_json
 from mjkin.play import browser, core
-from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, finite, is_loopback, start_server, stop_server
+from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, is_loopback, start_server, stop_server
 from mjkin.play.session import Playground, recordings_folder, view_camera
 
 IK_TOL = 1e-6
@@ -436,8 +437,8 @@ def test_a_target_level_with_the_camera_projects_to_non_finite_numbers_that_go_o
     view = arm_view()
     point = view.project(view.pos)
     assert not np.isfinite(point).any()
-    doc = finite({"screen": {"ee": point.tolist()}, "error": (float("inf"), 0.5), "n": 3, "ok": True})
-    assert doc == {"screen": {"ee": [None, None]}, "error": [None, 0.5], "n": 3, "ok": True}
+    doc = to_strict_json({"screen": {"ee": point.tolist()}, "error": (float("inf"), 0.5), "n": 3, "ok": True})
+    assert json.loads(doc) == {"screen": {"ee": [None, None]}, "error": [None, 0.5], "n": 3, "ok": True}
 
 
 # ------------------------------------------------------------------- HTTP (real server)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import ipaddress
 import json
-import math
 import os
 import select
 import socket
@@ -42,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError, MjkinError, MjkinIOError
+from ..files import strict_json
 from ..tree import Tree, load
 from . import core
 from .session import Busy, Playground, recordings_folder
@@ -68,17 +68,6 @@ class PlayServer(ThreadingHTTPServer):
         host, port = self.server_address[:2]
         host = str(host)
         return f"http://{f'[{host}]' if ':' in host else host}:{port}/"
-
-
-def finite(doc: Any) -> Any:
-    """``doc`` with every float that is not finite (inf, NaN) replaced by None, so it is strict JSON."""
-    if isinstance(doc, float):
-        return doc if math.isfinite(doc) else None
-    if isinstance(doc, dict):
-        return {k: finite(v) for k, v in doc.items()}
-    if isinstance(doc, (list, tuple)):
-        return [finite(v) for v in doc]
-    return doc
 
 
 def _number(value: Any, what: str) -> float:
@@ -137,7 +126,7 @@ class Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, doc: object, status: int = 200) -> None:
-        self._send(status, json.dumps(finite(doc), allow_nan=False).encode(), "application/json")
+        self._send(status, strict_json(doc).encode(), "application/json")
 
     def _error(self, status: int, message: str) -> None:
         self._json({"error": " ".join(message.split())}, status)
