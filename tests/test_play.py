@@ -874,18 +874,27 @@ def test_cli_bad_port_is_one_line():
 
 
 # ------------------------------------------------------------------------- browser
-def test_browser_drags_the_target_and_the_figure_follows(served):
+def browser_client(served) -> tuple:
+    """For a browser test: the server, a watcher client, and the state after a reset of pose and view.
+
+    Skips (and says why) where Chromium or playwright is missing.
+    """
     reason = browser.missing()
     if reason:
         print(f"browser test skipped: {reason}")
         pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
-
     server, _ = served
     client = Client(server.server_address[1], "watcher")
     time.sleep(0.6)  # the other tests' lease has run out
     client.post("/reset")
-    client.post("/view", {"reset": True})
+    _, state = client.post("/view", {"reset": True})
+    return server, client, state
+
+
+def test_browser_drags_the_target_and_the_figure_follows(served):
+    from playwright.sync_api import sync_playwright
+
+    server, client, _ = browser_client(served)
     time.sleep(0.6)
     _, before = client.get("/state")
     _, frame_before = client.get("/frame.jpg")
@@ -914,17 +923,9 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
 
 
 def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_target(served):
-    reason = browser.missing()
-    if reason:
-        print(f"browser test skipped: {reason}")
-        pytest.skip(reason)
     from playwright.sync_api import sync_playwright
 
-    server, _ = served
-    client = Client(server.server_address[1], "watcher")
-    time.sleep(0.6)  # the other tests' lease has run out
-    client.post("/reset")
-    client.post("/view", {"reset": True})
+    server, client, _ = browser_client(served)
     time.sleep(0.6)
     _, before = client.get("/state")
     settled = "!inFlight && !pending && !orbitBy && !zoomBy"  # the page has sent every move it had
@@ -978,17 +979,9 @@ def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_targ
 
 def test_browser_shows_numbers_the_server_sends_as_null_as_dashes(served):
     """The page reads strict JSON (null for a number that is not finite) and keeps working."""
-    reason = browser.missing()
-    if reason:
-        print(f"browser test skipped: {reason}")
-        pytest.skip(reason)
     from playwright.sync_api import sync_playwright
 
-    server, _ = served
-    client = Client(server.server_address[1], "watcher")
-    time.sleep(0.6)  # the other tests' lease has run out
-    client.post("/reset")
-    _, state = client.post("/view", {"reset": True})
+    server, client, state = browser_client(served)
     eye = view_of(state["camera"]).pos
     assert client.post("/target", {"frame": "ee", "pos": eye.tolist()})[1]["screen"]["ee"] == [None, None]
     with sync_playwright() as p:
