@@ -309,7 +309,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         timeout: seconds each target may take (checked inside the compiled loop,
             per target, also in batches; ``auto``/``lm``/``dls``/``pinv``/
             ``transpose``); a target that runs out returns its best pose so far
-            with ``status="timeout"``.
+            with ``status="timeout"``; ``inf`` means no limit.
 
     Restarts (and collision retries) randomise only the joints that move a goal
     frame and may move (``joints``/``base``); every other joint keeps its ``q0``
@@ -320,7 +320,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     so a loop of single solves costs little more than the solves themselves.
 
     Raises:
-        GoalError, UnknownNameError, InputError: malformed goals, names or options.
+        GoalError, UnknownNameError, InputError: malformed goals, names or options (every
+            numeric option is checked: a NaN, a string or a value out of range is one line
+            naming it).
     """
     if method not in METHODS:
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
