@@ -6,15 +6,21 @@ import argparse
 import math
 
 
-def positive_int(text: str) -> int:
-    """An argparse type: an integer > 0."""
+def _whole(text: str, least: int) -> int:
+    """``text`` as an integer >= ``least``, else argparse's error saying the rule."""
+    rule = f"a whole number {'> 0' if least == 1 else f'>= {least}'}"
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number > 0, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
+        raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}") from None
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be {rule}, got {value}")
     return value
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer > 0."""
+    return _whole(text, 1)
 
 
 def positive_float(text: str) -> float:
@@ -30,13 +36,7 @@ def positive_float(text: str) -> float:
 
 def nonnegative_int(text: str) -> int:
     """An argparse type: an integer >= 0 (``--seed``: numpy's generators refuse negative seeds)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
-    return value
+    return _whole(text, 0)
 
 
 class Once(argparse.Action):

@@ -87,10 +87,10 @@ def bad_script(tmp_path, **change):
 
 
 BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
-    (["demo", "--width", "-5"], "--width: must be > 0"),
+    (["demo", "--width", "-5"], "--width: must be a whole number > 0"),
     (["demo", "--width", "100000", "--height", "100000"], "--width must be at most 8192"),
     (["demo", "--width", "8192", "--height", "8192"], "GiB of memory"),
-    (["demo", "--height", "0"], "--height: must be > 0"),
+    (["demo", "--height", "0"], "--height: must be a whole number > 0"),
     (["demo", "--width", "6.5"], "--width: must be a whole number"),
     (["demo", "--fps", "-5"], "--fps: must be a finite number > 0"),
     (["demo", "--fps", "0"], "--fps: must be a finite number > 0"),
@@ -109,7 +109,7 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["trajectory", "planar_2link", "--site", "tip", "--path", "line", "--end", "0,1,0", "-o", "t.txt"],
      "--output must end in .json"),
     (["trajectory", "planar_2link", "--site", "tip", "--path", "line", "--end", "0,1,0", "-o", "t.json",
-      "--frames", "0"], "--frames: must be > 0"),
+      "--frames", "0"], "--frames: must be a whole number > 0"),
     (["ik", "arm7", "--frame", "ee", "--pos", "1,2"], "--pos must be 3 finite numbers x,y,z"),
     (["ik", "arm7", "--frame", "ee", "--pos", "1,2,nan"], "--pos must be 3 finite numbers"),
     (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--quat", "1,0,0"], "--quat must be 4 finite numbers"),
@@ -120,14 +120,14 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", "--q0", "hme"], "a keyframe name (home)"),
     (["fk", "planar_2link", "--q", "home"], "(the model has no named keyframes)"),
     # a negative --seed, on every command that takes one (numpy's generators refuse it with a traceback)
-    (["fk", "arm7", "--q", "random", "--seed", "-1"], "--seed: must be an integer >= 0, got -1"),
+    (["fk", "arm7", "--q", "random", "--seed", "-1"], "--seed: must be a whole number >= 0, got -1"),
     (["ik", "arm7", "--frame", "ee", "--pos", "0.3,0.1,0.4", "--q0", "random", "--seed", "-5"],
-     "--seed: must be an integer >= 0, got -5"),
-    (["render", "arm7", "--q", "random", "--seed", "-5", "-o", "r.png"], "--seed: must be an integer >= 0"),
+     "--seed: must be a whole number >= 0, got -5"),
+    (["render", "arm7", "--q", "random", "--seed", "-5", "-o", "r.png"], "--seed: must be a whole number >= 0"),
     (["trajectory", "arm7", "--site", "ee", "--path", "circle", "--q0", "random", "--seed", "-1", "-o", "t.json"],
-     "--seed: must be an integer >= 0"),
-    (["bench", "ik", "--models", "arm7", "--targets", "5", "--seed", "-1"], "--seed: must be an integer >= 0"),
-    (["bench", "all", "--seed", "x"], "--seed: must be an integer >= 0, got 'x'"),
+     "--seed: must be a whole number >= 0"),
+    (["bench", "ik", "--models", "arm7", "--targets", "5", "--seed", "-1"], "--seed: must be a whole number >= 0"),
+    (["bench", "all", "--seed", "x"], "--seed: must be a whole number >= 0, got 'x'"),
     # workspace checks its output like the others
     (["workspace", "arm7", "-o", "ws.mp4"], "--output must end in .png"),
     (["workspace", "arm7", "-o", "/proc/ws.png"], "folder '/proc' is not writable"),
@@ -263,7 +263,7 @@ def test_seed_is_an_integer_at_least_zero(value):
     if value >= 0:
         assert nonnegative_int(str(value)) == value
     else:
-        with pytest.raises(argparse.ArgumentTypeError, match=f"must be an integer >= 0, got {value}$"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"must be a whole number >= 0, got {value}$"):
             nonnegative_int(str(value))
 
 
