@@ -14,9 +14,10 @@ from numpy.typing import ArrayLike, NDArray
 import mjkin
 from mjkin import goals as G
 from mjkin import spatial
+from mjkin.checks import check_choice, check_count
 from mjkin.render import Overlay, Painter, default_camera
 
-from .task import ReachTask, check_choice, check_count
+from .task import ReachTask
 
 Array = NDArray[np.float64]
 

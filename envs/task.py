@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 import mjkin
 from mjkin import goals as G
 from mjkin import spatial
+from mjkin.checks import check_choice, check_flag, check_number, shown
 from mjkin.fk import Frames
 from mjkin.jit import njit
 from mjkin.scene import Scene
@@ -380,44 +381,6 @@ class ReachTask:
         raise mjkin.InputError(f"no reachable, collision-free target found in 1000 draws inside target_region="
                                f"{region}, above table={self.table} and outside the "
                                f"{len(self.obstacles)} obstacles; widen target_region or move the obstacles")
-
-
-def shown(value: Any, limit: int = 80) -> str:
-    """``repr(value)`` on one line, cut to ``limit`` characters (for error messages)."""
-    text = " ".join(repr(value).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def check_number(value: Any, what: str, minimum: float | None = None, strict: bool = False) -> float:
-    """``value`` as a float: a finite real number (not a bool or a string), ``>= minimum`` (``>`` if ``strict``)."""
-    bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
-    is_number = np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes)) \
-        and np.issubdtype(np.asarray(value).dtype, np.number) and np.isrealobj(value)
-    x = float(value) if is_number else np.nan
-    if not np.isfinite(x) or (minimum is not None and (x <= minimum if strict else x < minimum)):
-        raise mjkin.InputError(f"{what} must be a finite number{bound}, got {shown(value)}")
-    return x
-
-
-def check_count(value: Any, what: str) -> int:
-    """``value`` as an int: a whole number >= 1 (not a bool or a float)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise mjkin.InputError(f"{what} must be a whole number >= 1, got {shown(value)}")
-    return int(value)
-
-
-def check_choice(value: Any, what: str, choices: tuple[str | None, ...]) -> Any:
-    """``value`` if it is one of ``choices`` (strings, or None)."""
-    if not (value is None or isinstance(value, str)) or value not in choices:
-        raise mjkin.InputError(f"{what} must be {' or '.join(repr(c) for c in choices)}, not {shown(value)}")
-    return value
-
-
-def check_flag(value: Any, what: str) -> bool:
-    """``value`` as a bool: True or False only (a string such as 'no' is a mistake, not a truth value)."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise mjkin.InputError(f"{what} must be True or False, got {shown(value)}")
-    return bool(value)
 
 
 def check_obstacles(obstacles: Any) -> list[tuple[Array, float]]:

@@ -159,7 +159,7 @@ def test_bad_goals(goal, text):
 
 @pytest.mark.parametrize("kwargs, text", [
     ({"method": "magic"}, "unknown IK method"),
-    ({"tol": 0.0}, "tol must be a number > 0"),
+    ({"tol": 0.0}, "tol must be a finite number > 0"),
     ({"q0": [0.0, 0.0]}, "q0 has shape"),
     ({"max_iters": -1}, "max_iters"),
 ])

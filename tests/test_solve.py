@@ -106,14 +106,14 @@ def test_every_numeric_option_refuses_bad_values_in_one_line(name, value):
 
 
 @pytest.mark.parametrize("kwargs, text", [
-    ({"damping": float("nan")}, "damping must be a number > 0"),  # gave NaN q with status "converged"
-    ({"method": "dls", "damping": 0.0}, "damping must be a number > 0"),  # ZeroDivisionError
-    ({"damping": -1.0}, "damping must be a number > 0"),  # accepted, then 692 iterations to nowhere
+    ({"damping": float("nan")}, "damping must be a finite number > 0"),  # gave NaN q with status "converged"
+    ({"method": "dls", "damping": 0.0}, "damping must be a finite number > 0"),  # ZeroDivisionError
+    ({"damping": -1.0}, "damping must be a finite number > 0"),  # accepted, then 692 iterations to nowhere
     ({"max_iters": 1.5}, "max_iters must be a whole number >= 0"),  # truncated silently
-    ({"tol": "1e-3"}, "tol must be a number > 0"),  # TypeError
+    ({"tol": "1e-3"}, "tol must be a finite number > 0"),  # TypeError
     ({"seed": -1}, "seed must be a whole number >= 0"),  # numpy's ValueError
     ({"halving": -1}, "halving must be True or False"),
-    ({"patience": 0}, "patience must be a whole number > 0"),
+    ({"patience": 0}, "patience must be a whole number >= 1"),
 ])
 def test_bad_options_found_by_a_new_user(kwargs, text):
     tree = tree_of("planar_3link")
@@ -127,11 +127,13 @@ def test_goals_that_are_not_goals_are_a_goal_error():
 
 
 def test_large_seeds_are_taken_exactly():
-    from mjkin.ik.solve import _whole
+    from mjkin.checks import check_count
 
-    assert _whole(2**64 + 1, "seed") == 2**64 + 1  # not through a float, where it would be 2**64
-    assert _whole(np.uint64(2**63 + 7), "seed") == 2**63 + 7
-    assert _whole(3.0, "seed") == 3
+    assert check_count(2**64 + 1, "seed", 0) == 2**64 + 1  # not through a float, where it would be 2**64
+    assert check_count(np.uint64(2**63 + 7), "seed", 0) == 2**63 + 7
+    assert check_count(3.0, "seed", 0, whole_floats=True) == 3
+    with pytest.raises(mjkin.InputError, match="seed must be a whole number >= 0, got 3.0"):
+        check_count(3.0, "seed", 0)  # a float only where whole floats are taken
 
 
 # ------------------------------------------------ restarts move only what helps

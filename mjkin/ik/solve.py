@@ -10,6 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
 from .. import qspace
+from ..checks import check_count, check_flag, check_number
 from ..errors import GoalError, InputError
 from ..parallel import parallel_chunks
 from ..qspace import FREE, NQ, NV, clip_kernel
@@ -125,28 +126,6 @@ class Result:
     def rotation_error(self) -> Array:
         """Worst rotation error (rad), ``(...)``."""
         return self.error[..., 1]
-
-
-_REAL = (int, float, np.integer, np.floating)
-
-
-def _number(value: object, name: str, *, whole: bool = False, zero: bool = False, inf: bool = False) -> float:
-    """An option checked: a real number > 0 (>= 0 with ``zero``), finite unless ``inf``, integral if ``whole``.
-
-    Raises :class:`InputError` naming the option otherwise (NaN, strings and bools included).
-    """
-    if isinstance(value, _REAL) and not isinstance(value, (bool, np.bool_)):
-        x = float(value)
-        if (x > 0 or (zero and x == 0)) and (inf or x < np.inf) and (not whole or x == int(x)):
-            return x
-    what = ("a whole number" if whole else "a number") + (" >= 0" if zero else " > 0")
-    raise InputError(f"{name} must be {what}, got {value!r}")
-
-
-def _whole(value: object, name: str, zero: bool = True) -> int:
-    """:func:`_number` for counts and seeds, as an ``int`` (exact for large integers)."""
-    _number(value, name, whole=True, zero=zero)
-    return int(value) if isinstance(value, (int, np.integer)) else int(float(value))  # type: ignore[arg-type]
 
 
 def _shaped(batch: tuple[int, ...], a: Array) -> Array:
@@ -326,19 +305,18 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     """
     if method not in METHODS:
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
-    tol, rot_tol = _number(tol, "tol"), _number(rot_tol, "rot_tol")
+    tol, rot_tol = check_number(tol, "tol", 0, strict=True), check_number(rot_tol, "rot_tol", 0, strict=True)
     if timeout is not None:
         if method not in _TIMED:
             raise InputError(f"timeout= works with the methods {', '.join(_TIMED)}, not {method!r}")
-        timeout = _number(timeout, "timeout (seconds)", inf=True)
+        timeout = check_number(timeout, "timeout (seconds)", 0, strict=True, infinite=True)
         timeout = None if timeout == np.inf else timeout
     for value, label, inf in ((damping, "damping", False), (alpha, "alpha", False), (max_step, "max_step", True),
                               (goal_step, "goal_step", True)):
         if value is not None:
-            _number(value, label, inf=inf)
-    if not isinstance(halving, (bool, np.bool_)):
-        raise InputError(f"halving must be True or False, got {halving!r}")
-    seed = None if seed is None else _whole(seed, "seed")
+            check_number(value, label, 0, strict=True, infinite=inf)
+    check_flag(halving, "halving")
+    seed = None if seed is None else check_count(seed, "seed", 0, whole_floats=True)
     if not isinstance(goals, (G.Goal, list, tuple)):
         raise GoalError(f"goals must be a mjkin.goals goal or a list of them, got {type(goals).__name__}")
     goal_list = [goals] if isinstance(goals, G.Goal) else list(goals)
@@ -366,10 +344,12 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         from .analytic import solve_analytic2
 
         return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
-    patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else _whole(patience, "patience", zero=False)
-    iters = _MAX_ITERS.get(name, 100) if max_iters is None else _whole(max_iters, "max_iters")
+    patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else check_count(patience, "patience",
+                                                                                          whole_floats=True)
+    iters = _MAX_ITERS.get(name, 100) if max_iters is None else check_count(max_iters, "max_iters", 0,
+                                                                             whole_floats=True)
     n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
-        if restarts is None else _whole(restarts, "restarts")
+        if restarts is None else check_count(restarts, "restarts", 0, whole_floats=True)
     active, restart_q = _masks(tree, prog, base, joints, root is not None)
     starts = _random_starts(tree, seed, n_restarts)
     if name == "optimize":
