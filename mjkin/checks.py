@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -22,10 +23,11 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
     Finite unless ``infinite``, ``>= minimum`` (``>`` if ``strict``).
     """
     bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
-    is_number = np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes)) \
-        and np.issubdtype(np.asarray(value).dtype, np.number) and np.isrealobj(value)
+    is_number = type(value) in (float, int) or (  # the common case first: solve checks options on every call
+        np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes))
+        and np.issubdtype(np.asarray(value).dtype, np.number) and np.isrealobj(value))
     x = float(value) if is_number else np.nan
-    if np.isnan(x) or (np.isinf(x) and not infinite) or (minimum is not None and (x <= minimum if strict
+    if math.isnan(x) or (math.isinf(x) and not infinite) or (minimum is not None and (x <= minimum if strict
                                                                                   else x < minimum)):
         raise InputError(f"{what} must be a {'' if infinite else 'finite '}number{bound}, got {shown(value)}")
     return x
