@@ -892,9 +892,9 @@ def browser_client(served) -> tuple:
 
 
 def test_browser_drags_the_target_and_the_figure_follows(served):
+    server, client, _ = browser_client(served)  # skips before the import where playwright is missing
     from playwright.sync_api import sync_playwright
 
-    server, client, _ = browser_client(served)
     time.sleep(0.6)
     _, before = client.get("/state")
     _, frame_before = client.get("/frame.jpg")
@@ -923,9 +923,9 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
 
 
 def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_target(served):
+    server, client, _ = browser_client(served)  # skips before the import where playwright is missing
     from playwright.sync_api import sync_playwright
 
-    server, client, _ = browser_client(served)
     time.sleep(0.6)
     _, before = client.get("/state")
     settled = "!inFlight && !pending && !orbitBy && !zoomBy"  # the page has sent every move it had
@@ -979,9 +979,9 @@ def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_targ
 
 def test_browser_shows_numbers_the_server_sends_as_null_as_dashes(served):
     """The page reads strict JSON (null for a number that is not finite) and keeps working."""
+    server, client, state = browser_client(served)  # skips before the import where playwright is missing
     from playwright.sync_api import sync_playwright
 
-    server, client, state = browser_client(served)
     eye = view_of(state["camera"]).pos
     assert client.post("/target", {"frame": "ee", "pos": eye.tolist()})[1]["screen"]["ee"] == [None, None]
     with sync_playwright() as p:
