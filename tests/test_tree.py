@@ -177,3 +177,32 @@ def test_tree_arrays_are_read_only():
 def test_public_names_exist():
     for name in mjkin.__all__:
         assert hasattr(mjkin, name), name
+
+
+# ------------------------------------------------------------------ NaN and inf in a model
+NUMBERS = dict(axis="0 0 1", ref="0", range="-1 1", quat="1 0 0 0", pos="1 0 0", site="0.5 0 0", geom="0 0 0")
+FINITE_MODEL = """<mujoco><compiler angle="radian"/><worldbody>
+<body name="link1" quat="{quat}"><joint name="j1" axis="{axis}" ref="{ref}" range="{range}"/><geom size=".1"/>
+<body name="link2" pos="{pos}"><joint name="j2" axis="0 0 1"/><geom name="g2" size=".1" pos="{geom}"/>
+<site name="tip" pos="{site}"/></body></body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("field, value, text", [
+    ("axis", "nan 0 1", "joint 'j1' has a non-finite axis"),
+    ("axis", "inf 0 1", "joint 'j1' has a non-finite axis"),
+    ("pos", "nan 0 0", "body 'link2' has a non-finite pos"),
+    ("pos", "0 -inf 0", "body 'link2' has a non-finite pos"),
+    ("quat", "nan 1 0 0", "body 'link1' has a non-finite quat"),
+    ("ref", "nan", r"joint 'j1' has a non-finite reference position \(qpos0\)"),
+    ("range", "-inf 1", "joint 'j1' has a non-finite range"),
+    ("site", "nan 0 0", "site 'tip' has a non-finite pos"),
+    ("geom", "0 inf 0", "geom 'g2' has a non-finite pos"),
+])
+def test_non_finite_numbers_in_a_model_are_refused_at_load(field, value, text):
+    """MuJoCo compiles NaN and inf with a warning only; FK then gave NaN and solve numpy's LinAlgError."""
+    xml = FINITE_MODEL.format(**{**NUMBERS, field: value})
+    for src in (xml, mujoco.MjModel.from_xml_string(xml)):
+        with pytest.raises(mjkin.ModelError, match=text) as info:
+            mjkin.load(src)
+        assert "\n" not in str(info.value)
+    mjkin.load(FINITE_MODEL.format(**NUMBERS))  # the same model with finite numbers loads
