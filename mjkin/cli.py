@@ -174,7 +174,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     tree = load(args.model)
     body = tree.frame_body(args.frame)[0]  # a clear error for an unknown name
     if not len(tree.body_dofs[body]):
-        raise InputError(f"no joint moves {args.frame!r}: choose a site or body below a joint")
+        why = "the model has no joints" if tree.nv == 0 else "choose a site or body below a joint"
+        raise InputError(f"no joint moves {args.frame!r}: {why}")
     q0 = tree.qpos0.copy() if args.q0 is None else parse_q(args.q0, tree, args.deg, args.seed, "--q0")
     goals: list[Goal] = [Position(args.frame, _vec(args.pos, "--pos"))]
     if args.quat is not None:

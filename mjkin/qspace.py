@@ -259,7 +259,8 @@ def difference_kernel(q1: Array, q0: Array, jnt_type: Index, jnt_qadr: Index, jn
 
 
 def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
-    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(-1, n), dtype=np.float64)
+    rows = int(np.prod(shape, dtype=np.int64))  # not -1: a model without joints has n = 0
+    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(rows, n), dtype=np.float64)
 
 
 def clip(tree: Tree, q: Array) -> Array:

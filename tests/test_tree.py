@@ -179,6 +179,37 @@ def test_public_names_exist():
         assert hasattr(mjkin, name), name
 
 
+# ------------------------------------------------------------------ a model without joints
+ZERO_DOF = """<mujoco model="zero"><worldbody><body name="b" pos="0 0 1" quat="0.7071068 0 0 0.7071068">
+<geom size=".1"/><site name="s" pos="0.1 0 0"/></body></worldbody></mujoco>"""
+
+
+def test_a_model_without_joints_has_kinematics():
+    """Zero DoF is a legal model (a fixed fixture): FK, poses, Jacobians (6, 0) and random q (n, 0) work."""
+    t = mjkin.load(ZERO_DOF)
+    assert (t.nq, t.nv, t.njnt) == (0, 0, 0)
+    d = mujoco.MjData(t.model)
+    mujoco.mj_kinematics(t.model, d)
+    np.testing.assert_allclose(t.pose(t.qpos0, "s")[:3, 3], d.site_xpos[0], atol=1e-12)  # was an IndexError
+    np.testing.assert_allclose(t.fk(t.qpos0)[:, :3, 3], d.xpos, atol=1e-12)
+    assert t.jacobian(t.qpos0, "s").shape == (6, 0)
+    Q = t.random_q(3, 4)
+    assert Q.shape == (4, 0) and t.random_q(3).shape == (0,)
+    assert t.fk(Q).shape == (4, 2, 4, 4) and t.pose(Q.reshape(2, 2, 0), "s").shape == (2, 2, 4, 4)
+    assert t.jacobian(Q, "s").shape == (4, 6, 0) and t.clip(Q).shape == (4, 0)
+
+
+def test_the_cli_on_a_model_without_joints(tmp_path, capsys):
+    from mjkin.cli import main
+
+    path = tmp_path / "zero_dof.xml"
+    path.write_text(ZERO_DOF)
+    assert main(["fk", str(path), "--q", "random"]) == 0  # was a ValueError traceback
+    assert "site s" in capsys.readouterr().out
+    assert main(["ik", str(path), "--frame", "s", "--pos", "0.1,0,1"]) == 2
+    assert capsys.readouterr().err == "mjkin: error: no joint moves 's': the model has no joints\n"
+
+
 # ------------------------------------------------------------------ NaN and inf in a model
 NUMBERS = dict(axis="0 0 1", ref="0", range="-1 1", quat="1 0 0 0", pos="1 0 0", site="0.5 0 0", geom="0 0 0")
 FINITE_MODEL = """<mujoco><compiler angle="radian"/><worldbody>
