@@ -163,9 +163,17 @@ def _batch_shape(n: object) -> tuple[int, ...]:
 
 @njit
 def _quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
-    """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``."""
+    """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``.
+
+    Huge components (1e308), whose squares overflow, are scaled by the largest first.
+    """
     w, x, y, z = q[a], q[a + 1], q[a + 2], q[a + 3]
-    n = np.sqrt(w * w + x * x + y * y + z * z)
+    n2 = w * w + x * x + y * y + z * z
+    if not n2 < 1e300:
+        m = max(abs(w), abs(x), abs(y), abs(z))
+        w, x, y, z = w / m, x / m, y / m, z / m
+        n2 = w * w + x * x + y * y + z * z
+    n = np.sqrt(n2)
     w, x, y, z = w / n, x / n, y / n, z / n
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z

@@ -396,3 +396,14 @@ def test_threads_set_restores_the_setting_not_the_number(monkeypatch):
         assert mjkin.threads() == 1
     monkeypatch.setenv("MJKIN_NUM_THREADS", "3")
     assert mjkin.threads() == 3  # the environment applies again
+
+
+def test_a_huge_quaternion_is_normalised_without_overflow():
+    tree = tree_of("ball_chain")
+    q0 = tree.qpos0.copy()
+    q0[0] = -1e308  # the probe's start: it came out of the clip as [0, -0, 0, 0]
+    np.testing.assert_array_equal(np.abs(tree.clip(q0)[:4]), [1.0, 0.0, 0.0, 0.0])
+    q0[:4] = [1e308, 1e308, 0.0, 0.0]
+    np.testing.assert_allclose(tree.fk(q0), tree.fk(np.r_[1.0, 1.0, 0.0, 0.0, q0[4:]]), atol=1e-15)
+    res = mjkin.solve(tree, G.Position("tip", tree.pose(tree.random_q(2), "tip")[:3, 3]), q0)
+    assert res.success
