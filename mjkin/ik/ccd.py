@@ -5,6 +5,11 @@ that joint alone can: a hinge by the angle between (tool - joint) and
 (goal - joint) about its axis (the seed's ``atan2`` difference, in 3D), a slide
 by the tool-to-goal offset along its axis, a ball joint by the shortest arc.
 One iteration is one full sweep. Limits are respected by clamping each move.
+A hinge whose axis passes through the tool (or the goal) cannot bring them
+closer, whatever its angle, so it stays where it is (turning by the ``atan2``
+of rounding errors would spin it to a limit). A stalled run is ``limits`` when
+a limit cut a joint's move in the last sweep (the limit blocks the way), else
+``unreachable``.
 """
 
 from __future__ import annotations
@@ -33,6 +38,9 @@ def _tool(rot: Array, pos: Array, body: int, lpos: Array, out: Array) -> None:
         out[a] += pos[0, body, a]
 
 
+ON_AXIS = 1e-9  # a point this close to a hinge's axis (relative to the distances involved) is on it
+
+
 @njit
 def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
             patience: int, hist_q: Array, hist_err: Array) -> tuple:
@@ -41,6 +49,7 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
     jtype, qadr, axis, anchor = kin.jnt_type, kin.jnt_qadr, kin.jnt_axis, kin.jnt_pos
     inner, jbody, lo, hi = kin.jnt_inner, kin.jnt_body, kin.jnt_lo, kin.jnt_hi
     p, u, a, v1, v2, w = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    w4 = np.empty(4)
     best, since, status, it = np.inf, 0, MAX_ITERATIONS, 0
     pinned = False
     while True:
@@ -76,16 +85,23 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
                 v2[k] = goal[k] - a[k]
             c = qadr[j]
             if jtype[j] == SLIDE:
-                step = u[0] * (goal[0] - p[0]) + u[1] * (goal[1] - p[1]) + u[2] * (goal[2] - p[2])
-                q[0, c] = min(max(q[0, c] + step, lo[j]), hi[j])
-                pinned = pinned or q[0, c] == lo[j] or q[0, c] == hi[j]
+                want = q[0, c] + u[0] * (goal[0] - p[0]) + u[1] * (goal[1] - p[1]) + u[2] * (goal[2] - p[2])
+                q[0, c] = min(max(want, lo[j]), hi[j])
+                pinned = pinned or abs(want - q[0, c]) > 1e-12 * (1.0 + abs(want))
             elif jtype[j] == HINGE:  # angle between the projections of v1 and v2 on the plane normal to u
-                cx, cy, cz = v1[1] * v2[2] - v1[2] * v2[1], v1[2] * v2[0] - v1[0] * v2[2], v1[0] * v2[1] - v1[1] * v2[0]
                 d1, d2 = v1 @ u, v2 @ u
+                off1, off2 = 0.0, 0.0  # squared distances of the tool and the goal from the axis
+                for k in range(3):  # from the components (|v|² - d² would be all rounding near the axis)
+                    off1 += (v1[k] - d1 * u[k]) ** 2
+                    off2 += (v2[k] - d2 * u[k]) ** 2
+                if min(off1, off2) <= (ON_AXIS * ON_AXIS) * max(v1 @ v1, v2 @ v2):
+                    continue  # on the axis: turning moves neither closer
+                cx, cy, cz = v1[1] * v2[2] - v1[2] * v2[1], v1[2] * v2[0] - v1[0] * v2[2], v1[0] * v2[1] - v1[1] * v2[0]
                 sin = u[0] * cx + u[1] * cy + u[2] * cz
                 cos = v1 @ v2 - d1 * d2
-                q[0, c] = min(max(q[0, c] + np.arctan2(sin, cos), lo[j]), hi[j])
-                pinned = pinned or q[0, c] == lo[j] or q[0, c] == hi[j]
+                want = q[0, c] + np.arctan2(sin, cos)
+                q[0, c] = min(max(want, lo[j]), hi[j])
+                pinned = pinned or abs(want - q[0, c]) > 1e-12
             elif jtype[j] == BALL:  # shortest arc from v1 to v2, as a local rotation vector
                 n1, n2 = np.sqrt(v1 @ v1), np.sqrt(v2 @ v2)
                 if n1 < 1e-12 or n2 < 1e-12:
@@ -100,7 +116,11 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
                 for k in range(3):  # R^T (axis * angle): angular velocity in the joint frame
                     u[k] = (R[0, k] * w[0] + R[1, k] * w[1] + R[2, k] * w[2]) * angle / s
                 _turn(q[0], c, u[0], u[1], u[2])
+                for k in range(4):
+                    w4[k] = q[0, c + k]
                 _quat_angle_clip(q[0], c, hi[j])
+                for k in range(4):
+                    pinned = pinned or abs(w4[k] - q[0, c + k]) > 1e-12  # the cone cut the turn
     return it, status, e
 
 
