@@ -43,6 +43,7 @@ class Layout:
     scalar_lo: Array  # (ns,) lower limit, -inf when unlimited
     scalar_hi: Array
     ball_q: Index  # (nb, 4)
+    ball_v: Index  # (nb, 3) the ball joints' velocity (dof) indices
     ball_max: Array  # (nb,) largest rotation angle, inf when unlimited
     free_q: Index  # (nf, 7)
     quats: Index  # (nb + nf, 4) every quaternion in q
@@ -59,9 +60,11 @@ class Layout:
         lo = np.where(tree.jnt_limited, tree.jnt_range[:, 0], -np.inf)
         hi = np.where(tree.jnt_limited, tree.jnt_range[:, 1], np.inf)
         ball_q = tree.jnt_qadr[b, None] + np.arange(4)
+        ball_v = tree.jnt_dofadr[b, None] + np.arange(3)
         free_q = tree.jnt_qadr[f, None] + np.arange(7)
         return cls(scalar_q=tree.jnt_qadr[s], scalar_hinge=t[s] == HINGE, scalar_lo=lo[s], scalar_hi=hi[s],
-                   ball_q=ball_q, ball_max=hi[b], free_q=free_q, quats=np.concatenate([ball_q, free_q[:, 3:]]),
+                   ball_q=ball_q, ball_v=ball_v, ball_max=hi[b], free_q=free_q,
+                   quats=np.concatenate([ball_q, free_q[:, 3:]]),
                    jnt_lo=lo, jnt_hi=hi)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import pickle
 
@@ -76,14 +77,37 @@ def test_generous_timeout_changes_nothing(rng):
     np.testing.assert_array_equal(a.status, b.status)
 
 
-def test_timeout_works_with_the_compiled_methods_only_and_inf_is_no_limit():
-    tree = tree_of("planar_3link")
-    goal = G.Position("tip", (10.0, 5.0, 0.0))
-    with pytest.raises(mjkin.InputError, match="timeout= works with the methods"):
-        mjkin.solve(tree, goal, timeout=1.0, method="ccd")
-    a, b = mjkin.solve(tree, goal), mjkin.solve(tree, goal, timeout=float("inf"))
+@pytest.mark.parametrize("method", ["auto", "dls", "pinv", "transpose", "ccd", "reach", "optimize", "analytic2"])
+def test_timeout_works_with_every_method_and_inf_is_no_limit(method):
+    tree = tree_of("planar_2link")
+    goal, q0 = G.Position("tip", (1.2, 0.5, 0.0)), [0.3, 0.5]
+    a = mjkin.solve(tree, goal, q0, method=method)
+    b = mjkin.solve(tree, goal, q0, method=method, timeout=float("inf"))
     np.testing.assert_array_equal(a.q, b.q)
     assert b.success
+    late = mjkin.solve(tree, goal, q0, method=method, timeout=1e-9)  # was refused for ccd, reach, optimize, analytic2
+    assert late.status == ("converged" if method == "analytic2" else "timeout")  # the closed form takes no time
+    np.testing.assert_allclose(tree.clip(late.q), late.q, atol=1e-12)
+
+
+# found by a probe: SciPy's SLSQP on the primate with a half-space and a plane goal and a planted upper arm runs
+# to its iteration limit in every level and re-centring pass (2042 iterations, 30-140 s here, up to 489 s there)
+PRIMATE_WALLS = [G.HalfSpace("right_hand", point=[-0.223, -0.339, 1.47], normal=[-0.378, 2.043, 0.647]),
+                 G.Plane("head", point=[0.016, -0.384, 1.123], normal=[0.663, -0.514, -1.648])]
+
+
+@pytest.mark.parametrize("timeout", [0.5, None])
+def test_optimize_stops_on_time_with_the_best_so_far(timeout, monkeypatch):
+    front = importlib.import_module("mjkin.ik.solve")  # the module (mjkin.ik.solve is also the function's name)
+    assert 0 < front.OPTIMIZE_TIMEOUT <= 10  # a default bound of a few seconds per target
+    monkeypatch.setattr(front, "OPTIMIZE_TIMEOUT", 0.5)  # the default's path, without waiting for it
+    tree = tree_of("primate")
+    start = mjkin.solve(tree, PRIMATE_WALLS, method="optimize", root="left_upper_arm", max_iters=0)
+    res = mjkin.solve(tree, PRIMATE_WALLS, method="optimize", root="left_upper_arm", timeout=timeout)
+    assert res.status == "timeout" and not res.success
+    np.testing.assert_allclose(tree.clip(res.q), res.q, atol=1e-12)
+    # an SLSQP iterate cut short can be far worse than where it began (2 m off the planted arm): never kept
+    assert np.all(np.isfinite(res.goal_errors)) and res.error[0] <= start.error[0] + 1e-12
 
 
 # options: (name, what a good value must be) -> the checks solve makes
@@ -396,6 +420,35 @@ def test_threads_set_restores_the_setting_not_the_number(monkeypatch):
         assert mjkin.threads() == 1
     monkeypatch.setenv("MJKIN_NUM_THREADS", "3")
     assert mjkin.threads() == 3  # the environment applies again
+
+
+# ------------------------------------------------------------- nothing may move
+EVERY_METHOD = ["auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach"]
+ZERO_DOF = """<mujoco><worldbody><body name="b" pos="0 0 1"><geom size=".1"/><site name="s" pos="0.1 0 0"/>
+</body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("method", EVERY_METHOD)
+def test_a_model_without_joints_gives_its_pose_with_every_method(method):
+    """0 DoF: every method raised IndexError; now the start comes back, met or not, after no iteration."""
+    tree = mjkin.load(ZERO_DOF)
+    there = mjkin.solve(tree, G.Position("s", (0.1, 0.0, 1.0)), method=method)
+    assert there.success and there.status == "converged" and there.q.shape == (0,) and there.iterations == 0
+    away = mjkin.solve(tree, G.Position("s", np.array([[0.1, 0.0, 1.0], [1.0, 0.0, 0.0]])), method=method)
+    assert away.success.tolist() == [True, False] and away.status.tolist() == ["converged", "unreachable"]
+    np.testing.assert_allclose(away.error[1, 0], np.sqrt(0.9 ** 2 + 1.0), atol=1e-12)
+
+
+@pytest.mark.parametrize("method", [m for m in EVERY_METHOD if m != "analytic2"])  # it takes no joints= or base=
+@pytest.mark.parametrize("limit", [{"joints": []}, {"base": "link3"}])
+def test_no_movable_dof_is_the_same_answer_with_every_method(method, limit):
+    """joints=[] or base= the goal's own body: optimize raised SciPy's 'not enough values to unpack'."""
+    tree = tree_of("planar_3link")
+    q0 = np.array([0.3, 0.4, 0.5])
+    tip = tree.pose(q0, "tip")[:3, 3]
+    res = mjkin.solve(tree, G.Position("tip", np.stack([tip, tip + (1.0, 0.0, 0.0)])), q0, method=method, **limit)
+    np.testing.assert_array_equal(res.q, [q0, q0])
+    assert res.status.tolist() == ["converged", "unreachable"] and res.iterations.tolist() == [0, 0]
 
 
 def test_a_huge_quaternion_is_normalised_without_overflow():

@@ -20,11 +20,12 @@ from numpy.typing import NDArray
 from ..errors import GoalError
 from ..fk import fk_scratch
 from ..goals import POSITION, Program
-from ..jit import matvec3, njit
+from ..jit import matvec3, monotonic_ns, njit
 from ..parallel import parallel_chunks
 from ..qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, Kinematics, _fk, kinematic_arrays
+from . import kernel
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk, kinematic_arrays
 from .solve import History, Result, package
 
 Array = NDArray[np.float64]
@@ -43,8 +44,11 @@ ON_AXIS = 1e-9  # a point this close to a hinge's axis (relative to the distance
 
 @njit
 def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, order: Index, tol: float, sweeps: int,
-            patience: int, hist_q: Array, hist_err: Array) -> tuple:
-    """CCD for one target; ``q (1, nq)`` is updated in place. Returns (sweeps, status, error)."""
+            patience: int, deadline: int, hist_q: Array, hist_err: Array) -> tuple:
+    """CCD for one target; ``q (1, nq)`` is updated in place. Returns (sweeps, status, error).
+
+    ``deadline``: ``monotonic_ns`` time at which the run stops with ``TIMEOUT`` (0 = none), read after each sweep.
+    """
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     jtype, qadr, axis, anchor = kin.jnt_type, kin.jnt_qadr, kin.jnt_axis, kin.jnt_pos
     inner, jbody, lo, hi = kin.jnt_inner, kin.jnt_body, kin.jnt_lo, kin.jnt_hi
@@ -70,6 +74,9 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
             status = LIMITS if pinned else UNREACHABLE
             break
         if it >= sweeps:
+            break
+        if deadline and monotonic_ns() > deadline:
+            status = TIMEOUT
             break
         it += 1
         pinned = False
@@ -126,39 +133,42 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
 
 @njit
 def _ccd_batch(kin: Kinematics, q: Array, body: int, lpos: Array, goals: Array, order: Index, tol: float, sweeps: int,
-               patience: int, starts: Array, restart_q: NDArray[np.bool_], iters: Index, status: Index, err: Array,
-               used: Index, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:
+               patience: int, timeout: int, starts: Array, restart_q: NDArray[np.bool_], iters: Index, status: Index,
+               err: Array, used: Index, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:
     """CCD for targets ``lo <= b < hi``, restarting from ``starts`` when a run stalls; keeps the best.
 
     A restart takes the entries of ``starts[k]`` where ``restart_q`` is True and keeps the target's own start
-    values elsewhere.
+    values elsewhere. ``timeout``: nanoseconds per target, restarts included (0 = none).
     """
     for b in range(lo, hi):
+        deadline = monotonic_ns() + timeout if timeout > 0 else 0
         best = q[b].copy()
         q_start = q[b].copy()
-        it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, hist_q[b],
-                            hist_err[b])
+        it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, deadline,
+                            hist_q[b], hist_err[b])
         iters[b], status[b], err[b] = it, st, e
         best[:] = q[b]
         for k in range(starts.shape[0]):
-            if status[b] == CONVERGED:
+            if st == CONVERGED or st == TIMEOUT:
                 break
             for c in range(q.shape[1]):
                 q[b, c] = starts[k, c] if restart_q[c] else q_start[c]
-            it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience,
+            it, st, e = ccd_one(kin, q[b:b + 1], body, lpos, goals[b], order, tol, sweeps, patience, deadline,
                                 hist_q[b, :0], hist_err[b, :0])
             iters[b] += it
             used[b] = k + 1
             if e < err[b]:
                 err[b], status[b] = e, st
                 best[:] = q[b]
+        if st == TIMEOUT and status[b] != CONVERGED:
+            status[b] = TIMEOUT
         q[b] = best
 
 
 def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, sweeps: int, sweep: str,
               active: NDArray[np.bool_], history: bool, starts: Array, restart_q: NDArray[np.bool_],
-              patience: int = 10) -> Result:
-    """CCD on one position goal (see :func:`mjkin.solve`)."""
+              patience: int = 10, timeout: float | None = None) -> Result:
+    """CCD on one position goal (see :func:`mjkin.solve`); ``timeout`` in seconds per target (None: none)."""
     if len(prog.goals) != 1 or prog.kind[0] != POSITION:
         raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
     if sweep not in ("forward", "backward"):
@@ -177,8 +187,8 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
     goals = np.ascontiguousarray(prog.data[:, 0, :3])
 
     def run(lo: int, hi: int) -> None:
-        _ccd_batch(kin, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, starts, restart_q,
-                   iters, status, err, used, hist_q, hist_err, lo, hi)
+        _ccd_batch(kin, q, body, prog.lpos[0], goals, order, tol, sweeps, patience, kernel.timeout_ns(timeout), starts,
+                   restart_q, iters, status, err, used, hist_q, hist_err, lo, hi)
 
     parallel_chunks(run, B)
     hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
