@@ -195,9 +195,13 @@ class Tree:
         """Move ``q (..., nq)`` along a velocity ``v (..., nv)`` for unit time (as ``mj_integratePos``)."""
         return qspace.integrate(self, self.check_q(q), np.asarray(v, dtype=np.float64))
 
-    def difference(self, q1: ArrayLike, q0: ArrayLike) -> Array:
-        """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``)."""
-        return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"))
+    def difference(self, q1: ArrayLike, q0: ArrayLike, periodic: bool = False) -> Array:
+        """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``).
+
+        ``periodic=True``: unlimited hinges the short way round (``(-π, π]``), for steps between poses
+        whose hinge angles were wrapped (as :func:`mjkin.solve` returns them).
+        """
+        return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
     def kinematics(self, q: ArrayLike) -> Frames:

@@ -451,6 +451,58 @@ def test_no_movable_dof_is_the_same_answer_with_every_method(method, limit):
     assert res.status.tolist() == ["converged", "unreachable"] and res.iterations.tolist() == [0, 0]
 
 
+# ------------------------------------------------------------- unlimited hinges
+@pytest.mark.parametrize("method", EVERY_METHOD)
+def test_unlimited_hinges_come_back_in_minus_pi_to_pi(method):
+    """The seeds' arm has unlimited hinges: from a start near π, answers came back as e.g. -3.28 or 4.5 rad."""
+    tree = tree_of("planar_2link" if method == "analytic2" else "planar_3link")
+    goal = G.Position("tip", (-1.2, -0.5, 0.0) if method == "analytic2" else (-20.0, -5.0, 0.0))
+    for q0 in (np.full(tree.nq, 3.0), np.full(tree.nq, -9.0), np.full(tree.nq, 1e308)):
+        res = mjkin.solve(tree, goal, q0, method=method)
+        assert res.success, (q0, res.status)
+        assert np.all((res.q > -np.pi) & (res.q <= np.pi)), res.q  # qpos0 = 0 on these arms
+        np.testing.assert_allclose(tree.pose(res.q, "tip")[:3, 3], goal.xyz, atol=1e-5)
+
+
+LIMITED_WIDE = """<mujoco><compiler angle="radian"/><worldbody><body name="a">
+<joint name="j1" axis="0 0 1" range="-5 5"/><geom size=".1"/>
+<body name="b" pos="1 0 0"><joint name="j2" axis="0 0 1"/><geom size=".1"/>
+<site name="tip" pos="1 0 0"/></body></body></worldbody></mujoco>"""
+
+
+def test_limited_and_coupled_hinges_are_never_wrapped():
+    tree = mjkin.load(LIMITED_WIDE)
+    q0 = np.array([4.0, 0.3])  # j1 limited to ±5 rad: 4.0 is a value of its own, not 4.0 - 2π
+    res = mjkin.solve(tree, G.Position("tip", tree.pose([4.1, 0.2], "tip")[:3, 3]), q0)
+    assert res.success and res.q[0] > np.pi
+    coupled = mjkin.solve(tree, [G.Position("tip", tree.pose([1.0, 4.0], "tip")[:3, 3]),
+                                 G.Coupling(coefficients={"j2": 1.0}, value=4.0)], [1.0, 4.0])
+    assert coupled.success and coupled.q[1] == pytest.approx(4.0)  # its equation is in the value itself
+
+
+# ------------------------------------------------------------- extreme starts
+extreme = st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.sampled_from([1e308, -1e308, 0.0, 1e-300]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(model=st.sampled_from(["ball_chain", "planar_3link", "planar_2link"]), method=st.sampled_from(EVERY_METHOD),
+       values=st.lists(extreme, min_size=20, max_size=20))
+def test_any_finite_start_gives_an_answer_inside_the_limits(model, method, values):
+    """A ball joint's q0 component of -1e308 was clipped to [0, -0, 0, 0] and every method raised ZeroDivisionError."""
+    tree = tree_of(model)
+    q0 = np.array(values[:tree.nq])
+    goal = G.Position("tip", tree.pose(tree.random_q(1), "tip")[:3, 3])
+    try:
+        res = mjkin.solve(tree, goal, q0, method=method, timeout=2.0)
+    except mjkin.InputError as e:  # a zero quaternion, or a method that does not fit the chain: one line
+        assert "\n" not in str(e)
+        return
+    assert np.all(np.isfinite(res.q)) and np.all(np.isfinite(res.error))
+    np.testing.assert_allclose(tree.clip(res.q), res.q, atol=1e-12)
+    hinges = tree.layout.unlimited_hinge_q
+    assert np.all((res.q[hinges] > -np.pi) & (res.q[hinges] <= np.pi))
+
+
 def test_a_huge_quaternion_is_normalised_without_overflow():
     tree = tree_of("ball_chain")
     q0 = tree.qpos0.copy()

@@ -237,3 +237,15 @@ def test_non_finite_numbers_in_a_model_are_refused_at_load(field, value, text):
             mjkin.load(src)
         assert "\n" not in str(info.value)
     mjkin.load(FINITE_MODEL.format(**NUMBERS))  # the same model with finite numbers loads
+
+
+def test_periodic_difference_takes_unlimited_hinges_the_short_way():
+    """solve returns unlimited hinges in (-π, π]: a step from -3.1 to 3.1 rad is -0.08 rad, not 6.2."""
+    t = tree_of("planar_3link")  # unlimited hinges
+    q1, q0 = np.array([3.1, -3.1, 1.0]), np.array([-3.1, 3.1, 0.5])
+    short = 6.2 - 2 * np.pi  # from -3.1 on past -π to 3.1
+    np.testing.assert_allclose(t.difference(q1, q0, periodic=True), [short, -short, 0.5], atol=1e-12)
+    np.testing.assert_allclose(t.difference(q1, q0), [6.2, -6.2, 0.5], atol=1e-12)  # as mj_differentiatePos
+    arm = tree_of("arm7")  # limited hinges: their values are never wrapped, their differences never either
+    a, b = arm.random_q(0, 2)
+    np.testing.assert_array_equal(arm.difference(a, b, periodic=True), arm.difference(a, b))

@@ -150,7 +150,8 @@ def singular_values(tree: Tree, goals: G.Goal | Sequence[G.Goal], q: ArrayLike) 
     return s.reshape(q.shape[:-1] + s.shape[-1:]) if q.ndim > 1 else (s[0] if prog.batch == () else s)
 
 
-def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> Array:
+def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...], wrap: NDArray[np.int64]) -> Array:
+    """The starts ``(B, nq)``: ``q0`` clipped into the limits, quaternions normalised, ``wrap`` hinges wrapped."""
     if q0 is None:
         q0 = tree.qpos0
     q = tree.check_q(q0, "q0")
@@ -159,6 +160,7 @@ def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> 
     out = np.empty((B, tree.nq))
     out[:] = q
     clip_kernel(out, tree.jnt_type, tree.jnt_qadr, tree.layout.jnt_lo, tree.layout.jnt_hi)
+    qspace.wrap(tree, out, wrap)
     return out
 
 
@@ -248,7 +250,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         tree: the kinematic tree.
         goals: one goal or several (see :mod:`mjkin.goals`); targets may carry one
             leading batch axis ``B``, solved together.
-        q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits.
+        q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits (quaternions
+            normalised, unlimited hinges wrapped as in the result).
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
             error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
@@ -302,6 +305,10 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
     method returns the start after 0 iterations: ``"converged"`` if the goals
     already hold there, else ``"unreachable"``.
 
+    Unlimited hinges come back in ``(-π, π]`` about ``qpos0`` (the angle MuJoCo turns
+    them by), except those a :class:`~mjkin.goals.Coupling` goal names (its equation
+    is in the joint values themselves); limited hinges are never wrapped.
+
     Repeated calls with the same goal structure (kinds, frames, weights,
     priorities) and new targets reuse the encoded goals and the restart starts,
     so a loop of single solves costs little more than the solves themselves.
@@ -345,7 +352,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         goal_list = [G.Pose(root, kind="body", T=pose)] + [replace(g, priority=g.priority + 1 - low)
                                                           if isinstance(g, G.Goal) else g for g in goal_list]
     prog = G.compile_goals(tree, goal_list)
-    q = _start(tree, q0, prog.B, prog.batch)
+    wrap = _wrapped_hinges(tree, prog)
+    q = _start(tree, q0, prog.B, prog.batch, wrap)
     name = "lm" if method == "auto" else method
     patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else check_count(patience, "patience",
                                                                                           whole_floats=True)
@@ -388,7 +396,20 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
                                  dict(tol=tol, rot_tol=rot_tol, max_iters=max_iters, damping=damping, alpha=alpha,
                                       max_step=max_step, halving=halving, goal_step=goal_step, patience=patience,
                                       base=base, joints=joints, sweep=sweep, timeout=timeout))
+    if len(wrap):
+        q_out = np.array(result.q)
+        qspace.wrap(tree, q_out, wrap)
+        result = replace(result, q=q_out)
     return result
+
+
+def _wrapped_hinges(tree: Tree, prog: G.Program) -> NDArray[np.int64]:
+    """The q entries :func:`solve` wraps into (-π, π]: unlimited hinges that no Coupling goal names."""
+    hinges = tree.layout.unlimited_hinge_q
+    if not len(hinges) or not len(prog.coupling):
+        return hinges
+    coupled = tree.jnt_qadr[tree.plan.dof_jnt[np.flatnonzero(np.any(prog.coupling != 0, axis=0))]]
+    return hinges[~np.isin(hinges, coupled)]
 
 
 def _immobile(tree: Tree, prog: G.Program, q: Array, tol: float, rot_tol: float, method: str,
