@@ -123,6 +123,7 @@ class Playground:
         self._wake = threading.Event()
         self._closed = threading.Event()
         self._frame_ready = threading.Condition()
+        self._watchers: list[Callable[[], None]] = []
         self._version = 0
         self._frame: tuple[int, int, bytes] = (-1, -1, b"")  # (state version, frame number, jpeg)
         self._controller: str | None = None
@@ -144,12 +145,21 @@ class Playground:
         """Stop the render thread, wake every waiting stream, let a recording being written finish (idempotent)."""
         self._closed.set()
         self._wake.set()
-        with self._frame_ready:
-            self._frame_ready.notify_all()
+        self._notify()
         if self._thread.is_alive():
             self._thread.join()
         with self._export:  # a video half-encoded when the process ends would leave its temporary file
             pass
+
+    def watch(self, callback: Callable[[], None]) -> None:
+        """Have ``callback()`` called after every new frame, a render failure and :meth:`close` (from any thread)."""
+        self._watchers.append(callback)
+
+    def _notify(self) -> None:
+        with self._frame_ready:
+            self._frame_ready.notify_all()
+        for callback in self._watchers:
+            callback()
 
     @property
     def exporting(self) -> bool:
@@ -394,7 +404,7 @@ class Playground:
                     number += 1
                     with self._frame_ready:
                         self._frame = (version, number, jpeg)
-                        self._frame_ready.notify_all()
+                    self._notify()
                     shown = version
                 if busy:
                     self._closed.wait(max(0.0, period - (time.monotonic() - tick)))
@@ -409,4 +419,4 @@ class Playground:
     def _fail(self, e: BaseException) -> None:
         with self._frame_ready:
             self._error = e
-            self._frame_ready.notify_all()
+        self._notify()
