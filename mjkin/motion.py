@@ -170,13 +170,15 @@ class Trajectory:
     def load(cls, path: str | os.PathLike[str], tree: Tree | None = None) -> Trajectory:
         """Read a script; with ``tree``, refuse one recorded on another model (fingerprint mismatch).
 
+        A ``.jsonl`` file is read as the journal of a recording ``mjkin play`` took (:mod:`mjkin.play.journal`).
+
         Raises:
             MjkinIOError: the file is missing, unreadable, or not JSON.
             InputError: a key is missing, or a value has the wrong type or shape (the message names it).
         """
         name = repr(str(path))
         try:
-            doc = json.loads(Path(path).read_text())
+            doc = _journal_script(path) if Path(path).suffix == ".jsonl" else json.loads(Path(path).read_text())
         except FileNotFoundError:
             raise MjkinIOError(f"trajectory file not found: {name}") from None
         except (OSError, ValueError) as e:
@@ -221,6 +223,13 @@ class Trajectory:
                                  f"(fingerprint {traj.fingerprint}), not on {tree.name!r} ({fingerprint(tree)})")
             tree.check_q(traj.q, "trajectory qpos")
         return traj
+
+
+def _journal_script(path: str | os.PathLike[str]) -> dict:
+    """The script a ``mjkin play`` recording's journal holds (:func:`mjkin.play.journal.script`)."""
+    from .play import journal
+
+    return journal.script(path)
 
 
 def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,

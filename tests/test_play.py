@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from functools import cache
+from pathlib import Path
 
 import imageio.v3 as imageio
 import numpy as np
@@ -26,7 +27,7 @@ from conftest import tree_of
 from mjkin import build, motion, render
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.files import strict_json as to_strict_json
-from mjkin.play import browser, core
+from mjkin.play import browser, core, journal
 from mjkin.play import server as server_module
 from mjkin.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
 from mjkin.play.session import Playground, recordings_folder, view_camera
@@ -801,13 +802,15 @@ def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, s
     monkeypatch.setattr(motion.Trajectory, "save", fail_once)
     status, doc = api.post("/stop")
     assert status == 500 and "No space left" in doc["error"] and "the recording is kept" in doc["error"]
-    assert set(out.iterdir()) == before  # no video without its script, no temporary file
+    kept = set(out.glob("*.journal.jsonl"))  # the take's journal stays until the take is written
+    assert len(kept) == 1 and set(out.iterdir()) == before | kept  # no video without its script, no temporary file
     status, saved = api.post("/stop")  # the retry
     assert status == 200 and saved["frames"] >= 2
     traj = motion.Trajectory.load(saved["path"], arm())
     np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
     assert imageio.imread(saved["video"], index=None).shape[1:] == (H, W, 3)
-    assert not api.get("/state")[1]["unsaved"]
+    assert not api.get("/state")[1]["unsaved"] and set(out.iterdir()) == before | {Path(saved["path"]),
+                                                                                    Path(saved["video"])}
     assert api.post("/stop")[0] == 400  # written: nothing left to stop
 
 
@@ -1059,6 +1062,52 @@ def test_idle_connections_are_closed_after_the_timeout():
         stop_server(server, thread)
 
 
+# ------------------------------------------------------------ the journal of a recording
+def test_recording_journals_its_samples_and_a_normal_stop_removes_the_journal(api, served):
+    _, out = served
+    before = set(out.iterdir())
+    assert api.post("/record")[0] == 200
+    api.post("/target", {"frame": "ee", "pos": [0.4, 0.2, 0.5]})
+    path, lines = journal_lines(out, least_t=0.2)  # on disk while the take goes on
+    assert journal.leftovers(out) == []  # held by this process: not a take cut short
+    status, saved = api.post("/stop")
+    assert status == 200 and not path.exists()
+    assert set(out.iterdir()) == before | {Path(saved["path"]), Path(saved["video"])}
+    assert Path(saved["path"]).name == path.name.replace(".journal.jsonl", ".json")  # one name per take
+    assert lines[0]["frames"] == ["ee"] and len(lines) >= 2
+
+
+def test_a_journal_is_read_as_a_script_even_cut_off_mid_line(tmp_path):
+    tree = arm()
+    take = journal.Journal(tmp_path / "mjkin-play-arm7-x", {"model": "arm7", "model_path": None,
+                                                            "fingerprint": motion.fingerprint(tree), "frames": ["ee"],
+                                                            "method": "dls", "goal": "position"})
+    qs = tree.random_q(np.random.default_rng(1), 5)
+    for k, q in enumerate(qs):
+        take.add((0.25 + 0.1 * k, q, tree.pose(q, "ee")[None, :3, 3]))
+    deadline = time.monotonic() + 30
+    while take.path.read_text().count("\n") < 6 and time.monotonic() < deadline:
+        time.sleep(0.05)  # the writer flushes on its own, without close
+    assert take.path.read_text().count("\n") == 6
+    assert journal.leftovers(tmp_path) == []  # still held
+    take.close()
+    assert journal.leftovers(tmp_path) == [take.path]
+    with take.path.open("a") as f:
+        f.write('{"t": 0.9, "q": [0.1, 0.')  # the line being written at the crash
+    traj = motion.Trajectory.load(take.path, tree)
+    np.testing.assert_allclose(traj.q, qs)
+    np.testing.assert_allclose(traj.times, 0.1 * np.arange(5), atol=1e-12)
+    assert traj.model == "arm7" and traj.site == "ee" and traj.targets.shape == (5, 1, 3)
+    assert traj.meta["play"]["method"] == "dls"
+    lines = take.path.read_text().splitlines()
+    take.path.write_text("\n".join([lines[0], "{oops", *lines[1:3]]) + "\n")
+    with pytest.raises(mjkin.MjkinError, match="line 2 is not JSON") as e:
+        motion.Trajectory.load(take.path)
+    assert "\n" not in str(e.value)
+    take.path.write_text(lines[0] + "\n")
+    assert journal.recover(take.path) is None and not take.path.exists()  # cut short before its first sample
+
+
 URL_LINE = re.compile(r"mjkin play: http://127\.0\.0\.1:(\d+)/\?token=([\w-]{32,})  \(Ctrl-C stops\)\n")
 
 
@@ -1087,13 +1136,74 @@ def stop_process(proc: subprocess.Popen) -> str:
     return err
 
 
-def test_cli_serves_and_stops_cleanly_on_ctrl_c(tmp_path):
+def journal_lines(folder, least_t: float = 0.0, timeout: float = 60.0) -> tuple[object, list[dict]]:
+    """The one journal in ``folder`` and its lines, once a sample at least ``least_t`` s into the take is on disk."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = list(folder.glob("*.journal.jsonl"))
+        if found:
+            lines = [json.loads(x) for x in found[0].read_text().splitlines()]
+            if len(lines) > 1 and lines[-1]["t"] >= least_t:
+                return found[0], lines
+        time.sleep(0.1)
+    pytest.fail(f"no journal with a sample {least_t} s into the take in {folder}: {list(folder.iterdir())}")
+
+
+def test_cli_serves_and_stops_cleanly_on_ctrl_c_saving_the_recording_that_was_on(tmp_path):
     proc, client = play_process(tmp_path)
     try:
-        assert client.post("/record")[0] == 200  # a recording on at Ctrl-C writes nothing half-done
+        assert client.post("/record")[0] == 200
+        path, lines = journal_lines(tmp_path)  # samples are on disk while recording
     finally:
-        stop_process(proc)
-    assert list(tmp_path.iterdir()) == []
+        err = stop_process(proc)
+    script = tmp_path / path.name.replace(".journal.jsonl", ".json")
+    assert f"mjkin play: the recording that was on is saved as {str(script)!r} from its journal" in err
+    assert list(tmp_path.iterdir()) == [script]  # the journal is gone, no temporary file is left
+    traj = motion.Trajectory.load(script, arm())
+    assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
+
+
+def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_journal(tmp_path):
+    proc, client = play_process(tmp_path)
+    try:
+        assert client.post("/record")[0] == 200
+        client.post("/target", {"frame": "ee", "pos": [0.4, 0.2, 0.5]})
+        path, seen = journal_lines(tmp_path, least_t=1.5)  # 1.5 s into the take, on disk
+        proc.kill()  # kill -9: nothing runs after it
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    header, samples = lines[0], lines[1:]
+    assert lines[:len(seen)] == seen  # every sample on disk before the kill is there
+    assert header["format"] == "mjkin-play-journal" and header["model"] == "arm7" and header["frames"] == ["ee"]
+    assert header["fingerprint"] == motion.fingerprint(arm()) and header["model_path"] is None  # a bundled name
+    times = [x["t"] for x in samples]
+    assert times == sorted(times) and times[-1] >= 1.5 and all(len(x["q"]) == 7 for x in samples)
+    np.testing.assert_allclose(arm().pose(np.array(samples[-1]["q"]), "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
+
+    video = tmp_path / "replayed.mp4"
+    replay = subprocess.run([sys.executable, "-m", "mjkin.cli", "replay", str(path), "-o", str(video),
+                             "--width", "160", "--height", "120"], capture_output=True, text=True, timeout=300)
+    assert replay.returncode == 0, replay.stderr
+    assert imageio.imread(video, index=None).shape == (len(samples), 120, 160, 3)
+    video.unlink()
+
+    proc, client = play_process(tmp_path)
+    try:
+        assert not client.get("/state")[1]["recording"]
+    finally:
+        err = stop_process(proc)
+    script = tmp_path / path.name.replace(".journal.jsonl", ".json")
+    said = [x for x in err.splitlines() if "cut short" in x]
+    assert said == [f"mjkin play: a recording cut short is saved as {str(script)!r} from its journal (no video: "
+                    f"mjkin replay {script} -o take.mp4 makes one)"]
+    assert list(tmp_path.iterdir()) == [script]
+    traj = motion.Trajectory.load(script, arm())
+    np.testing.assert_allclose(traj.q, [x["q"] for x in samples])
+    np.testing.assert_allclose(traj.times, np.array(times) - times[0])
+    np.testing.assert_allclose(traj.targets, [x["targets"] for x in samples])
 
 
 def test_cli_bad_port_is_one_line():

@@ -14,8 +14,8 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
   (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
-- ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
-  ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
+- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.play.journal`); ``POST /stop`` ``{}`` writes
+  the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
@@ -71,7 +71,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..files import strict_json
 from ..tree import Tree, load
-from . import core
+from . import core, journal
 from .session import Busy, Playground, recordings_folder
 
 MAX_BODY = 1 << 16
@@ -548,6 +548,24 @@ def bind(playground: Playground, host: str, port: int, idle_timeout: int = IDLE_
     return PlayServer(playground, sock, host, idle_timeout)
 
 
+def recover_journals(folder: Path) -> None:
+    """Turn the journals of recordings cut short in ``folder`` into scripts, one line on stderr for each."""
+    for path in journal.leftovers(folder):
+        say(rescue(path, "a recording cut short"))
+
+
+def rescue(path: Path, what: str) -> str:
+    """Write the script of ``what`` from its journal ``path``; the line that says how it went."""
+    try:
+        script = journal.recover(path)
+    except MjkinError as e:
+        return f"{what} stays in its journal {str(path)!r} (the next mjkin play here tries again): {e}"
+    if script is None:
+        return f"{what} held no sample; its journal {str(path)!r} is removed"
+    return (f"{what} is saved as {str(script)!r} from its journal (no video: mjkin replay {script} -o take.mp4 "
+            "makes one)")
+
+
 def say(line: str) -> None:
     """One line on stderr, as ``mjkin play: ...``."""
     print(f"mjkin play: {line}", file=sys.stderr, flush=True)
@@ -559,12 +577,13 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
-    recordings_folder(out_dir, tree.name or "model")  # before the long start
+    recover_journals(recordings_folder(out_dir, tree.name or "model"))  # before the long start
     if not is_loopback(host):
         say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
             "can control the playground")
     say(f"loading {tree.name or model} (the first run compiles the IK kernels, about a minute)...")
-    playground = Playground(tree, out_dir=out_dir)
+    path = None if isinstance(model, Tree) or not Path(model).is_file() else str(Path(model).resolve())
+    playground = Playground(tree, out_dir=out_dir, model_path=path)
     try:
         server = bind(playground, host, port)
     except BaseException:
@@ -579,12 +598,11 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
             server.serve_forever()
         say("stopped")
     finally:
-        if playground.recording:
-            say("a recording was on; nothing was written (POST /stop writes it)")
-        if playground.unsaved:
-            say("a stopped recording could not be written and is lost (see the page's error)")
         if playground.exporting:
             say("finishing the recording being written...")
+        left = "the recording that was on" if playground.recording else "the recording not written"
         playground.close()
         server.close()
+        if playground.journal is not None:
+            say(rescue(playground.journal, left))
     return 0
