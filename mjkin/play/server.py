@@ -581,7 +581,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not is_loopback(host):
         say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
             "can control the playground")
-    say(f"loading {tree.name or model} (the first run compiles the IK kernels, about a minute)...")
+    say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.progress)
     path = None if isinstance(model, Tree) or not Path(model).is_file() else str(Path(model).resolve())
     playground = Playground(tree, out_dir=out_dir, model_path=path)
     try:
