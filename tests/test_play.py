@@ -1002,6 +1002,22 @@ def test_bad_framing_is_a_400_or_411_and_leftover_bytes_are_never_a_request(api,
     assert answer.startswith(b"HTTP/1.1 413 ") and b"at most 65536" in answer
 
 
+def test_the_listen_queue_holds_300_connections_before_any_is_accepted():
+    """The backlog was 5: with the server busy, the 7th connect waited for SYN retries (58 of 300 timed out)."""
+    pg = Playground(arm(), W, H)
+    server = server_module.bind(pg, "127.0.0.1", 0)  # listening, not yet serving: nothing accepts
+    socks = []
+    try:
+        for _ in range(300):
+            socks.append(socket.create_connection(("127.0.0.1", server.server_address[1]), timeout=30))
+    finally:
+        for sock in socks:
+            sock.close()
+        server.close()
+        pg.close()
+    assert len(socks) == 300
+
+
 def test_300_simultaneous_connections_all_get_an_answer(api, served):
     """The listen backlog was 5: 58 of 300 connects timed out. Now each gets a 200 or, past the cap, a 503."""
     server, _ = served
