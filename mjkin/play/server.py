@@ -540,9 +540,16 @@ def bind(playground: Playground, host: str, port: int, idle_timeout: int = IDLE_
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    # proto TCP, not 0: asyncio turns Nagle off only on sockets that say so, and with Nagle on a reply's body waits
+    # for the client's delayed ACK of its headers (40 ms a request)
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     try:
-        sock = socket.create_server((host, port), family=family, backlog=BACKLOG)
+        if os.name == "posix":
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a restart may reuse a port just left
+        sock.bind((host, port))
+        sock.listen(BACKLOG)
     except OSError as e:
+        sock.close()
         raise MjkinIOError(f"cannot serve on {host}:{port} ({e.strerror or e}); choose another --port or --host") \
             from None
     return PlayServer(playground, sock, host, idle_timeout)
