@@ -1103,6 +1103,18 @@ def test_recording_journals_its_samples_and_a_normal_stop_removes_the_journal(ap
     assert lines[0]["frames"] == ["ee"] and len(lines) >= 2
 
 
+def test_a_take_whose_journal_cannot_be_made_does_not_start(api, served):
+    _, out = served
+    away = out.with_name(out.name + "-away")
+    out.rename(away)
+    try:
+        status, doc = api.post("/record")
+    finally:
+        away.rename(out)
+    assert status == 500 and "cannot start the recording's journal" in doc["error"] and "\n" not in doc["error"]
+    assert not api.get("/state")[1]["recording"]
+
+
 def test_a_journal_is_read_as_a_script_even_cut_off_mid_line(tmp_path):
     tree = arm()
     take = journal.Journal(tmp_path / "mjkin-play-arm7-x", {"model": "arm7", "model_path": None,

@@ -71,7 +71,8 @@ class Journal:
         try:
             self._file: IO[str] = open(self.path, "x", encoding="utf-8")  # held until close()
         except OSError as e:
-            raise MjkinIOError(f"cannot start the recording's journal {str(self.path)!r}: {e.strerror or e}") from None
+            raise MjkinIOError(f"cannot start the recording's journal {str(self.path)!r}: {e.strerror or e}; "
+                               "recordings need a folder that exists and can be written (--out)") from None
         if fcntl is not None:
             with contextlib.suppress(OSError):  # a folder without flock (some network mounts): no lock to hold
                 fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
