@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import logging
 import math
 import os
 import re
@@ -1016,6 +1017,22 @@ def test_the_listen_queue_holds_300_connections_before_any_is_accepted():
         server.close()
         pg.close()
     assert len(socks) == 300
+
+
+def test_a_client_leaving_mid_body_or_mid_stream_costs_nothing(api, served, caplog):
+    server, _ = served
+    port = server.server_address[1]
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(raw_post(server, "/target", b"Content-Length: 100\r\n", b'{"fra'))
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(f"GET /stream.mjpg?token={server.token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+        assert sock.recv(100).startswith(b"HTTP/1.1 200 ")
+    deadline = time.monotonic() + 30
+    while (server.routes.streams or server.server.server_state.tasks) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not server.routes.streams and not server.server.server_state.tasks
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text  # no traceback
+    assert api.get("/state")[0] == 200
 
 
 def test_300_simultaneous_connections_all_get_an_answer(api, served):

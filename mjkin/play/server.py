@@ -62,7 +62,7 @@ import uvicorn
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Route
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -185,7 +185,7 @@ async def read_json(request: Request) -> dict:
 
     Raises:
         Refused: 411 without a length (neither ``Content-Length`` nor chunked), 413 too large,
-            408 too slow.
+            408 too slow, 400 cut off.
         InputError: not a JSON object (too deeply nested included).
     """
     length = request.headers.get("content-length")
@@ -206,6 +206,8 @@ async def read_json(request: Request) -> dict:
         raw = await asyncio.wait_for(gather(), BODY_TIMEOUT)
     except asyncio.TimeoutError:
         raise Refused(408, f"the request body did not arrive within {BODY_TIMEOUT:g} s") from None
+    except ClientDisconnect:  # no one is left to read the answer
+        raise Refused(400, "the client left before its request body was complete") from None
     try:
         doc = json.loads(raw or b"{}")
     except RecursionError:
