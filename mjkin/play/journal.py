@@ -70,15 +70,17 @@ class Journal:
         self.base, self.path = base, path_of(base)
         try:
             self._file: IO[str] = open(self.path, "x", encoding="utf-8")  # held until close()
+            if fcntl is not None:
+                with contextlib.suppress(OSError):  # a folder without flock (some network mounts): no lock to hold
+                    fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            self._file.write(json.dumps({"format": FORMAT, "version": 1, **header}) + "\n")
+            self._file.flush()
         except OSError as e:
             raise MjkinIOError(f"cannot start the recording's journal {str(self.path)!r}: {e.strerror or e}; "
                                "recordings need a folder that exists and can be written (--out)") from None
-        if fcntl is not None:
-            with contextlib.suppress(OSError):  # a folder without flock (some network mounts): no lock to hold
-                fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        self._queue: queue.SimpleQueue[str | None] = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self._closing = threading.Event()
         self.error: OSError | None = None  # why the journal stopped being written, if it did
-        self._queue.put(json.dumps({"format": FORMAT, "version": 1, **header}))
         self._thread = threading.Thread(target=self._write_loop, name="mjkin-play-journal")
         self._thread.start()
 
@@ -90,9 +92,8 @@ class Journal:
 
     def close(self) -> None:
         """Write what is queued, flush, close the file (kept on disk; idempotent)."""
-        if self._thread.is_alive():
-            self._queue.put(None)
-            self._thread.join()
+        self._closing.set()
+        self._thread.join()
 
     def remove(self) -> None:
         """Close and delete the journal: its recording is written."""
@@ -101,18 +102,14 @@ class Journal:
 
     def _write_loop(self) -> None:
         with self._file:
-            done = False
-            while not done:
+            closing = False
+            while not closing:
+                closing = self._closing.wait(FLUSH_SECONDS)
                 lines: list[str] = []
-                try:
-                    lines.append(self._queue.get(timeout=FLUSH_SECONDS))  # type: ignore[arg-type]
+                with contextlib.suppress(queue.Empty):
                     while True:
-                        lines.append(self._queue.get_nowait())  # type: ignore[arg-type]
-                except queue.Empty:
-                    pass
-                done = None in lines
-                lines = [x for x in lines if x is not None]
-                if self.error is not None or not lines:
+                        lines.append(self._queue.get_nowait())
+                if not lines or self.error is not None:
                     continue
                 try:
                     self._file.write("".join(f"{x}\n" for x in lines))
