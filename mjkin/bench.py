@@ -279,7 +279,7 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
 
         def pipeline(overlay: Overlay | None, qs: np.ndarray = qs) -> float:
             start = time.perf_counter()
-            frames(tree, qs, width, height, camera=cam, overlay=overlay)  # noqa: B023
+            list(frames(tree, qs, width, height, camera=cam, overlay=overlay))  # noqa: B023 (frames are lazy)
             return len(qs) / (time.perf_counter() - start)
 
         def bare_loop(qs: np.ndarray = qs) -> float:
