@@ -111,9 +111,9 @@ def shared_model(relpath: str) -> Tree | None:
 def number_format(values: Sequence[float]) -> str:
     """One format for a column of floats.
 
-    Exponents when the smallest non-zero value is below 0.001, whole numbers with thousands
-    separators once the largest reaches 10 000, else the fixed decimals that give the smallest
-    value 3 digits (at most 3 decimals).
+    Exponents when the smallest non-zero value is below 0.001, whole numbers once the largest
+    reaches 10 000, else the fixed decimals that give the smallest value 3 digits (at most 3);
+    thousands separated by commas.
     """
     finite = [abs(v) for v in values if math.isfinite(v)]
     small = min((v for v in finite if v), default=1.0)
@@ -121,7 +121,7 @@ def number_format(values: Sequence[float]) -> str:
         return ".2e"
     if max(finite, default=0.0) >= 1e4:
         return ",.0f"
-    return f".{min(max(2 - math.floor(math.log10(small)), 0), 3)}f"
+    return f",.{min(max(2 - math.floor(math.log10(small)), 0), 3)}f"
 
 
 def format_table(rows: list[Row]) -> str:

@@ -451,13 +451,14 @@ def test_time_limited_rows_count_late_answers_as_failures():
 def test_table_columns_each_keep_one_number_format():
     rows = [{"us": 0.342, "per_s": 2_927_954.0, "err": 4.96e-9, "success": 100.0},
             {"us": 2.7, "per_s": 9870.0, "err": 0.0, "success": 88.25},
-            {"us": 12.5, "per_s": 598.0, "err": 3e-8, "success": None}]
+            {"us": 12.5, "per_s": 598.0, "err": 3e-8, "success": None},
+            {"us": 1234.5, "per_s": 1e4, "err": 1.0, "success": 99.94}]
     lines = bench.format_table(rows).splitlines()
     cols = list(zip(*(line.split() for line in lines[2:]), strict=True))
-    assert cols[0] == ("0.342", "2.700", "12.500")
-    assert cols[1] == ("2,927,954", "9,870", "598")
-    assert cols[2] == ("4.96e-09", "0.00e+00", "3.00e-08")
-    assert cols[3] == ("100.0", "88.2", "-")
+    assert cols[0] == ("0.342", "2.700", "12.500", "1,234.500")
+    assert cols[1] == ("2,927,954", "9,870", "598", "10,000")
+    assert cols[2] == ("4.96e-09", "0.00e+00", "3.00e-08", "1.00e+00")
+    assert cols[3] == ("100.0", "88.2", "-", "99.9")
 
 
 # ------------------------------------------------------------------------- peers: with the bench extra installed
