@@ -69,6 +69,8 @@ def serial_chain(tree: Tree, frame: str, kind: Kind) -> Chain:
     with ``qpos0 = 0``, one per body: what a URDF joint or a DH row can say.
     """
     m = tree.model
+    if not m.njnt:
+        raise Unavailable("the model has no joint")
     obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
     i = mujoco.mj_name2id(m, obj, frame)
     body = int(m.site_bodyid[i]) if kind == "site" else i

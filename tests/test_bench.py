@@ -371,6 +371,9 @@ def test_urdf_writer_refuses_what_a_urdf_chain_cannot_say():
     fork = mjkin.load(build.links_mjcf([build.Link("a"), build.Link("b", "a"), build.Link("c", "a")]))
     with pytest.raises(bench_peers.Unavailable, match="not a serial chain: the model has 3 joints, 2 of them"):
         bench_peers.chain_urdf(fork, "b", "body")
+    still = mjkin.load(build.links_mjcf([build.Link("a", joint="fixed")]))
+    with pytest.raises(bench_peers.Unavailable, match="no joint"):
+        bench_peers.mdh_table(still, "a", "body")
 
 
 def test_modified_dh_table_read_from_the_panda_is_its_published_table():
