@@ -1121,6 +1121,20 @@ def test_recording_journals_its_samples_and_a_normal_stop_removes_the_journal(ap
     assert lines[0]["frames"] == ["ee"] and len(lines) >= 2
 
 
+def test_a_take_stopped_before_its_first_sample_is_a_still_a_script_can_hold(tmp_path):
+    """It was written as two frames at 0 s, which scripts refuse now (times must increase)."""
+    pg = Playground(arm(), W, H, out_dir=tmp_path, source="arm7")  # not started: no render thread takes samples
+    try:
+        pg.record("a")
+        saved = pg.stop("a")
+    finally:
+        pg.close()
+    traj = motion.Trajectory.load(saved["path"], arm())
+    np.testing.assert_allclose(traj.times, [0.0, 1.0 / pg.fps])
+    np.testing.assert_array_equal(traj.q, [pg.state.q, pg.state.q])
+    assert traj.source == "arm7" and not list(tmp_path.glob("*.journal.jsonl"))
+
+
 def test_a_take_whose_journal_cannot_be_made_does_not_start(api, served):
     _, out = served
     away = out.with_name(out.name + "-away")
@@ -1135,7 +1149,7 @@ def test_a_take_whose_journal_cannot_be_made_does_not_start(api, served):
 
 def test_a_journal_is_read_as_a_script_even_cut_off_mid_line(tmp_path):
     tree = arm()
-    take = journal.Journal(tmp_path / "mjkin-play-arm7-x", {"model": "arm7", "model_path": None,
+    take = journal.Journal(tmp_path / "mjkin-play-arm7-x", {"model": "arm7", "source": "arm7",
                                                             "fingerprint": motion.fingerprint(tree), "frames": ["ee"],
                                                             "method": "dls", "goal": "position"})
     qs = tree.random_q(np.random.default_rng(1), 5)
@@ -1236,7 +1250,7 @@ def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_
     header, samples = lines[0], lines[1:]
     assert lines[:len(seen)] == seen  # every sample on disk before the kill is there
     assert header["format"] == "mjkin-play-journal" and header["model"] == "arm7" and header["frames"] == ["ee"]
-    assert header["fingerprint"] == motion.fingerprint(arm()) and header["model_path"] is None  # a bundled name
+    assert header["fingerprint"] == motion.fingerprint(arm()) and header["source"] == "arm7"  # a bundled name
     times = [x["t"] for x in samples]
     assert times == sorted(times) and times[-1] >= 1.5 and all(len(x["q"]) == 7 for x in samples)
     np.testing.assert_allclose(arm().pose(np.array(samples[-1]["q"]), "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)

@@ -2,7 +2,7 @@
 
 While ``mjkin play`` records, every sample (seconds since the start, ``q``, the
 target points) goes to ``BASE.journal.jsonl`` in the recordings folder: a header
-line (format, model name and path, fingerprint, effector frames, method, goal),
+line (format, model name and source, fingerprint, effector frames, method, goal),
 then one line per sample. A writer thread of its own appends them, flushes the file
 and has it put on disk every :data:`FLUSH_SECONDS`, so the render thread never waits for
 the disk and a crash (``kill -9``, a power cut) loses at most the samples of the last second.
@@ -198,8 +198,8 @@ def script(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InputError(f"recording journal {str(path)!r}: each sample needs a time, q (nq numbers) and "
                          "targets (x, y, z points), the same nq in every line") from None
     frames = header.get("frames") or []
-    play = {k: header.get(k) for k in ("frames", "method", "goal", "model_path")}
-    return {"format": motion.FORMAT, "version": 1, "model": header.get("model", ""),
+    play = {k: header.get(k) for k in ("frames", "method", "goal")}
+    return {"format": motion.FORMAT, "version": 1, "model": header.get("model", ""), "source": header.get("source"),
             "fingerprint": header.get("fingerprint"), "site": frames[0] if frames else None,
             "times": times.tolist(), "qpos": q.tolist(), "targets": None if targets is None else targets.tolist(),
             "success": None, "meta": {"play": play}}

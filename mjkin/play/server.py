@@ -591,8 +591,9 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
         say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
             "can control the playground")
     say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.progress)
-    path = None if isinstance(model, Tree) or not Path(model).is_file() else str(Path(model).resolve())
-    playground = Playground(tree, out_dir=out_dir, model_path=path)
+    from ..cli import model_source  # not at the top: the CLI imports this module
+
+    playground = Playground(tree, out_dir=out_dir, source="" if isinstance(model, Tree) else model_source(str(model)))
     try:
         server = bind(playground, host, port)
     except BaseException:

@@ -116,12 +116,12 @@ class Playground:
     """The state of one ``mjkin play`` session and its render thread (call :meth:`start`, then :meth:`close`)."""
 
     def __init__(self, tree: Tree, width: int = 640, height: int = 480, fps: float = 30.0, lease: float = 5.0,
-                 out_dir: str | Path = ".", frames: Sequence[str] | None = None, model_path: str | None = None) -> None:
+                 out_dir: str | Path = ".", frames: Sequence[str] | None = None, source: str = "") -> None:
         if not fps > 0 or not lease >= 0:
             raise InputError(f"fps must be > 0 and lease >= 0, got {fps!r}, {lease!r}")
         self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
         self.out_dir = Path(out_dir)  # checked by serve(); not here: benchmarks and stills never record
-        self.model_path = model_path  # the MJCF file served, when it is one (recordings' journals name it)
+        self.source = source  # where the model came from, as scripts record it (a file's path, a bundled name)
         home = core.initial_state(tree, frames)
         self.home = core.Camera.of(view_camera(tree, home.q))  # the initial camera, where "reset view" goes
         self.camera = self.home  # the camera of the moment (orbit, zoom); guarded by the lock like the state
@@ -276,7 +276,7 @@ class Playground:
                 raise InputError("the last recording is not written yet; Stop & save (POST /stop) writes it")
             s = self.state
             log = Journal(journal.base_name(self.out_dir, self.tree.name or "model"), {
-                "model": self.tree.name, "model_path": self.model_path, "fingerprint": motion.fingerprint(self.tree),
+                "model": self.tree.name, "source": self.source, "fingerprint": motion.fingerprint(self.tree),
                 "frames": list(s.targets), "method": s.method, "goal": s.goal})
             self._recording = Recording([], log, time.monotonic())
         self._wake.set()
@@ -312,15 +312,15 @@ class Playground:
 
     def _write(self, take: Take) -> dict:
         samples, state = take.recording.samples, take.state
-        if len(samples) < 2:
-            samples = samples + [samples[-1]] if samples else [(0.0, state.q, self._points(state))] * 2
+        if len(samples) < 2:  # a still: the pose held for one frame (a script's times must increase)
+            first = samples[0] if samples else (0.0, state.q, self._points(state))
+            samples = [first, (first[0] + 1.0 / self.fps, *first[1:])]
         times, qs, targets = journal.columns(samples)
         base = take.recording.journal.base
         frames = list(state.targets)
         traj = motion.Trajectory(times=times, q=qs, fingerprint=motion.fingerprint(self.tree),
-                                 model=self.tree.name, site=frames[0], targets=targets,
-                                 meta={"play": {"frames": frames, "method": state.method, "goal": state.goal,
-                                                "model_path": self.model_path}})
+                                 model=self.tree.name, site=frames[0], targets=targets, source=self.source,
+                                 meta={"play": {"frames": frames, "method": state.method, "goal": state.goal}})
         video_fps = 30.0
         pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
         overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
