@@ -248,7 +248,8 @@ class Trajectory:
 
         Times must not decrease and, over two frames or more, must not all be equal.
         Joint values are read as recorded: :func:`outside_limits` says which are
-        outside the joint limits, ``tree.clip`` clips them.
+        outside the joint limits, ``tree.clip`` clips them. A ``.jsonl`` file is read as
+        the journal of a recording ``mjkin play`` took (:mod:`mjkin.play.journal`).
 
         Raises:
             MjkinIOError: the file is missing, unreadable, not JSON, or nested too deeply.
@@ -256,7 +257,7 @@ class Trajectory:
         """
         name = repr(str(path))
         try:
-            doc = json.loads(Path(path).read_text())
+            doc = _journal_script(path) if Path(path).suffix == ".jsonl" else json.loads(Path(path).read_text())
         except FileNotFoundError:
             raise MjkinIOError(f"trajectory file not found: {name}") from None
         except RecursionError:
@@ -308,6 +309,13 @@ class Trajectory:
             raise InputError(f"trajectory {name}: 'times' are all {times[0]:g} s; they must increase over the "
                              f"{len(times)} frames")
         return traj
+
+
+def _journal_script(path: str | os.PathLike[str]) -> dict:
+    """The script a ``mjkin play`` recording's journal holds (:func:`mjkin.play.journal.script`)."""
+    from .play import journal
+
+    return journal.script(path)
 
 
 def follow(tree: Tree, site: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,
