@@ -71,10 +71,10 @@ def gc_paused() -> Iterator[None]:
             gc.enable()
 
 
-def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 3) -> float:
-    """Best of ``repeat`` runs of the mean time per call over at least ``min_time`` seconds."""
+def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 5) -> float:
+    """Median of ``repeat`` runs of the mean time per call, each a loop of calls over at least ``min_time`` seconds."""
     fn()  # warm caches
-    best = np.inf
+    runs = []
     with gc_paused():
         for _ in range(repeat):
             n, start = 0, time.perf_counter()
@@ -84,8 +84,8 @@ def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: in
                 elapsed = time.perf_counter() - start
                 if elapsed >= min_time:
                     break
-            best = min(best, elapsed / n)
-    return float(best)
+            runs.append(elapsed / n)
+    return float(np.median(runs))
 
 
 def shared_models_dir() -> Path | None:
@@ -108,20 +108,35 @@ def shared_model(relpath: str) -> Tree | None:
     return load(root / relpath)
 
 
+def number_format(values: Sequence[float]) -> str:
+    """One format for a column of floats.
+
+    Exponents when the smallest non-zero value is below 0.001, whole numbers once the largest
+    reaches 10 000, else the fixed decimals that give the smallest value 3 digits (at most 3);
+    thousands separated by commas.
+    """
+    finite = [abs(v) for v in values if math.isfinite(v)]
+    small = min((v for v in finite if v), default=1.0)
+    if small < 1e-3:
+        return ".2e"
+    if max(finite, default=0.0) >= 1e4:
+        return ",.0f"
+    return f",.{min(max(2 - math.floor(math.log10(small)), 0), 3)}f"
+
+
 def format_table(rows: list[Row]) -> str:
-    """Rows as an aligned text table (floats with 3 significant digits, None as ``-``)."""
+    """Rows as an aligned text table: one number format per column (:func:`number_format`), None and NaN as ``-``."""
     if not rows:
         return "(no rows)"
     cols = list(dict.fromkeys(c for r in rows for c in r))
+    formats = {c: number_format([v for r in rows if isinstance(v := r.get(c), float)]) for c in cols}
 
-    def cell(v: object) -> str:
-        if v is None:
+    def cell(v: object, c: str) -> str:
+        if v is None or isinstance(v, float) and math.isnan(v):
             return "-"
-        if isinstance(v, float):
-            return "nan" if math.isnan(v) else f"{v:.3g}" if abs(v) < 1e5 else f"{v:,.0f}"
-        return str(v)
+        return format(v, formats[c]) if isinstance(v, float) else str(v)
 
-    cells = [[cell(r.get(c)) for c in cols] for r in rows]
+    cells = [[cell(r.get(c), c) for c in cols] for r in rows]
     widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(cols)]
     line = "  ".join(c.rjust(w) for c, w in zip(cols, widths, strict=True))
     body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in cells]
@@ -130,8 +145,8 @@ def format_table(rows: list[Row]) -> str:
 
 # ----------------------------------------------------------------------------------------------- FK
 
-FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "franka_emika_panda/panda_nohand.xml",
-             "g1": "unitree_g1/g1.xml"}
+FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "panda", "g1": "unitree_g1/g1.xml"}  # panda: models/
+FK_BUNDLED = ("arm7", "primate", "panda")
 
 
 def fk_models(names: Sequence[str] | None = None) -> list[tuple[str, Tree]]:
@@ -139,7 +154,7 @@ def fk_models(names: Sequence[str] | None = None) -> list[tuple[str, Tree]]:
     out = []
     for name in names or FK_MODELS:
         src = FK_MODELS.get(name, name)
-        if src in ("arm7", "primate") or Path(src).is_file():
+        if src in FK_BUNDLED or Path(src).is_file():
             out.append((name if name in FK_MODELS else Path(name).stem, load(src)))
             continue
         tree = shared_model(src) if name in FK_MODELS else None
@@ -182,13 +197,58 @@ def mujoco_site_pose(model: mujoco.MjModel, q: np.ndarray, site: int) -> Callabl
     return run
 
 
+def pinocchio_frame_pose(tree: Tree, frame: str, q: np.ndarray) -> Callable[[], object]:
+    """Pinocchio's one pose, as its users call it: ``forwardKinematics`` then ``updateFramePlacement``.
+
+    The model comes from the URDF of the chain to the site (:func:`mjkin.bench_peers.pinocchio_model`,
+    checked equal to ``tree.pose``); the call returns pinocchio's own ``SE3`` of the frame.
+    Raises :class:`mjkin.bench_peers.Unavailable` when pinocchio is missing or cannot take the chain.
+    """
+    from . import bench_peers
+
+    pin = bench_peers.require("pinocchio", "pin")
+    model, data, fid = bench_peers.pinocchio_model(tree, frame, "site")
+
+    def run() -> object:
+        pin.forwardKinematics(model, data, q)
+        return pin.updateFramePlacement(model, data, fid)
+
+    return run
+
+
+def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skipped: list[Row]) -> list[Row]:
+    """One site pose for one q: mjkin's ``tree.pose``, MuJoCo and pinocchio, each a loop of single calls.
+
+    ``ratio``: the library's time over mjkin's (> 1: mjkin faster). A peer that cannot run adds
+    its reason to ``skipped``.
+    """
+    from .bench_peers import Unavailable
+
+    site = tree.model.nsite - 1
+    frame = tree.names("site")[site]
+    calls: list[tuple[str, str, Callable[[], object]]] = [
+        ("mjkin", "tree.pose(q, site)", lambda: tree.pose(q, frame, "site")),
+        ("mujoco", "mj_kinematics + site_xpos/site_xmat into a 4x4", mujoco_site_pose(tree.model, q, site))]
+    try:
+        calls.append(("pinocchio", "forwardKinematics + updateFramePlacement", pinocchio_frame_pose(tree, frame, q)))
+    except Unavailable as e:
+        skipped.append({"model": name, "library": "pinocchio", "reason": str(e)})
+    rows: list[Row] = []
+    for library, call, fn in calls:
+        us = 1e6 * seconds_per_call(fn, min_time)
+        rows.append({"model": name, "site": frame, "library": library, "call": call, "us": us,
+                     "ratio": us / float(rows[0]["us"]) if rows else 1.0})  # type: ignore[arg-type]
+    return rows
+
+
 def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100, 10_000), seed: int = 0,
              min_time: float = 0.2) -> Report:
-    """All body poses for a batch (``tree.fk``) and one site pose for one q (``tree.pose``), vs MuJoCo."""
+    """All body poses for a batch (``tree.fk``) vs MuJoCo; one site pose for one q vs MuJoCo and pinocchio."""
     if not sizes or min(sizes) < 1:
         raise InputError(f"--batch sizes must be at least 1, got {list(sizes)}")
     batched: list[Row] = []
     single: list[Row] = []
+    skipped: list[Row] = []
     rng = np.random.default_rng(seed)
     cases = [(n, t, B) for n, t in fk_models(models) for B in sizes]
     for name, tree, B in track(cases, "bench fk"):
@@ -199,19 +259,19 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
                         "mujoco_us_per_q": 1e6 * t_mj / B, "mjkin_q_per_s": B / t_mjkin,
                         "mujoco_q_per_s": B / t_mj, "ratio": t_mj / t_mjkin})
     for name, tree in fk_models(models):
-        if not tree.model.nsite:
-            continue
-        q, site = tree.random_q(rng), tree.model.nsite - 1
-        t_mjkin = seconds_per_call(lambda: tree.pose(q, tree.names("site")[site], "site"), min_time)  # noqa: B023
-        t_mj = seconds_per_call(mujoco_site_pose(tree.model, q, site), min_time)
-        single.append({"model": name, "site": tree.names("site")[site], "mjkin_us": 1e6 * t_mjkin,
-                       "mujoco_us": 1e6 * t_mj, "ratio": t_mj / t_mjkin})
-    return Report({"batched FK, every body pose: tree.fk(Q) vs a Python loop of mj_kinematics copying xpos/xmat "
-                   "(ratio > 1: mjkin faster)": batched,
-                   "one site pose for one q: tree.pose(q, site) vs mj_kinematics + reading site_xpos/site_xmat "
-                   "into a 4x4 (ratio > 1: mjkin faster)": single},
-                  {"sizes": list(sizes), "seed": seed, "timing": f"best of 3 runs of >= {min_time} s each",
-                   "gc": GC_NOTE})
+        if tree.model.nsite:
+            single += single_pose_rows(name, tree, tree.random_q(rng), min_time, skipped)
+    tables = {"batched FK, every body pose: tree.fk(Q) vs a Python loop of mj_kinematics copying xpos/xmat "
+              "(ratio > 1: mjkin faster)": batched,
+              "one site pose for one q, each library's call in a loop (ratio: its time / mjkin's; > 1: mjkin "
+              "faster)": single}
+    if skipped:
+        tables["pinocchio without a row (the reason)"] = skipped
+    return Report(tables, {"sizes": list(sizes), "seed": seed,
+                           "timing": f"median of 5 runs of >= {min_time} s of calls each", "gc": GC_NOTE,
+                           "pinocchio": "the chain to the site as a URDF, its FK checked equal to tree.pose to 1e-12 "
+                                        "before timing; returns its SE3 (not copied into a 4x4)"},
+                  {"skipped": skipped})
 
 
 # -------------------------------------------------------------------------------------------- seeds
@@ -279,7 +339,7 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
 
         def pipeline(overlay: Overlay | None, qs: np.ndarray = qs) -> float:
             start = time.perf_counter()
-            frames(tree, qs, width, height, camera=cam, overlay=overlay)  # noqa: B023
+            list(frames(tree, qs, width, height, camera=cam, overlay=overlay))  # noqa: B023 (frames are lazy)
             return len(qs) / (time.perf_counter() - start)
 
         def bare_loop(qs: np.ndarray = qs) -> float:
@@ -398,7 +458,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="batch sizes (default 1 100 10000)")
     common(s)
 
-    s = sub.add_parser("ik", help="6-D pose IK beside MuJoCo DLS and mink; --protocol trac-ik for TRAC-IK's")
+    s = sub.add_parser("ik", help="6-D pose IK beside MuJoCo DLS, mink, Robotics Toolbox's ik_LM and TRAC-IK; "
+                                  "--protocol trac-ik for TRAC-IK's")
     s.add_argument("--models", nargs="+", metavar="NAME|PATH",
                    help="arms by name (arm7, panda, ur5e, iiwa14, gen3, xarm7) or MJCF files (frame: last site, "
                         "else last body); default all available (trac-ik: the five real arms)")
@@ -410,7 +471,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--iters", type=positive_int, default=200,
                    help="iteration budget of the single-start rows (mjkin-single-start, mujoco-dls, mink; default 200)")
     s.add_argument("--time-limit", type=positive_float, default=0.005,
-                   help="trac-ik: seconds per solve (default 0.005)")
+                   help="seconds per solve: TRAC-IK's own limit; with --protocol trac-ik every solver's "
+                        "(default 0.005)")
     common(s)
 
     s = sub.add_parser("realtime", help="6-D IK per frame for chains of 2..128 DoF and trees, warm and cold")
@@ -472,7 +534,7 @@ def run(args: argparse.Namespace) -> Report:
             return bench_trac_ik(args.models, args.targets or 10_000, args.tol or 1e-5, args.rot_tol or 1e-5,
                                  args.time_limit, args.seed)
         return bench_ik(args.models, args.targets or 1000, args.tol or 1e-4, args.rot_tol or 1e-3, args.iters,
-                        args.seed)
+                        args.seed, time_limit=args.time_limit)
     if args.which == "realtime":
         from .bench_realtime import bench_realtime
 

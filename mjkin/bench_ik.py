@@ -8,7 +8,6 @@ with MuJoCo's ``mj_kinematics`` and success is counted from that re-check.
 
 from __future__ import annotations
 
-import importlib.util
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -19,20 +18,24 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from . import bench_peers
 from . import goals as G
 from .bench import GC_NOTE, Report, Row, gc_paused, shared_models_dir
 from .errors import InputError
 from .ik import solve
+from .ik.solve import AUTO_RESTARTS, TIMED_RESTARTS
 from .progress import track
 from .qspace import HINGE, SLIDE
+from .spatial import mat_to_rotvec
 from .tree import Tree, load
 
 Array = NDArray[np.float64]
 Kind = Literal["site", "body"]
 
+BUNDLED = ("arm7", "panda")
 IK_ARMS: dict[str, tuple[str, str, Kind]] = {  # name: model (bundled name or path under shared models), frame, kind
     "arm7": ("arm7", "ee", "site"),
-    "panda": ("franka_emika_panda/panda_nohand.xml", "attachment_site", "site"),
+    "panda": ("panda", "flange", "site"),  # models/panda.xml, from its modified-DH table
     "ur5e": ("universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
     "iiwa14": ("kuka_iiwa_14/iiwa14.xml", "attachment_site", "site"),
     "gen3": ("kinova_gen3/gen3.xml", "pinch_site", "site"),
@@ -91,7 +94,7 @@ def arms(names: Sequence[str] | None, default: Sequence[str] = tuple(IK_ARMS)) -
     for name in names or default:
         if name in IK_ARMS:
             src, frame, kind = IK_ARMS[name]
-            if src not in ("arm7",):
+            if src not in BUNDLED:
                 root = shared_models_dir()
                 if root is None or not (root / src).is_file():
                     if names:
@@ -121,27 +124,53 @@ def mid_range(tree: Tree) -> Array:
     return q
 
 
+def mujoco_poses(model: mujoco.MjModel, frame: str, kind: Kind, qs: Array) -> Array:
+    """World poses ``(N, 4, 4)`` of ``frame`` at ``qs (N, nq)`` from MuJoCo's ``mj_kinematics`` (the re-check)."""
+    data = mujoco.MjData(model)
+    obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
+    i = mujoco.mj_name2id(model, obj, frame)
+    T = np.broadcast_to(np.eye(4), (len(qs), 4, 4)).copy()
+    for n, q in enumerate(qs):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        T[n, :3, 3] = data.site_xpos[i] if kind == "site" else data.xpos[i]
+        T[n, :3, :3] = (data.site_xmat[i] if kind == "site" else data.xmat[i]).reshape(3, 3)
+    return T
+
+
 def frame_errors(model: mujoco.MjModel, frame: str, kind: Kind, qs: Array, targets: Array) -> tuple[Array, Array]:
     """Re-check answers with MuJoCo: position (m) and rotation (rad) error of ``frame`` at ``qs (N, nq)``.
 
     The pose comes from ``mj_kinematics``, not from the solver; rotation error is the
     angle of ``R_reachedᵀ R_target`` (atan2 form, accurate near zero).
     """
-    data = mujoco.MjData(model)
-    obj = mujoco.mjtObj.mjOBJ_SITE if kind == "site" else mujoco.mjtObj.mjOBJ_BODY
-    i = mujoco.mj_name2id(model, obj, frame)
-    pos, rot = np.empty((len(qs), 3)), np.empty((len(qs), 3, 3))
-    for n, q in enumerate(qs):
-        data.qpos[:] = q
-        mujoco.mj_kinematics(model, data)
-        pos[n] = data.site_xpos[i] if kind == "site" else data.xpos[i]
-        rot[n] = (data.site_xmat[i] if kind == "site" else data.xmat[i]).reshape(3, 3)
-    ep = np.linalg.norm(pos - targets[:, :3, 3], axis=-1)
-    D = np.swapaxes(rot, -1, -2) @ targets[:, :3, :3]
+    T = mujoco_poses(model, frame, kind, qs)
+    ep = np.linalg.norm(T[:, :3, 3] - targets[:, :3, 3], axis=-1)
+    D = np.swapaxes(T[:, :3, :3], -1, -2) @ targets[:, :3, :3]
     s = 0.5 * np.linalg.norm(np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0],
                                        D[:, 1, 0] - D[:, 0, 1]], -1), axis=-1)
     c = 0.5 * (np.trace(D, axis1=-2, axis2=-1) - 1.0)
     return ep, np.arctan2(s, c)
+
+
+def error_components(model: mujoco.MjModel, frame: str, kind: Kind, qs: Array, targets: Array) -> Array:
+    """The error twist ``(N, 6)`` as TRAC-IK judges it, from MuJoCo's poses at ``qs``.
+
+    KDL's ``diffRelative(target, reached)``: the position error and the rotation vector of
+    ``R_targetᵀ R_reached``, both in the target's axes (m, rad). TRAC-IK succeeds when
+    every component is within its ``eps``.
+    """
+    T = mujoco_poses(model, frame, kind, qs)
+    R_t = targets[:, :3, :3]
+    dp = np.einsum("nji,nj->ni", R_t, T[:, :3, 3] - targets[:, :3, 3])
+    return np.concatenate([dp, mat_to_rotvec(np.swapaxes(R_t, -1, -2) @ T[:, :3, :3])], axis=-1)
+
+
+def past_limits(tree: Tree, qs: Array) -> Array:
+    """How far each answer ``qs (N, nq)`` lies beyond its limited hinge/slide joints' ranges, ``(N,)`` (0 = inside)."""
+    j = np.flatnonzero(tree.jnt_limited & np.isin(tree.jnt_type, (HINGE, SLIDE)))
+    q, lo, hi = qs[:, tree.jnt_qadr[j]], tree.jnt_range[j, 0], tree.jnt_range[j, 1]
+    return np.maximum(np.maximum(lo - q, q - hi), 0.0).max(axis=-1, initial=0.0)
 
 
 def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, **options: Any) -> Run:
@@ -223,8 +252,9 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
 
     FrameTask + ConfigurationLimit, ``solve_ik`` (daqp), integrate, and convergence by
     ``FrameTask.compute_error`` (translation and rotation norms) after each step.
+    Raises :class:`mjkin.bench_peers.Unavailable` when mink is not installed.
     """
-    import mink
+    mink = bench_peers.require("mink", "mink")
 
     config = mink.Configuration(arm.tree.model)
     task = mink.FrameTask(arm.frame, arm.kind, position_cost=1.0, orientation_cost=1.0, lm_damping=1.0)
@@ -251,10 +281,86 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
     return Run(out, seconds, iters, np.zeros(N), N / seconds.sum(), cpu)
 
 
+RTB_ILIMIT = 50  # iterations per search: as many as each of mjkin's lm runs
+
+
+def rtb_ik_lm(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, slimit: int) -> tuple[Run, Array]:
+    """Robotics Toolbox's C++ ``ik_LM`` (Chan's damping), one call per target; also its own success flags ``(N,)``.
+
+    Built once: a ``DHRobot`` from the model's modified-DH table (:func:`mjkin.bench_peers.rtb_ets`)
+    and its ``ets()``, whose ``ik_LM`` is the C++ call (``Robot.ik_LM`` builds the ETS again on
+    every call). Its one tolerance bounds ``E = ½ |e|²`` over the 6-D error: ``E < ½ min(tol,
+    rot_tol)²`` is the loosest bound that keeps both errors within theirs. ``slimit`` searches of
+    :data:`RTB_ILIMIT` iterations, the first from ``q0``, the others from random in-limit starts.
+    """
+    ets = bench_peers.rtb_ets(arm.tree, arm.frame, arm.kind)
+    budget = {"q0": q0, "ilimit": RTB_ILIMIT, "slimit": slimit, "tol": 0.5 * min(tol, rot_tol) ** 2}
+    ets.ik_LM(targets[0], **budget)  # untimed first call
+    N = len(targets)
+    q, seconds, cpu, iters, searches, said = (np.empty((N, arm.tree.nq)), np.empty(N), np.empty(N), np.empty(N),
+                                              np.empty(N), np.empty(N, dtype=bool))
+    with gc_paused():
+        for k in range(N):
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            sol = ets.ik_LM(targets[k], **budget)
+            seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
+            q[k], iters[k], searches[k], said[k] = sol.q, sol.iterations, sol.searches, sol.success
+    return Run(q, seconds, iters, searches, N / seconds.sum(), cpu), said
+
+
+def trac_ik(arm: Arm, targets: Array, q0: Array, eps: float, time_limit: float) -> tuple[Run, Array]:
+    """TRAC-IK (Speed mode, pytracik) one call per target, as its README calls it; also its own success flags.
+
+    Built once from the chain's URDF (:func:`mjkin.bench_peers.trac_ik_solver`); each call is
+    ``TracIK.ik(position, rotation, seed)`` (its matrix-to-quaternion step included) with
+    TRAC-IK's own time limit and ``eps``. A call that finds nothing returns ``None``: its
+    answer is counted as the seed. TRAC-IK reports no iteration counts, and its CPU time is not
+    measured: Speed mode solves in two threads of its own, not in the calling one.
+    """
+    solver = bench_peers.trac_ik_solver(arm.tree, arm.frame, arm.kind, time_limit, eps)
+    pos, rot = targets[:, :3, 3].copy(), targets[:, :3, :3].copy()
+    solver.ik(pos[0], rot[0], q0)  # untimed first call
+    N = len(targets)
+    q, seconds, said = np.empty((N, arm.tree.nq)), np.empty(N), np.empty(N, dtype=bool)
+    with gc_paused():
+        for k in range(N):
+            start = time.perf_counter()
+            answer = solver.ik(pos[k], rot[k], q0)
+            seconds[k] = time.perf_counter() - start
+            said[k] = answer is not None
+            q[k] = q0 if answer is None else answer
+    none = np.full(N, np.nan)
+    return Run(q, seconds, none, none, N / seconds.sum()), said
+
+
+def peer_row(arm: Arm, name: str, run: Run, said: Array, targets: Array, tol: float, rot_tol: float,
+              within: NDArray[np.bool_] | None = None, eps: float | None = None) -> Row:
+    """A peer's row: :func:`row`, and how often the peer itself claimed success (``said (N,)``).
+
+    Also how many answers went past a joint limit and how far; with ``eps`` (TRAC-IK) the
+    success by TRAC-IK's own per-component test (:func:`error_components`).
+    """
+    r = row(arm, name, run, targets, tol, rot_tol, within=within)
+    r["solver_says"] = 100.0 * float(said.mean())
+    if eps is not None:
+        e = np.abs(error_components(arm.tree.model, arm.frame, arm.kind, run.q, targets))
+        ok = (e <= eps).all(axis=-1) & (True if within is None else within)
+        r["success_per_component"] = 100.0 * float(ok.mean())
+    past = past_limits(arm.tree, run.q)
+    r["past_limits"] = int(np.sum(past > 0))
+    r["past_limit_max"] = float(past.max())
+    return r
+
+
 def row(arm: Arm, solver: str, run: Run, targets: Array, tol: float, rot_tol: float,
-        batched: Run | None = None, extra: Row | None = None) -> Row:
-    """A table row; success is re-checked by MuJoCo (:func:`frame_errors`), never taken from the solver."""
+        batched: Run | None = None, extra: Row | None = None, within: NDArray[np.bool_] | None = None) -> Row:
+    """A table row; success is re-checked by MuJoCo (:func:`frame_errors`), never taken from the solver.
+
+    ``within (N,)``, when given, marks the answers that count at all (e.g. those inside a time limit).
+    """
     ok = success(arm, run.q, targets, tol, rot_tol)
+    if within is not None:
+        ok &= within
     ms = None if run.seconds is None else 1e3 * run.seconds
     r: Row = {"model": arm.name, "solver": solver, "success": 100.0 * float(ok.mean()),
               "mean_ms": None if ms is None else float(ms.mean()),
@@ -282,7 +388,7 @@ def targets_for(arm: Arm, n: int, seed: int) -> Array:
     return arm.tree.pose(arm.tree.random_q(rng, n), arm.frame, arm.kind)
 
 
-def check_settings(n: int, tol: float, rot_tol: float, iters: int) -> None:
+def check_settings(n: int, tol: float, rot_tol: float, iters: int, time_limit: float = 1.0) -> None:
     """Raise :class:`InputError` for settings no benchmark can run with."""
     if n < 1:
         raise InputError(f"--targets must be at least 1, got {n}")
@@ -290,46 +396,121 @@ def check_settings(n: int, tol: float, rot_tol: float, iters: int) -> None:
         raise InputError(f"--tol and --rot-tol must be positive, got {tol}, {rot_tol}")
     if iters < 1:
         raise InputError(f"--iters must be at least 1, got {iters}")
+    if not time_limit > 0:
+        raise InputError(f"the time limit must be positive, got {time_limit}")
+
+
+IK_PEERS = ("mink", "rtb-ik_LM", "trac-ik")  # bench ik
+TRAC_IK_PEERS = ("rtb-ik_LM", "trac-ik")  # bench ik --protocol trac-ik
+PEER_NOTES = {
+    "peers": "each peer's FK checked equal to tree.pose to 1e-12 on random in-limit configurations before any "
+             "timing; a peer that differs, cannot take the chain or is not installed gets no row, only the reason",
+    "rtb-ik_LM": "Robotics Toolbox's C++ ETS.ik_LM on a DHRobot of RevoluteMDH links read from the model's own "
+                 "modified-DH table; tol: E < 0.5 min(tol, rot_tol)^2 (E = 0.5 |6-D error|^2); searches after the "
+                 "first from random in-limit starts",
+    "trac-ik": "TRAC-IK Speed mode (pytracik TracIK.ik) on a URDF of the model's chain, eps = min(tol, rot_tol); "
+               "success_per_component: TRAC-IK's own test (every error component, in the target's axes, within "
+               "eps; re-checked by mj_kinematics)",
+    "solver_says": "% of answers the peer itself called solved",
+    "past_limits": "answers beyond a joint limit, and past_limit_max by how much (rad; pytracik keeps the limits "
+                   "in float32)",
+}
+
+
+def peer(name: str, arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, time_limit: float,
+         iters: int | None) -> Row:
+    """The row of one peer, or :class:`mjkin.bench_peers.Unavailable` with the reason it has none.
+
+    ``iters`` is ``bench ik``'s single-start budget (mink's; ``ik_LM`` gets mjkin's 1 + 24 starts);
+    ``None`` is TRAC-IK's protocol: ``ik_LM`` searches up to 1 + 1000 times, and as it has no
+    time limit of its own, a solve that took longer than ``time_limit`` counts as failed.
+    TRAC-IK keeps its own ``time_limit`` in both.
+    """
+    if name == "mink" and iters is not None:
+        return row(arm, name, mink_ik(arm, targets, q0, tol, rot_tol, iters), targets, tol, rot_tol)
+    if name == "rtb-ik_LM":
+        run, said = rtb_ik_lm(arm, targets, q0, tol, rot_tol, 1 + (AUTO_RESTARTS if iters else TIMED_RESTARTS))
+        if iters is not None:
+            return peer_row(arm, name, run, said, targets, tol, rot_tol)
+        assert run.seconds is not None
+        late = run.seconds > time_limit
+        return {**peer_row(arm, name, run, said, targets, tol, rot_tol, within=~late), "timeouts": int(late.sum())}
+    if name == "trac-ik":
+        eps = min(tol, rot_tol)
+        return peer_row(arm, name, *trac_ik(arm, targets, q0, eps, time_limit), targets, tol, rot_tol, eps=eps)
+    known = IK_PEERS if iters is not None else TRAC_IK_PEERS
+    raise InputError(f"peers are {', '.join(known)}; not {name!r}")
+
+
+def peers_beside(mine: list[Row], arm: Arm, names: Sequence[str], skipped: list[Row], *args: Any) -> list[Row]:
+    """``mine`` (mjkin's rows of ``arm``, the first the reference) and the peers' rows, with the time ratios.
+
+    ``args`` are :func:`peer`'s after the arm; a peer without a row adds its reason to ``skipped``.
+    """
+    rows = list(mine)
+    for name in names:
+        try:
+            rows.append(peer(name, arm, *args))
+        except bench_peers.Unavailable as e:
+            skipped.append({"model": arm.name, "solver": name, "reason": str(e)})
+    for r in rows:  # > 1: mjkin faster
+        for stat in ("median", "mean"):
+            theirs, ours = r.get(f"{stat}_ms"), mine[0].get(f"{stat}_ms")
+            r[f"{stat}_ratio"] = None if theirs is None or not ours else float(theirs) / float(ours)  # type: ignore
+    return rows
+
+
+def peer_tables(skipped: list[Row]) -> dict[str, list[Row]]:
+    """The table of peers that got no row, with the reason (none when every peer ran)."""
+    return {"peers without a row (the reason)": skipped} if skipped else {}
 
 
 def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: float = 1e-4, rot_tol: float = 1e-3,
-             iters: int = 200, seed: int = 0, mink: bool | None = None) -> Report:
-    """Run mjkin (auto; single start) beside MuJoCo DLS and mink on the same targets, start and budget."""
-    check_settings(targets, tol, rot_tol, iters)
-    use_mink = importlib.util.find_spec("mink") is not None if mink is None else mink
+             iters: int = 200, seed: int = 0, peers: Sequence[str] = IK_PEERS, time_limit: float = 0.005) -> Report:
+    """Run mjkin (auto; single start) beside MuJoCo DLS and the peers on the same targets, start and budget.
+
+    ``peers``: which of :data:`IK_PEERS` to run; one that is not installed, or whose chain
+    cannot be given to it or differs from the model's, gets no row but a line in the table of
+    reasons. ``time_limit``: TRAC-IK's own per solve (it has no iteration budget).
+    """
+    check_settings(targets, tol, rot_tol, iters, time_limit)
     rows: list[Row] = []
+    skipped: list[Row] = []
     for arm in track(arms(models), "bench ik"):
         T, q0 = targets_for(arm, targets, seed), arm.home
         auto = mjkin_single(arm, T, q0, tol, rot_tol)
-        rows.append(row(arm, "mjkin", auto, T, tol, rot_tol, mjkin_batched(arm, T, q0, tol, rot_tol)))
+        mine = [row(arm, "mjkin", auto, T, tol, rot_tol, mjkin_batched(arm, T, q0, tol, rot_tol))]
         one = {"restarts": 0, "max_iters": iters}
-        rows.append(row(arm, "mjkin-single-start", mjkin_single(arm, T, q0, tol, rot_tol, **one), T, tol, rot_tol,
+        mine.append(row(arm, "mjkin-single-start", mjkin_single(arm, T, q0, tol, rot_tol, **one), T, tol, rot_tol,
                         mjkin_batched(arm, T, q0, tol, rot_tol, **one)))
-        rows.append(row(arm, "mujoco-dls", mujoco_dls(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
-        if use_mink:
-            rows.append(row(arm, "mink", mink_ik(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
+        mine.append(row(arm, "mujoco-dls", mujoco_dls(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
+        rows += peers_beside(mine, arm, peers, skipped, T, q0, tol, rot_tol, time_limit, iters)
     settings = {"targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol, "iters": iters, "seed": seed,
                 "start": "home keyframe (else qpos0)", "success": "% of targets within both tolerances, "
                 "re-checked by mujoco.mj_kinematics", "mjkin": "method auto: up to 50 iterations x (1 + 24 restarts)",
                 "single-start budget": f"{iters} iterations, no restart (mjkin-single-start, mujoco-dls, mink)",
-                "mink": "installed" if use_mink else "not installed (pip install 'mjkin[bench]')",
+                "rtb-ik_LM budget": f"{RTB_ILIMIT} iterations x {1 + AUTO_RESTARTS} searches, as mjkin's",
+                "trac-ik budget": f"its own time limit, {time_limit:g} s", **PEER_NOTES,
                 "times": "wall clock per target, one call each; cpu_mean_ms: the calling thread's CPU time "
-                         "(the solve's own work, without waits for a shared machine's cores)", "gc": GC_NOTE}
+                         "(the solve's own work, without waits for a shared machine's cores)",
+                "ratios": "median_ratio / mean_ratio: the row's time over mjkin's in the same run (> 1: mjkin faster)",
+                "gc": GC_NOTE}
     title = (f"{targets} random reachable 6-D poses per model from the home keyframe; success at {tol:g} m / "
              f"{rot_tol:g} rad re-checked by mj_kinematics; times per target, one call each")
-    return Report({title: rows}, settings)
+    return Report({title: rows, **peer_tables(skipped)}, settings, {"skipped": skipped})
 
 
 def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, tol: float = 1e-5,
-                  rot_tol: float = 1e-5, time_limit: float = 0.005, seed: int = 0) -> Report:
+                  rot_tol: float = 1e-5, time_limit: float = 0.005, seed: int = 0,
+                  peers: Sequence[str] = TRAC_IK_PEERS) -> Report:
     """TRAC-IK's protocol: random in-limit configurations, FK poses, mid-range start, 1e-5, 5 ms per solve.
 
-    Means and medians are over all queries, failures included; the limit is ``mjkin.solve(timeout=...)``.
+    Means and medians are over all queries, failures included; the limit is ``mjkin.solve(timeout=...)``
+    for mjkin, TRAC-IK's own for TRAC-IK, and for ``ik_LM`` (which has none) a slower solve fails.
     """
-    check_settings(targets, tol, rot_tol, 1)
-    if not time_limit > 0:
-        raise InputError(f"the time limit must be positive, got {time_limit}")
+    check_settings(targets, tol, rot_tol, 1, time_limit)
     rows: list[Row] = []
+    skipped: list[Row] = []
     for arm in track(arms(models, TRAC_IK_ARMS), "bench ik --protocol trac-ik"):
         T, q0 = targets_for(arm, targets, seed), mid_range(arm.tree)
         single = mjkin_single(arm, T, q0, tol, rot_tol, timeout=time_limit)
@@ -340,7 +521,7 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
         b["mean_ms"], b["batched_per_s"] = 1e3 / batched.per_s, batched.per_s
         for out, run in ((r, single), (b, batched)):
             out["timeouts"] = int(np.sum(run.status == "timeout"))
-        rows += [r, b]
+        rows += peers_beside([r, b], arm, peers, skipped, T, q0, tol, rot_tol, time_limit, None)
     published = [p for p in TRAC_IK_PUBLISHED if p["model"] in {r["model"] for r in rows}]
     settings = {"protocol": "trac-ik", "targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol,
                 "time_limit_s": time_limit, "seed": seed, "start": "mid-range of every limited joint",
@@ -348,9 +529,13 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
                 "success": "% within both tolerances (norms), re-checked by mujoco.mj_kinematics",
                 "mean_ms": "over all queries including failures; batched: wall time / targets",
                 "cpu_mean_ms": "the calling thread's CPU time per single call (no waits for a shared machine)",
+                "rtb-ik_LM budget": f"{RTB_ILIMIT} iterations x {1 + TIMED_RESTARTS} searches; it has no time limit "
+                                    "of its own: a solve over the limit counts as failed (column timeouts)",
+                "trac-ik budget": f"its own time limit, {time_limit:g} s", **PEER_NOTES,
+                "ratios": "median_ratio / mean_ratio: the row's time over mjkin single's (> 1: mjkin faster)",
                 "published": TRAC_IK_SOURCE}
     tables = {f"TRAC-IK protocol: {targets} random in-limit configurations -> FK poses, start mid-range, "
-              f"{tol:g} m / {rot_tol:g} rad, {1e3 * time_limit:g} ms per solve": rows}
+              f"{tol:g} m / {rot_tol:g} rad, {1e3 * time_limit:g} ms per solve": rows, **peer_tables(skipped)}
     if published:
         tables[TRAC_IK_SOURCE] = published
-    return Report(tables, settings, {"published": published})
+    return Report(tables, settings, {"published": published, "skipped": skipped})

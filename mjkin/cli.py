@@ -8,31 +8,37 @@ traceback.
 from __future__ import annotations
 
 import argparse
+import itertools
+import os
 import re
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import bench, motion, progress, spatial
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
-from .errors import InputError, MjkinError
+from .errors import InputError, MjkinError, MjkinIOError
 from .files import check_writable, strict_json
 from .goals import Goal, Orientation, Position
 from .ik.solve import METHODS, solve
-from .qspace import HINGE, JOINT_NAMES
+from .qspace import BALL, FREE, HINGE, JOINT_NAMES
 from .tree import Tree, bundled_models, load
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
     from .render import Overlay
 
 Command = Callable[[argparse.Namespace], int]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_SIDE = 8192  # largest --width/--height: MuJoCo's offscreen buffer is raised to it, GL allows 16384 at least
-MAX_VIDEO_BYTES = 4 * 2**30  # rendered frames are held in memory until the video is encoded
+SIGPIPE_EXIT = 128 + 13  # what a shell reports for a tool that SIGPIPE ended (``set -o pipefail`` sees it)
+UNIT_TOL = 1e-3  # a command-line quaternion whose norm is further from 1 (not rounding: a mistake) gets a warning
 VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points")
 NEGATIVE_NUMBER = re.compile(r"-\.?\d")  # how a value such as "-20,5,0" starts (argparse takes it for an option)
 
@@ -66,49 +72,91 @@ def keyframes(tree: Tree) -> dict[str, np.ndarray]:
     return {m.key(i).name: m.key_qpos[i].copy() for i in range(m.nkey) if m.key(i).name}
 
 
+def warn(text: str) -> None:
+    """Print ``mjkin: warning: text`` on stderr (one line)."""
+    print(f"mjkin: warning: {text}", file=sys.stderr)
+
+
 def parse_q(text: str, tree: Tree, degrees: bool = False, seed: int | None = None, what: str = "--q") -> np.ndarray:
     """A configuration from numbers (``"0.1 0.2 ..."`` or ``"0.1,0.2,..."``), a keyframe name, or ``random``.
 
-    ``random`` draws inside the joint limits (seeded by ``seed``); ``degrees``
-    converts the hinge values of numbers.
+    ``random`` draws inside the joint limits (seeded by ``seed``) and keeps a free
+    root joint at its ``qpos0`` pose (a random world pose would sink the figure
+    into the floor or fly it off); ``degrees`` converts the hinge values of
+    numbers. Quaternions that are not unit are normalised, with a warning.
     """
     word = text.strip()
     keys = keyframes(tree)
     if word in keys:
         return keys[word]
     if word == "random":
-        return tree.random_q(np.random.default_rng(seed))
+        q = tree.random_q(np.random.default_rng(seed))
+        free = tree.layout.free_q.ravel()
+        q[free] = tree.qpos0[free]
+        return q
     try:
         q = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
         names = f", or a keyframe name ({', '.join(keys)})" if keys else " (the model has no named keyframes)"
         raise InputError(f"{what} must be {tree.nq} numbers separated by spaces or commas, 'random'{names}; "
                          f"got {text!r}") from None
-    q = tree.check_q(q, what)
+    q = tree.check_q(q, what).copy()
     if degrees:
         hinge = tree.jnt_qadr[tree.jnt_type == HINGE]
         q[hinge] = np.radians(q[hinge])
+    return unit_quaternions(tree, q, what)
+
+
+def unit_quaternions(tree: Tree, q: np.ndarray, what: str) -> np.ndarray:
+    """``q (nq,)`` with its ball and free-joint quaternions made unit, in place; one warning names those changed."""
+    said = []
+    names = tree.names("joint")
+    for j in np.flatnonzero(np.isin(tree.jnt_type, (BALL, FREE))):
+        a = int(tree.jnt_qadr[j]) + (3 if tree.jnt_type[j] == FREE else 0)
+        norm = _normalise(q[a:a + 4])
+        if norm is not None:
+            said.append(f"joint {names[j] or j} (norm {norm:.6g})")
+    if said:
+        warn(f"{what}: normalised the quaternion{'s' * (len(said) > 1)} of {', '.join(said)} to unit length")
     return q
 
 
-def outside_limits(tree: Tree, q: np.ndarray) -> str | None:
-    """One line naming the joints of ``q (nq,)`` outside their limits and the ranges, or None."""
-    clipped = tree.clip(q)
-    names = tree.names("joint")
-    parts = []
-    for j in range(tree.njnt):
-        a = int(tree.jnt_qadr[j])
-        kind = JOINT_NAMES[int(tree.jnt_type[j])]
-        width = {"free": 7, "ball": 4}.get(kind, 1)
-        if kind == "free" or np.allclose(clipped[a:a + width], q[a:a + width], rtol=0, atol=1e-12):
-            continue
-        lo, hi = tree.jnt_range[j]
-        name = names[j] or f"#{j}"
-        if kind == "ball":
-            parts.append(f"joint {name} turns beyond its {hi:.4g} rad cone")
-        else:
-            parts.append(f"joint {name} = {q[a]:.4g} is outside its range [{lo:.4g}, {hi:.4g}]")
-    return "; ".join(parts) or None
+def _normalise(quat: np.ndarray) -> float | None:
+    """Make ``quat (4,)`` unit in place when its norm is off by more than :data:`UNIT_TOL`; returns that norm, or None.
+
+    A zero quaternion is left for the caller's check to refuse.
+    """
+    norm = float(np.linalg.norm(quat))
+    if norm == 0.0 or abs(norm - 1.0) <= UNIT_TOL:
+        return None
+    quat /= norm
+    return norm
+
+
+def display_q(tree: Tree, q: np.ndarray) -> np.ndarray:
+    """``q (nq,)`` for printing: unlimited hinges wrapped into (-pi, pi] (the same pose)."""
+    out = np.array(q, dtype=np.float64)
+    hinge = tree.jnt_qadr[(tree.jnt_type == HINGE) & ~tree.jnt_limited.astype(bool)]
+    out[hinge] -= 2 * np.pi * np.ceil((out[hinge] - np.pi) / (2 * np.pi))
+    return out
+
+
+def fixed(values: Iterable[float], sign: bool = False) -> str:
+    """Numbers with 6 decimals, space-separated; one that rounds to zero prints as 0.000000, never -0.000000.
+
+    ``sign`` leaves a space where a minus would go, so columns line up.
+    """
+    return " ".join(f"{round(float(v), 6) + 0.0:{' ' if sign else ''}.6f}" for v in values)
+
+
+def within_limits(args: argparse.Namespace, tree: Tree, q: np.ndarray, what: str) -> np.ndarray:
+    """``q (nq,)`` or ``(T, nq)`` clipped into the joint limits with ``--clip``, else as given (warning if outside)."""
+    problem = motion.outside_limits(tree, q)
+    if problem and args.clip:
+        return tree.clip(q)
+    if problem:
+        warn(f"{problem}; {what} (--clip clips into the limits)")
+    return q
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -127,10 +175,10 @@ def describe(tree: Tree) -> str:
     depth = np.zeros(tree.nbody, dtype=int)
     for b in range(1, tree.nbody):
         depth[b] = depth[tree.body_parent[b]] + 1
-        lines.append(f"{'  ' * depth[b]}body {bodies[b] or f'#{b}'}")
+        lines.append(f"{'  ' * depth[b]}body {bodies[b] or b}")
         for j in np.flatnonzero(tree.jnt_body == b):
             kind = JOINT_NAMES[int(tree.jnt_type[j])]
-            text = f"{'  ' * depth[b]}  joint {joints[j] or f'#{j}'}: {kind}"
+            text = f"{'  ' * depth[b]}  joint {joints[j] or j}: {kind}"
             if kind in ("hinge", "slide"):
                 text += f" axis={np.round(tree.jnt_axis[j], 4).tolist()}"
             if tree.jnt_limited[j]:
@@ -138,7 +186,7 @@ def describe(tree: Tree) -> str:
                 text += f" range=[{lo:.4g}, {hi:.4g}]" if kind != "ball" else f" cone={hi:.4g} rad"
             lines.append(text)
         for s in np.flatnonzero(tree.site_body == b):
-            lines.append(f"{'  ' * depth[b]}  site {sites[s] or f'#{s}'} pos={np.round(tree.site_pos[s], 4).tolist()}")
+            lines.append(f"{'  ' * depth[b]}  site {sites[s] or s} pos={np.round(tree.site_pos[s], 4).tolist()}")
     return "\n".join(lines)
 
 
@@ -146,26 +194,21 @@ def cmd_fk(args: argparse.Namespace) -> int:
     """Print world poses of bodies and sites (or one frame) for a configuration."""
     tree = load(args.model)
     q = tree.qpos0.copy() if args.q is None else parse_q(args.q, tree, args.deg, args.seed)
-    problem = outside_limits(tree, q)
-    if problem and args.clip:
-        q = tree.clip(q)
-    elif problem:
-        print(f"mjkin: warning: {problem}; FK of --q as given (--clip clips it into the limits)", file=sys.stderr)
+    q = within_limits(args, tree, q, "FK of --q as given")
     kinds = [tree.frame(args.frame)] if args.frame else (
         [("body", i) for i in range(1, tree.nbody)] + [("site", i) for i in range(tree.model.nsite)])
     frames = tree.kinematics(q)
     out = []
     for kind, i in kinds:
         T = frames.pose(kind, i)
-        out.append({"kind": kind, "name": tree.names(kind)[i], "pos": T[:3, 3].tolist(),
+        out.append({"kind": kind, "name": tree.names(kind)[i], "id": int(i), "pos": T[:3, 3].tolist(),
                     "quat": spatial.mat_to_quat(T[:3, :3]).tolist()})
     if args.json:
-        print(strict_json({"q": q.tolist(), "frames": out}, indent=1))
+        print(strict_json({"q": display_q(tree, q).tolist(), "frames": out}, indent=1))
     else:
         for f in out:
-            pos = " ".join(f"{v: .6f}" for v in f["pos"])  # type: ignore[union-attr]
-            quat = " ".join(f"{v: .6f}" for v in f["quat"])  # type: ignore[union-attr]
-            print(f"{f['kind']:4} {f['name']:24} pos {pos}   quat {quat}")
+            name = f["name"] or str(f["id"])  # an unnamed body or site: by its id
+            print(f"{f['kind']:4} {name:24} pos {fixed(f['pos'], sign=True)}   quat {fixed(f['quat'], sign=True)}")
     return 0
 
 
@@ -176,13 +219,24 @@ def cmd_ik(args: argparse.Namespace) -> int:
     if not len(tree.body_dofs[body]):
         why = "the model has no joints" if tree.nv == 0 else "choose a site or body below a joint"
         raise InputError(f"no joint moves {args.frame!r}: {why}")
+    joints = None if args.joints is None else [j.strip() for j in args.joints.split(",") if j.strip()]
+    for name in joints or []:
+        tree.id(name, "joint")  # unknown names: one line listing the model's joints
+    for name in (args.root, args.base):
+        if name is not None:
+            tree.id(name, "body")
     q0 = tree.qpos0.copy() if args.q0 is None else parse_q(args.q0, tree, args.deg, args.seed, "--q0")
     goals: list[Goal] = [Position(args.frame, _vec(args.pos, "--pos"))]
     if args.quat is not None:
-        goals.append(Orientation(args.frame, _numbers(args.quat, 4, "--quat", "w,x,y,z")))
+        quat = _numbers(args.quat, 4, "--quat", "w,x,y,z")
+        norm = _normalise(quat)
+        if norm is not None:
+            warn(f"--quat: normalised {args.quat!r} (norm {norm:.6g}) to unit length")
+        goals.append(Orientation(args.frame, quat))
     res = solve(tree, goals, q0=q0, method=args.method, tol=args.tol, rot_tol=args.rot_tol,
-                seed=0 if args.seed is None else args.seed)
-    report = {"q": res.q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
+                seed=0 if args.seed is None else args.seed, root=args.root, joints=joints, base=args.base)
+    q = display_q(tree, res.q)
+    report = {"q": q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
               "method": res.method}
     if args.json:
@@ -192,7 +246,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
               f"{report['restarts']} restarts ({res.method})")
         print(f"position error {res.error[0]:.3g} m, rotation error {res.error[1]:.3g} rad"
               + ("" if args.quat is not None else " (not a goal)"))
-        print("q " + " ".join(f"{v:.6f}" for v in res.q))
+        print("q " + fixed(q))
     return 0
 
 
@@ -245,10 +299,6 @@ def check_output(args: argparse.Namespace, count: int | None) -> int | None:
             raise InputError(f"--frame must be in [{-count}, {count - 1}] (-1 = the last) for {count} "
                              f"frame{'s' * (count > 1)}, got {frame}")
         return frame % count
-    need = count * args.width * args.height * 3
-    if need > MAX_VIDEO_BYTES:
-        raise InputError(f"{count} frames of {args.width}x{args.height} need {need / 2**30:.1f} GiB of memory "
-                         f"(at most {MAX_VIDEO_BYTES // 2**30} GiB): lower --width/--height or the frame count")
     return None
 
 
@@ -261,7 +311,6 @@ def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: 
 
     if frame is None:
         render.write_video(render.frames(tree, qs, args.width, args.height, overlay=overlay), args.output, args.fps)
-        what = f"{len(qs)} frame{'s' * (len(qs) > 1)}"
     else:
         points = np.asarray(overlay.points, dtype=np.float64)
         with render.Painter(tree, args.width, args.height) as painter:
@@ -269,20 +318,25 @@ def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: 
             image = painter.draw(qs[frame], painter.camera(None, qs, points),
                                  points[frame] if points.ndim == 3 else points, trail, overlay)
         render.write_image(image, args.output)
-        what = f"frame {frame} of {len(qs)}"
-    print(f"wrote {args.output} ({what}, {args.width}x{args.height})")
+    wrote(args, len(qs), frame)
 
 
-def write_images(args: argparse.Namespace, images: np.ndarray, frame: int | None) -> None:
-    """Write rendered ``images (T, H, W, 3)`` to ``args.output``: a video, or ``frame`` (from check_output) only."""
+def write_images(args: argparse.Namespace, images: Iterable[NDArray[np.uint8]], count: int, frame: int | None) -> None:
+    """Write ``count`` rendered frames ``(H, W, 3)`` to ``args.output`` as they come: a video, or ``frame`` only."""
     from . import render
 
     if frame is None:
         render.write_video(images, args.output, args.fps)
-    else:
-        render.write_image(images[frame], args.output)
-    what = f"{len(images)} frame{'s' * (len(images) > 1)}" if frame is None else f"frame {frame} of {len(images)}"
-    print(f"wrote {args.output} ({what}, {images.shape[2]}x{images.shape[1]})")
+    else:  # an iterator makes its frames in order: the ones before are drawn and dropped
+        render.write_image(next(itertools.islice(images, frame, None)), args.output)
+    wrote(args, count, frame)
+
+
+def wrote(args: argparse.Namespace, count: int, frame: int | None) -> None:
+    """Say what was written: ``wrote OUT (N frames | still | frame K of N, WxH)``."""
+    what = (f"{count} frame{'s' * (count > 1)}" if frame is None else "still" if count == 1
+            else f"frame {frame} of {count}")
+    print(f"wrote {args.output} ({what}, {args.width}x{args.height})")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -292,8 +346,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     count = int(args.seconds * args.fps)
     if count < 2:
         raise InputError(f"--seconds x --fps must give at least 2 frames, got {count}")
-    frame = check_output(args, sum(scene_frames(args.scene, args.seconds, args.fps).values()))
-    write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), frame)
+    total = sum(scene_frames(args.scene, args.seconds, args.fps).values())
+    frame = check_output(args, total)
+    write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), total, frame)
     return 0
 
 
@@ -311,7 +366,7 @@ def cmd_walk(args: argparse.Namespace) -> int:
     ok = walk.success if walk.success is not None else np.ones(len(walk.q), bool)
     print(f"walk: {args.steps} steps of {args.stride} m, {len(walk.q)} frames, feet on target in {ok.mean():.0%}")
     write_images(args, render.frames(tree, walk.q, args.width, args.height, view=render.WALK_VIEW, follow=True),
-                 frame)
+                 len(walk.q), frame)
     return 0
 
 
@@ -336,12 +391,19 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
             raise InputError("--path waypoints needs --points 'x,y,z; x,y,z; ...'")
         pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
     traj = motion.follow(tree, args.site, pts, q0=q0, fps=args.fps)
+    traj.source = model_source(args.model)
     traj.save(args.output)
     ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
     jumps = traj.discontinuities(tree)
     print(f"wrote {args.output}: {len(pts)} frames, {ok.mean():.0%} on target, largest joint step "
           f"{traj.jumps(tree).max():.3f}" + (f"; discontinuities at frames {jumps.tolist()}" if len(jumps) else ""))
     return 0
+
+
+def model_source(model: str) -> str:
+    """Where the model argument ``model`` loads from, as a script records it: a file's absolute path, else as given."""
+    path = Path(model)
+    return str(path.resolve()) if path.is_file() else model
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -352,22 +414,39 @@ def cmd_render(args: argparse.Namespace) -> int:
     tree = load(args.model)
     if args.script:
         traj = motion.Trajectory.load(args.script, tree)
-        qs, points, trail = traj.q, traj.targets, traj.site
-    else:
-        qs = (parse_q(args.q, tree, args.deg, args.seed) if args.q else tree.qpos0.copy())[None]
-        points, trail = None, None
+        return render_script(args, tree, traj)
+    q = parse_q(args.q, tree, args.deg, args.seed) if args.q else tree.qpos0.copy()
+    q = within_limits(args, tree, q, "rendered as given")
+    write_output(args, tree, q[None], render.Overlay(), check_output(args, 1))
+    return 0
+
+
+def render_script(args: argparse.Namespace, tree: Tree, traj: motion.Trajectory) -> int:
+    """Render a script ``traj`` of ``tree`` (markers at its targets, the trail of its site) to ``args.output``."""
+    from . import render
+
+    qs = within_limits(args, tree, traj.q, "rendered as recorded")
     frame = check_output(args, len(qs))
-    overlay = render.Overlay(points=np.zeros((0, 3)) if points is None else points, trail=trail)
+    overlay = render.Overlay(points=np.zeros((0, 3)) if traj.targets is None else traj.targets, trail=traj.site)
     write_output(args, tree, qs, overlay, frame)
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Replay a recorded script (no IK) to a video."""
+    """Replay a recorded script (no IK) to a video, on the model it was recorded on (or ``--model``)."""
     check_output(args, None)
-    model = args.model or motion.Trajectory.load(args.script).model
-    args.model, args.q = model, None
-    return cmd_render(args)
+    traj = motion.Trajectory.load(args.script)
+    if args.model:
+        tree = load(args.model)
+    else:
+        source = traj.source or traj.model
+        try:
+            tree = load(source)
+        except MjkinIOError:
+            raise MjkinIOError(f"the model of {args.script!r} ({traj.model!r}, from {source!r}) is not found; "
+                               f"pass --model PATH (a model with fingerprint {traj.fingerprint})") from None
+    traj.check(tree, args.script)
+    return render_script(args, tree, traj)
 
 
 def cmd_workspace(args: argparse.Namespace) -> int:
@@ -431,7 +510,8 @@ def build_parser() -> argparse.ArgumentParser:
     def q_options(s: argparse.ArgumentParser, flag: str, default: str, where: argparse._ActionsContainer,
                   seed_help: str = "") -> None:
         where.add_argument(flag, help=f"configuration (qpos): nq numbers, a keyframe name (e.g. home) or 'random' "
-                                      f"(inside the joint limits); default {default}")
+                                      f"(inside the joint limits; a free root joint keeps its qpos0 pose); a "
+                                      f"quaternion that is not unit is normalised, with a warning; default {default}")
         s.add_argument("--deg", action="store_true", help=f"hinge values in {flag} are degrees")
         s.add_argument("--seed", type=nonnegative_int,
                        help=f"seed (>= 0) for {flag} random{seed_help} (default: a new draw each run)")
@@ -449,12 +529,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(run=cmd_fk)
 
-    s = sub.add_parser("ik", help="solve IK: put a site or body at a position (and orientation)")
+    s = sub.add_parser("ik", help="solve IK: put a site or body at a position (and orientation)",
+                       description="Solve IK for one site or body. Every joint may move, a free root joint (the "
+                                   "floating base of a figure such as primate) too: the whole figure may shift or "
+                                   "lift to reach, unless --root plants a body (a foot, the pelvis) where it is in "
+                                   "--q0, or --joints/--base limit the joints that move.")
     s.add_argument("model", help=model_help)
     s.add_argument("--frame", required=True, help="the site or body to place")
     s.add_argument("--pos", required=True, help="target position x,y,z in metres, world frame")
     s.add_argument("--quat", help="target orientation w,x,y,z, world frame (default: position only)")
     q_options(s, "--q0", "qpos0", s, " and for the IK restarts (those default to seed 0)")
+    s.add_argument("--root", metavar="BODY", help="a body that keeps its pose from --q0 (a planted foot); the free "
+                                                  "root joint then moves the rest (default: the free root moves too)")
+    s.add_argument("--joints", metavar="J1,J2,...", help="only these joints move (default: all)")
+    s.add_argument("--base", metavar="BODY", help="only the joints between this body and --frame move")
     s.add_argument("--method", choices=METHODS, default="auto", help="IK method (default auto, the most robust)")
     s.add_argument("--tol", type=positive_float, default=1e-6, help="position tolerance in metres (default 1e-6)")
     s.add_argument("--rot-tol", type=positive_float, default=1e-5,
@@ -506,15 +594,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("model", help=model_help)
     group = s.add_mutually_exclusive_group()
     q_options(s, "--q", "qpos0", group)
-    group.add_argument("--script", help="trajectory script from 'mjkin trajectory'")
+    group.add_argument("--script", help="trajectory script from 'mjkin trajectory' (recorded on this model)")
     video_options(s, None)
+    s.add_argument("--clip", action="store_true", help="clip joint values into the limits (default: render them "
+                                                       "as given and warn on stderr)")
     s.set_defaults(run=cmd_render)
 
     s = sub.add_parser("replay", help="replay a recorded script without IK")
     s.add_argument("script", help="trajectory script (.json)")
-    s.add_argument("--model", help="model (default: the one named in the script)")
+    s.add_argument("--model", metavar="PATH", help="the model to replay it on, with the fingerprint the script "
+                                                   "records (default: where the script says it was loaded from)")
     video_options(s, None)
-    s.set_defaults(run=cmd_replay, deg=False, seed=None)
+    s.add_argument("--clip", action="store_true", help="clip recorded joint values into the limits (default: "
+                                                       "render them as recorded and warn on stderr)")
+    s.set_defaults(run=cmd_replay)
 
     s = sub.add_parser("workspace", help="a frame's reachable and dexterous workspace, plotted (.png)")
     s.add_argument("model", help=model_help)
@@ -553,9 +646,25 @@ def join_negative_vectors(argv: Sequence[str]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``mjkin`` console command."""
+    """Entry point of the ``mjkin`` console command.
+
+    Output into a pipe whose reader has gone (``mjkin info primate | head -1``) ends
+    the command quietly with :data:`SIGPIPE_EXIT`, as a Unix tool ended by SIGPIPE;
+    mjkin does not let SIGPIPE end it, so a video being written is still cleaned up.
+    """
     try:
-        args = build_parser().parse_args(join_negative_vectors(sys.argv[1:] if argv is None else argv))
+        code = run(sys.argv[1:] if argv is None else argv)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's flush at exit
+        return code
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # that flush at exit goes nowhere
+        return SIGPIPE_EXIT
+
+
+def run(argv: Sequence[str]) -> int:
+    """Parse ``argv`` and run the command; a user mistake is one line on stderr and status 2."""
+    try:
+        args = build_parser().parse_args(join_negative_vectors(argv))
     except SystemExit as e:  # --help, --version, or a usage error already printed as one line
         return e.code if isinstance(e.code, int) else 2
     progress.enable(True)

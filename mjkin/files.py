@@ -1,4 +1,12 @@
-"""Atomic file writes (a temporary file in the same folder, then a rename), and checking a path before the work."""
+"""Atomic file writes (a temporary file in the same folder, then a rename), and checking a path before the work.
+
+A temporary file is named ``.NAME.mjkin-tmp-PID-XXXXXXXX.SUFFIX`` beside its
+target ``NAME`` (``PID`` the writing process, ``XXXXXXXX`` :func:`tempfile.mkstemp`'s
+random part). A write that is killed leaves it behind; the next write into the
+same folder removes such leftovers: our pattern only, only those last changed
+before this process started (imported mjkin: :data:`STARTED`), and only when the
+process that wrote them is gone (a live writer may be between two writes).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +15,63 @@ import errno
 import json
 import math
 import os
+import re
 import tempfile
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from .errors import InputError, MjkinIOError
+
+TEMP_MARK = "mjkin-tmp"
+STARTED = time.time()  # when this process imported mjkin: leftovers must be older than this
+_TEMP = re.compile(rf"\.(?P<name>.+)\.{TEMP_MARK}-(?P<pid>\d+)-[a-z0-9_]{{8}}(?P<suffix>(\.[^.]*)?)")
+
+
+def _temp_file(target: Path, folder: Path) -> str:
+    """Create this process's temporary file for ``target`` in ``folder`` (mkstemp: exclusive, mode 0600); its path."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.{TEMP_MARK}-{os.getpid()}-", suffix=target.suffix, dir=folder)
+    os.close(fd)
+    return tmp
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists (on POSIX; elsewhere every process counts as running)."""
+    if os.name != "posix":
+        return True
+    try:
+        os.kill(pid, 0)  # signal 0: only the existence check
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process (EPERM): running
+        return True
+    return True
+
+
+def remove_stale_temps(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files that killed mjkin writes left in ``folder``; returns those deleted.
+
+    Only names of our pattern (``.NAME.mjkin-tmp-PID-XXXXXXXX.SUFFIX`` with SUFFIX the
+    suffix of NAME), last modified before this process started, whose process
+    ``PID`` is gone. A file that cannot be deleted is left alone.
+    """
+    gone: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return gone
+    for entry in entries:
+        m = _TEMP.fullmatch(entry.name)
+        if m is None or Path(m["name"]).suffix != m["suffix"] or _running(int(m["pid"])):
+            continue
+        try:
+            if entry.is_file(follow_symlinks=False) and entry.stat(follow_symlinks=False).st_mtime < STARTED:
+                os.unlink(entry.path)
+                gone.append(Path(entry.path))
+        except OSError:
+            continue
+    return gone
 
 
 def check_writable(path: str | os.PathLike[str], suffixes: Sequence[str] = (), what: str = "output") -> Path:
@@ -36,11 +95,10 @@ def check_writable(path: str | os.PathLike[str], suffixes: Sequence[str] = (), w
     if not folder.is_dir():
         raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} does not exist")
     try:
-        fd, probe = tempfile.mkstemp(prefix=f".{target.name}.", dir=folder)
+        probe = _temp_file(target, folder)
     except OSError as e:  # /proc answers "no such file": say only that it is not writable
         reason = "" if e.errno == errno.ENOENT else f" ({e.strerror or e})"
         raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} is not writable{reason}") from None
-    os.close(fd)
     os.unlink(probe)
     return target
 
@@ -50,18 +108,19 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it over ``path``, else delete it.
 
     The temporary name keeps the suffix, so writers that choose a format by
-    extension (imageio) still work. Raises :class:`MjkinIOError` when the folder
-    cannot be written.
+    extension still work. Leftovers of killed writes in the folder are removed
+    first (:func:`remove_stale_temps`). Raises :class:`MjkinIOError` when the
+    folder cannot be written.
     """
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} does not exist")
+    remove_stale_temps(folder)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=folder)
+        tmp = _temp_file(target, folder)
     except OSError as e:
         raise MjkinIOError(f"cannot write {str(target)!r}: {e.strerror}") from None
-    os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
     try:

@@ -1,12 +1,13 @@
-"""Progress bars for long CLI work, and a note while numba compiles: shown on a terminal, silent in tests and pipes.
+"""Progress bars for long CLI work (on a terminal only), and a note on stderr while numba compiles.
 
 The first run compiles mjkin's kernels (about a minute for the IK path; later
 runs load them from the disk cache). numba announces every real compilation
-(a cache miss, never a cache hit) as a ``"numba:compile"`` event; while enabled,
-the first such event prints :data:`COMPILING` once, so a bar that sits at 0 %
-is explained. Bars show no rate or ETA until their first item is done, since
-that item may include the compilation and would make the estimate for the rest
-hours long; then the clock starts afresh.
+(a cache miss, never a cache hit) as a ``"numba:compile"`` event; while enabled
+(the CLI), the first such event prints :data:`COMPILING` once on stderr, on a
+terminal or not, so a run that sits still for a minute (in CI, or piped into
+``tee``) is explained. Bars show no rate or ETA until their first item is done,
+since that item may include the compilation and would make the estimate for
+the rest hours long; then the clock starts afresh.
 """
 
 from __future__ import annotations
@@ -31,14 +32,17 @@ def shown() -> bool:
 
 
 def compiling_notice() -> bool:
-    """Print :data:`COMPILING` on stderr once per process, when :func:`shown`; True if it printed now."""
+    """Print :data:`COMPILING` on stderr once per process while enabled, terminal or not; True if it printed now."""
     global _said
-    if _said or not shown():
+    if _said or not _enabled:
         return False
     _said = True
-    from tqdm import tqdm
+    if shown():
+        from tqdm import tqdm
 
-    tqdm.write(f"mjkin: {COMPILING}", file=sys.stderr)  # above any bar being drawn
+        tqdm.write(f"mjkin: {COMPILING}", file=sys.stderr)  # above any bar being drawn
+    else:
+        print(f"mjkin: {COMPILING}", file=sys.stderr, flush=True)
     return True
 
 
@@ -54,7 +58,7 @@ _listener = _CompileListener()
 
 
 def enable(on: bool = True) -> None:
-    """Let :func:`track` draw bars and the compile notice print (the CLI turns this on; stderr must be a TTY)."""
+    """Let the compile notice print, and :func:`track` draw bars when stderr is a terminal (the CLI turns this on)."""
     global _enabled
     if bool(on) != _enabled:
         (event.register if on else event.unregister)("numba:compile", _listener)

@@ -5,16 +5,20 @@ default camera frames every geom of the figure, over all frames, with a margin
 (:data:`MARGIN` of the image on each side): it looks at the figure's centre, from
 the side for planar chains (along their joint axis), and follows a figure that
 travels (a walk) with a smoothed, fixed-distance tracking shot. Markers and the
-trail are decoration (no shadows); the trail is decimated to at most
+trail are decoration (no shadows), and so are planes (floors) in the shadow pass:
+a floor cannot shadow what stands on it, and its own depth in MuJoCo's shadow map
+speckled it with black dots where it shadowed itself. The trail is decimated to at most
 ``Overlay.trail_points`` points, so every frame costs the same however long the
-video. Videos are written with imageio (mp4 via imageio-ffmpeg, or gif) to a
-temporary file that is renamed when complete.
+video. Frames are made one at a time and go straight to the encoder (ffmpeg via
+imageio-ffmpeg, for .mp4 and .gif), so memory does not grow with the length of
+a clip; the video is written to a temporary file that is renamed when complete.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +36,7 @@ from .tree import Tree
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MARGIN = 0.07  # the camera keeps the figure this fraction of the image away from every edge (≥ 5 % asked)
+CAMERA_CHUNK = 256  # frames whose bounding points are made at once while placing the camera
 SIDE_VIEW = (135.0, -20.0)  # azimuth, elevation (degrees) for figures that are not planar chains
 WALK_VIEW = (90.0, -8.0)  # from the figure's right side, world x (the walking direction) to the right
 Caption = str | Sequence[str] | Callable[[int], str] | None
@@ -172,18 +177,46 @@ def _recentre(pts: NDArray[np.float64], radius: NDArray[np.float64], lookat: NDA
 
 def _spheres(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float64] | None,
              extra_radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Per-frame bounding points ``(T, P, 3)`` and radii ``(P,)``: the geoms' box corners and the extra points."""
+    """Per-frame bounding points ``(T, P, 3)`` and radii ``(P,)``: the geoms' box corners and ``extra (T, n, 3)``."""
     pts = geom_corners(tree, qs).reshape(len(qs), -1, 3)
     if pts.shape[1] == 0:  # no visible geom: frame the bodies
         pts = tree.fk(qs)[:, 1:, :3, 3]
     radius = np.zeros(pts.shape[1])
-    if extra is not None and extra.size:
-        e = np.asarray(extra, dtype=np.float64)
-        e = np.broadcast_to(e.reshape(-1, 3), (len(qs), e.reshape(-1, 3).shape[0], 3)) if e.ndim < 3 \
-            else e.reshape(len(qs), -1, 3)
-        pts = np.concatenate([pts, e], axis=1)
-        radius = np.concatenate([radius, np.full(e.shape[1], extra_radius)])
+    if extra is not None and extra.shape[1]:
+        pts = np.concatenate([pts, extra], axis=1)
+        radius = np.concatenate([radius, np.full(extra.shape[1], extra_radius)])
     return pts, radius
+
+
+def _chunks(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float64] | None, extra_radius: float,
+            ) -> Iterator[tuple[slice, NDArray[np.float64], NDArray[np.float64]]]:
+    """:func:`_spheres` of :data:`CAMERA_CHUNK` frames at a time: ``(frames, points, radii)``."""
+    for start in range(0, len(qs), CAMERA_CHUNK):
+        part = slice(start, start + CAMERA_CHUNK)
+        yield (part, *_spheres(tree, qs[part], None if extra is None else extra[part], extra_radius))
+
+
+def _outline(pts: NDArray[np.float64], radius: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The points of ``pts (C, P, 3)`` (radii ``(P,)``) that can bound a still shot: each radius's convex hull.
+
+    What the shot needs of the points (the largest distance any needs, the extremes of
+    their projections) is convex or linear-fractional in a point, so it is attained on
+    the hull: the rest can go, and a long clip costs no more to frame than a short one.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    flat, rad = pts.reshape(-1, 3), np.tile(radius, len(pts))
+    keep = []
+    for r in np.unique(radius):
+        idx = np.flatnonzero(rad == r)
+        if len(idx) > 64:
+            try:
+                idx = idx[ConvexHull(flat[idx], qhull_options="QJ").vertices]  # joggled: flat sets too
+            except QhullError:  # degenerate beyond joggling (all points equal): keep them
+                pass
+        keep.append(idx)
+    k = np.concatenate(keep)
+    return flat[k], rad[k]
 
 
 def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspect: float = 1.0,
@@ -210,8 +243,16 @@ def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspec
     basis = _basis(az, el)
     ty = np.tan(np.radians(float(tree.model.vis.global_.fovy)) / 2) * (1 - 2 * margin)
     tan = (ty * aspect, ty)
-    pts, radius = _spheres(tree, qs, None if extra is None else np.asarray(extra, dtype=np.float64), extra_radius)
-    lo, hi = pts.min(axis=1), pts.max(axis=1)  # per-frame boxes (T, 3)
+    e = np.zeros((0, 3)) if extra is None else np.asarray(extra, dtype=np.float64)
+    per_frame = e.reshape(len(qs), -1, 3) if e.ndim == 3 else None
+    static = np.zeros((0, 3)) if per_frame is not None else e.reshape(-1, 3)  # the same points in every frame
+    static_radius = np.full(len(static), extra_radius)
+    lo, hi = np.empty((len(qs), 3)), np.empty((len(qs), 3))  # per-frame boxes
+    outline = [(static, static_radius)]
+    for part, pts, radius in _chunks(tree, qs, per_frame, extra_radius):
+        lo[part] = np.minimum(pts.min(axis=1), static.min(axis=0, initial=np.inf))
+        hi[part] = np.maximum(pts.max(axis=1), static.max(axis=0, initial=-np.inf))
+        outline.append(_outline(pts, radius))
     centres = 0.5 * (lo + hi)
     size = float(np.linalg.norm(hi - lo, axis=-1).max())
     travel = float(np.linalg.norm(np.ptp(centres, axis=0)))
@@ -222,12 +263,15 @@ def camera_path(tree: Tree, qs: ArrayLike, extra: ArrayLike | None = None, aspec
 
         looks = gaussian_filter1d(centres, sigma=min(20.0, len(qs) / 6), axis=0, mode="nearest")
         looks[:, 2] = centres[:, 2].mean()  # no vertical bobbing of the shot
-        looks = np.stack([_recentre(p, radius, c, _distance(p, radius, c, basis, tan), basis)
-                          for p, c in zip(pts, looks, strict=True)])
-        d = max(_distance(p, radius, c, basis, tan) for p, c in zip(pts, looks, strict=True))
+        d = 0.0
+        for part, pts, radius in _chunks(tree, qs, per_frame, extra_radius):
+            radius = np.concatenate([radius, static_radius])
+            for k, p in zip(range(len(qs))[part], pts, strict=True):
+                p = np.concatenate([p, static])
+                looks[k] = _recentre(p, radius, looks[k], _distance(p, radius, looks[k], basis, tan), basis)
+                d = max(d, _distance(p, radius, looks[k], basis, tan))
     else:
-        flat = pts.reshape(-1, 3)
-        rad = np.tile(radius, len(qs))
+        flat, rad = (np.concatenate(a) for a in zip(*outline, strict=True))
         look = 0.5 * (flat.min(0) + flat.max(0))
         for _ in range(2):
             look = _recentre(flat, rad, look, _distance(flat, rad, look, basis, tan), basis)
@@ -285,6 +329,19 @@ def draw_caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
     return np.asarray(pil)
 
 
+def _planes_cast_no_shadow(scene: mujoco.MjvScene) -> None:
+    """Leave the scene's planes out of the shadow pass (as decoration; they are still drawn and receive shadows)."""
+    for g in scene.geoms[:scene.ngeom]:
+        if g.type == mujoco.mjtGeom.mjGEOM_PLANE:
+            g.category = mujoco.mjtCatBit.mjCAT_DECOR
+
+
+def _check_size(width: int, height: int) -> None:
+    """Raise :class:`InputError` unless both sides are positive."""
+    if width <= 0 or height <= 0:
+        raise InputError(f"frame size must be positive, got {width}x{height}")
+
+
 class Painter:
     """A reusable offscreen renderer for one tree: draws a configuration with overlays.
 
@@ -294,8 +351,7 @@ class Painter:
     """
 
     def __init__(self, tree: Tree, width: int = 640, height: int = 480) -> None:
-        if width <= 0 or height <= 0:
-            raise InputError(f"frame size must be positive, got {width}x{height}")
+        _check_size(width, height)
         model = tree.model
         self.tree, self.scene, self.added = tree, Scene(tree), 0
         self.width, self.height = width, height
@@ -323,16 +379,7 @@ class Painter:
                 points: NDArray[np.float64] | None = None, view: tuple[float, float] | None = None,
                 follow: bool | None = None) -> list[mujoco.MjvCamera | int]:
         """One camera per frame: the one given, a model camera by name, or :func:`camera_path` (tracking)."""
-        if isinstance(camera, str):
-            model = self.tree.model
-            cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-            if cam_id < 0:
-                names = [model.camera(i).name for i in range(model.ncam)]
-                raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
-            return [cam_id] * len(qs)
-        if camera is not None:
-            return [camera] * len(qs)
-        return list(camera_path(self.tree, qs, points, aspect=self.width / self.height, view=view, follow=follow))
+        return cameras(self.tree, camera, qs, points, self.width / self.height, view, follow)
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
@@ -341,6 +388,7 @@ class Painter:
         ov = overlay or Overlay()
         r = self.renderer
         r.update_scene(self.scene.set(q), camera)
+        _planes_cast_no_shadow(r.scene)
         first = r.scene.ngeom
         for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
             _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
@@ -364,10 +412,35 @@ class Painter:
         self.close()
 
 
+def cameras(tree: Tree, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
+            points: NDArray[np.float64] | None = None, aspect: float = 1.0, view: tuple[float, float] | None = None,
+            follow: bool | None = None) -> list[mujoco.MjvCamera | int]:
+    """One camera per frame of ``qs (T, nq)``: the one given, a model camera by name, or :func:`camera_path`.
+
+    Raises :class:`InputError` for a camera name the model does not have (the message lists its cameras).
+    """
+    if isinstance(camera, str):
+        model = tree.model
+        cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        if cam_id < 0:
+            names = [model.camera(i).name for i in range(model.ncam)]
+            raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
+        return [cam_id] * len(qs)
+    if camera is not None:
+        return [camera] * len(qs)
+    return list(camera_path(tree, qs, points, aspect=aspect, view=view, follow=follow))
+
+
 def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camera: mujoco.MjvCamera | str | None = None,
            overlay: Overlay | None = None, desc: str = "render", view: tuple[float, float] | None = None,
-           follow: bool | None = None) -> NDArray[np.uint8]:
-    """RGB frames ``(T, height, width, 3)`` of configurations ``qs (T, nq)``.
+           follow: bool | None = None) -> Iterator[NDArray[np.uint8]]:
+    """RGB frames ``(height, width, 3)`` of configurations ``qs (T, nq)``, made one at a time as they are taken.
+
+    Memory does not grow with ``T`` (pass the iterator to :func:`write_video`);
+    ``np.stack(list(frames(...)))`` gives the array ``(T, height, width, 3)``.
+    The arguments are checked (and the cameras placed) at the call; the GL
+    context opens with the first frame and closes after the last (or when the
+    iterator is dropped).
 
     ``camera``: a :class:`mujoco.MjvCamera`, the name of a model camera, or None
     for :func:`camera_path` (``view`` = its azimuth and elevation, ``follow`` = track
@@ -378,21 +451,24 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     qs = tree.check_q(qs)
     if qs.ndim == 1:
         qs = qs[None]
+    _check_size(width, height)
     ov = overlay or Overlay()
     points = np.asarray(ov.points, dtype=np.float64)
     trail = tree.pose(qs, ov.trail)[:, :3, 3] if ov.trail else None
-    out = np.empty((len(qs), height, width, 3), dtype=np.uint8)
     seen = points  # what the default camera keeps in view besides the figure: markers and the trail
     if trail is not None:
         seen = np.concatenate([points, trail[:, None]], axis=1) if points.ndim == 3 \
             else np.concatenate([points.reshape(-1, 3), trail])
-    with Painter(tree, width, height) as painter:
-        cams = painter.cameras(camera, qs, seen, view, follow)
-        for t in track(range(len(qs)), desc, total=len(qs)):
-            out[t] = painter.draw(qs[t], cams[t], points[t] if points.ndim == 3 else points,
-                                  None if trail is None else trail[trail_indices(t, ov.trail_points)], ov,
-                                  caption_at(ov.caption, t))
-    return out
+    cams = cameras(tree, camera, qs, seen, width / height, view, follow)
+
+    def draw() -> Iterator[NDArray[np.uint8]]:
+        with Painter(tree, width, height) as painter:
+            for t in track(range(len(qs)), desc, total=len(qs)):
+                yield painter.draw(qs[t], cams[t], points[t] if points.ndim == 3 else points,
+                                   None if trail is None else trail[trail_indices(t, ov.trail_points)], ov,
+                                   caption_at(ov.caption, t))
+
+    return draw()
 
 
 def check_video_size(path: str | os.PathLike[str], width: int, height: int, what: str = "frame size") -> None:
@@ -406,31 +482,56 @@ def check_video_size(path: str | os.PathLike[str], width: int, height: int, what
                          "use an even size or .gif")
 
 
-def write_video(images: NDArray[np.uint8] | Sequence[NDArray[np.uint8]], path: str | os.PathLike[str],
-                fps: float = 30.0) -> Path:
-    """Write frames to ``.mp4`` or ``.gif`` atomically (a temporary file, renamed when complete), at their size.
+GIF_FILTER = "split[a][b];[a]palettegen=stats_mode=single[p];[b][p]paletteuse=new=1:dither=none"  # per frame
 
-    Raises :class:`InputError` for odd sides in an ``.mp4`` (:func:`check_video_size`).
+
+def write_video(images: Iterable[ArrayLike], path: str | os.PathLike[str], fps: float = 30.0) -> Path:
+    """Write RGB frames ``(H, W, 3)`` to ``.mp4`` (H.264) or ``.gif``, at their size, as they come.
+
+    ``images`` is any iterable (an array ``(T, H, W, 3)``, a list, :func:`frames`);
+    each frame goes to ffmpeg as it is taken, so memory does not grow with the
+    clip. The file is written atomically: a temporary file, renamed when the last
+    frame is in; an error or an interrupt on the way leaves no file. A GIF gets a
+    palette per frame.
+
+    Raises:
+        InputError: no frames, a frame that is not ``(H, W, 3)`` of the first frame's
+            size, or odd sides in an ``.mp4`` (:func:`check_video_size`, checked on the first frame).
+        MjkinIOError: the file cannot be written.
     """
     target = Path(path)
+    gif = target.suffix.lower() == ".gif"
     if target.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"video file must end in {' or '.join(VIDEO_SUFFIXES)}, got {str(target)!r}")
-    if len(images) == 0:
+    it = iter(images)
+    first = next(it, None)
+    if first is None:
         raise InputError("no frames to write")
-    height, width = np.shape(images[0])[:2]
-    check_video_size(target, width, height)
-    import imageio.v2 as imageio
+    first = np.asarray(first)
+    shape = first.shape
+    if len(shape) != 3 or shape[2] != 3 or first.dtype != np.uint8:
+        raise InputError(f"video frames must be RGB images (height, width, 3) of uint8, got {shape} of {first.dtype}")
+    check_video_size(target, shape[1], shape[0])
+    import imageio_ffmpeg
 
     with atomic_path(target) as tmp:
+        writer = imageio_ffmpeg.write_frames(
+            str(tmp), (int(shape[1]), int(shape[0])), fps=float(fps), macro_block_size=1, ffmpeg_log_level="error",
+            **({"codec": "gif", "pix_fmt_out": "pal8", "quality": None,
+                "output_params": ["-filter_complex", GIF_FILTER, "-loop", "0"]} if gif else
+               {"codec": "libx264", "pix_fmt_out": "yuv420p", "quality": 7}))
         try:
-            if target.suffix.lower() == ".gif":
-                imageio.mimsave(tmp, list(images), duration=1.0 / fps, loop=0)
-            else:
-                with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=1) as w:
-                    for im in images:
-                        w.append_data(np.asarray(im))  # type: ignore[attr-defined]
+            writer.send(None)  # starts ffmpeg
+            for k, image in enumerate(itertools.chain([first], it)):
+                frame = np.ascontiguousarray(image)
+                if frame.shape != shape or frame.dtype != np.uint8:
+                    raise InputError(f"video frame {k} is {frame.shape} of {frame.dtype}, the first {shape} of uint8: "
+                                     "every frame must have the same size")
+                writer.send(frame)
         except OSError as e:
-            raise MjkinIOError(f"cannot write {str(target)!r}: {e}") from None
+            raise MjkinIOError(f"cannot write {str(target)!r}: {' '.join(str(e).split())[:300]}") from None
+        finally:
+            writer.close()  # ffmpeg finishes the file (or is stopped); atomic_path keeps or drops it
     return target
 
 

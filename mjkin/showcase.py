@@ -6,11 +6,15 @@
 2. ``arm`` — the 7-DoF arm's effector follows a Cartesian path with rounded
    corners and minimum-jerk timing around two obstacles, solved frame by frame.
 3. ``walk`` — the primate walks heel to toe, seen from the side by a tracking camera.
+
+Every scene yields its frames one at a time (see :func:`mjkin.render.frames`), so
+the showcase goes to the encoder without being held in memory.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import itertools
+from collections.abc import Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +26,7 @@ from .scene import Scene
 from .tree import Tree, bundled_models, load
 
 Array = NDArray[np.float64]
-Images = NDArray[np.uint8]
+Images = Iterator[NDArray[np.uint8]]  # frames (height, width, 3), one at a time
 SHARES = {"seeds": 0.34, "arm": 0.36, "walk": 0.3}  # parts of the showcase's length
 SEED_METHODS = ("pinv", "dls", "ccd")
 WALK_STEPS = 4
@@ -45,7 +49,10 @@ def _eased_steps(history: Array, steps: int, n: int) -> Array:
 
 
 def scene_seeds(width: int, height: int, n: int) -> Images:
-    """Three panes (pinv, DLS, CCD, one above the other) of the seeds' arm: to (−20, 5), then toward (−35, 5)."""
+    """Three panes (pinv, DLS, CCD, one above the other) of the seeds' arm: to (−20, 5), then toward (−35, 5).
+
+    The three panes are rendered side by side, a frame of each at a time.
+    """
     tree = load("planar_3link")
     half = max(1, n // 2)
     parts: dict[str, list[tuple[Array, Array, Array]]] = {m: [] for m in SEED_METHODS}
@@ -72,8 +79,8 @@ def scene_seeds(width: int, height: int, n: int) -> Images:
 
             ov = render.Overlay(points=targets, point_size=1.0, trail="tip", caption=caption)
             clips.append(render.frames(tree, q, width, h, camera=cam, overlay=ov, desc=f"render {m}"))
-        panes.append(np.concatenate(clips))
-    return np.concatenate(panes, axis=1)
+        panes.append(itertools.chain.from_iterable(clips))
+    return (np.concatenate(rows) for rows in zip(*panes, strict=True))
 
 
 def arm_with_obstacles() -> Tree:
@@ -142,5 +149,9 @@ def scene_frames(scene: str = "all", seconds: float = 15.0, fps: float = 30.0) -
 
 def showcase(scene: str = "all", seconds: float = 15.0, fps: float = 30.0, width: int = 640,
              height: int = 480) -> Images:
-    """Frames ``(T, height, width, 3)`` of one scene or of all of them, one after another."""
-    return np.concatenate([SCENES[s](width, height, n, fps) for s, n in scene_frames(scene, seconds, fps).items()])
+    """Frames ``(height, width, 3)`` of one scene or of all of them, one after another, made as they are taken.
+
+    The scene names and lengths are checked at the call; each scene's solving starts when its first frame is taken.
+    """
+    counts = scene_frames(scene, seconds, fps)
+    return itertools.chain.from_iterable(SCENES[s](width, height, n, fps) for s, n in counts.items())

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 
+import mujoco
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin import bench, build, cli
+from mjkin import bench, bench_peers, build, cli
 from mjkin.bench_ik import (
     TRAC_IK_ARMS,
     TRAC_IK_SOURCE,
@@ -19,18 +21,23 @@ from mjkin.bench_ik import (
     arms,
     bench_ik,
     bench_trac_ik,
+    error_components,
     frame_errors,
     mid_range,
     mink_ik,
     mujoco_dls,
+    past_limits,
     row,
     success,
     targets_for,
 )
+from mjkin.build import dh_fk
 from mjkin.spatial import axis_angle_to_mat
 
 HAS_MINK = importlib.util.find_spec("mink") is not None
 ARM7 = arms(["arm7"])[0]
+PANDA = arms(["panda"])[0]
+PEER_MODULES = ("mink", "roboticstoolbox", "trac_ik", "pytracik", "pinocchio")
 
 
 def easy_targets(n: int = 4, spread: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
@@ -41,7 +48,7 @@ def easy_targets(n: int = 4, spread: float = 0.05) -> tuple[np.ndarray, np.ndarr
 
 
 def test_bench_ik_rows_name_every_solver_with_the_json_columns():
-    report = bench_ik(["arm7"], targets=6, mink=False)
+    report = bench_ik(["arm7"], targets=6, peers=())
     (rows,) = report.tables.values()
     by = {r["solver"]: r for r in rows}
     assert set(by) == {"mjkin", "mjkin-single-start", "mujoco-dls"}
@@ -56,7 +63,7 @@ def test_bench_ik_rows_name_every_solver_with_the_json_columns():
 
 
 def test_single_start_rows_keep_the_iteration_budget():
-    report = bench_ik(["arm7"], targets=5, iters=3, mink=False)
+    report = bench_ik(["arm7"], targets=5, iters=3, peers=())
     (rows,) = report.tables.values()
     for r in rows:
         if r["solver"] != "mjkin":
@@ -123,13 +130,13 @@ def test_mid_range_is_the_middle_of_every_limited_joint():
 
 
 def test_trac_ik_protocol_rows_and_published_figures_kept_apart(tmp_path):
-    report = bench_trac_ik(["arm7"], targets=4)
+    report = bench_trac_ik(["arm7"], targets=4, peers=())
     (rows,) = report.tables.values()
     assert [r["solver"] for r in rows] == ["mjkin single", "mjkin batched"]
     assert all(r["mean_ms"] > 0 and 0 <= r["success"] <= 100 for r in rows)
     assert report.settings["tol_m"] == report.settings["rot_tol_rad"] == 1e-5
     assert report.settings["start"].startswith("mid-range")
-    assert report.extra == {"published": []}  # TRAC-IK published no arm7 figure
+    assert report.extra == {"published": [], "skipped": []}  # TRAC-IK published no arm7 figure
 
 
 @pytest.mark.parametrize("name", TRAC_IK_ARMS)
@@ -160,7 +167,7 @@ def test_trac_ik_passes_the_time_limit_to_solve(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(bench_ik, "solve", bounded)
-    report = bench_trac_ik(["arm7"], targets=2, time_limit=0.004)
+    report = bench_trac_ik(["arm7"], targets=2, time_limit=0.004, peers=())
     assert seen and set(seen) == {0.004}
     assert report.settings["time limit"] == "mjkin.solve(timeout=...)"
     assert all(r["timeouts"] == 0 for r in next(iter(report.tables.values())))
@@ -170,7 +177,7 @@ def test_trac_ik_published_rows_are_labelled_and_not_measured(tmp_path, monkeypa
     from mjkin import bench_ik
 
     monkeypatch.setattr(bench_ik, "arms", lambda names, default=(): [bench_ik.Arm("panda", ARM7.tree, "ee", "site")])
-    report = bench_trac_ik(["panda"], targets=2)
+    report = bench_trac_ik(["panda"], targets=2, peers=())
     doc = report.as_json()
     assert {r["solver"] for r in doc["rows"]} == {"mjkin single", "mjkin batched"}
     assert {r["solver"] for r in doc["published"]} == {"TRAC-IK (published)", "KDL (published)"}
@@ -225,8 +232,9 @@ def test_fk_baselines_do_the_same_work_as_mjkin():
     np.testing.assert_allclose(bench.mujoco_site_pose(tree.model, Q[0], site)(),
                                tree.pose(Q[0], tree.names("site")[site], "site"), atol=1e-10)
     report = bench.bench_fk(["arm7"], sizes=[2], min_time=1e-3)
-    batched, single = report.tables.values()
+    batched, single = list(report.tables.values())[:2]
     assert [r["batch"] for r in batched] == [2] and single[0]["model"] == "arm7"
+    assert [r["library"] for r in single][:2] == ["mjkin", "mujoco"] and single[0]["ratio"] == 1.0
     assert all(r["ratio"] > 0 for r in batched + single)
 
 
@@ -310,3 +318,210 @@ def test_timed_loops_pause_the_garbage_collector_and_restore_it():
         assert not gc.isenabled()  # a caller's own choice is kept
     finally:
         gc.enable()
+
+
+# ------------------------------------------------------------------------------- peers: the chains they get
+
+
+def no_peers(monkeypatch):
+    """Make every peer library unimportable, as where the bench extra is not installed."""
+    for name in PEER_MODULES:
+        monkeypatch.setitem(sys.modules, name, None)
+
+
+def test_the_panda_of_bench_ik_is_the_bundled_dh_model():
+    assert (PANDA.frame, PANDA.kind) == ("flange", "site")
+    assert PANDA.tree.model.nbody == mjkin.load("panda").model.nbody
+    np.testing.assert_array_equal(PANDA.home, mjkin.load("panda").model.key_qpos[0])
+
+
+def test_chain_check_refuses_an_fk_that_differs_beyond_1e_12():
+    tree = PANDA.tree
+    exact = bench_peers.check_fk(lambda q: tree.pose(q, "flange"), tree, "flange", "site", "itself")
+    assert exact == 0.0
+
+    def shifted(q):
+        T = tree.pose(q, "flange")
+        T[0, 3] += 1e-9
+        return T
+
+    with pytest.raises(bench_peers.Unavailable, match=r"a peer's FK differs from tree.pose\(q, 'flange'\) by 1.0e-09"):
+        bench_peers.check_fk(shifted, tree, "flange", "site", "a peer")
+
+
+@pytest.mark.parametrize("model, frame, kind", [("panda", "flange", "site"), ("panda", "link7", "body"),
+                                                ("arm7", "ee", "site")])
+def test_urdf_of_the_chain_loaded_by_mujoco_gives_the_same_frame_pose(model, frame, kind):
+    tree = mjkin.load(model)
+    urdf = mujoco.MjModel.from_xml_string(bench_peers.chain_urdf(tree, frame, kind))
+    np.testing.assert_array_equal(urdf.jnt_range, tree.model.jnt_range)
+    data = mujoco.MjData(urdf)
+    tip = mujoco.mj_name2id(urdf, mujoco.mjtObj.mjOBJ_BODY, frame)
+    Q = tree.random_q(np.random.default_rng(3), 50)
+    for q, T in zip(Q, tree.pose(Q, frame, kind), strict=True):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(urdf, data)
+        np.testing.assert_allclose(data.xpos[tip], T[:3, 3], atol=1e-12, rtol=0)
+        np.testing.assert_allclose(data.xmat[tip].reshape(3, 3), T[:3, :3], atol=1e-12, rtol=0)
+
+
+def test_urdf_writer_refuses_what_a_urdf_chain_cannot_say():
+    with pytest.raises(bench_peers.Unavailable, match="'root' is not a hinge"):
+        bench_peers.chain_urdf(mjkin.load("primate"), "right_hand", "site")
+    fork = mjkin.load(build.links_mjcf([build.Link("a"), build.Link("b", "a"), build.Link("c", "a")]))
+    with pytest.raises(bench_peers.Unavailable, match="not a serial chain: the model has 3 joints, 2 of them"):
+        bench_peers.chain_urdf(fork, "b", "body")
+    still = mjkin.load(build.links_mjcf([build.Link("a", joint="fixed")]))
+    with pytest.raises(bench_peers.Unavailable, match="no joint"):
+        bench_peers.mdh_table(still, "a", "body")
+
+
+def test_modified_dh_table_read_from_the_panda_is_its_published_table():
+    rows, base, tool = bench_peers.mdh_table(PANDA.tree, "flange", "site")
+    Q = PANDA.tree.random_q(np.random.default_rng(4), 200)
+    np.testing.assert_allclose(base @ dh_fk(rows, Q, convention="modified") @ tool, PANDA.tree.pose(Q, "flange"),
+                               atol=1e-12, rtol=0)
+    np.testing.assert_allclose(rows[:, [0, 2]], [[0, 0.333], [0, 0], [0, 0.316], [0.0825, 0], [-0.0825, 0.384],
+                                                 [0, 0], [0.088, 0]], atol=1e-15)
+    np.testing.assert_allclose(rows[:, 1], np.pi / 2 * np.array([0, -1, 1, 1, -1, 1, 1]), atol=1e-15)
+    np.testing.assert_allclose(tool[:3, 3], [0, 0, 0.107], atol=1e-15)
+    with pytest.raises(bench_peers.Unavailable, match="turns about .* not its body's z"):
+        bench_peers.mdh_table(ARM7.tree, "ee", "site")  # arm7's second hinge turns about y
+
+
+@given(dx=st.floats(-1e-4, 1e-4), angle=st.floats(-1e-3, 1e-3), axis=st.integers(0, 2))
+def test_error_components_are_in_the_target_axes_as_trac_ik_judges(dx, angle, axis):
+    q, targets = easy_targets(1)
+    reached = targets.copy()  # reached = target moved along / about its own axes
+    reached[0, :3, 3] += targets[0, :3, axis] * dx
+    reached[0, :3, :3] = targets[0, :3, :3] @ axis_angle_to_mat(np.eye(3)[axis], angle)
+    # q reaches ``targets``; judged against ``reached`` its error is minus that motion, along / about that axis
+    e = error_components(ARM7.tree.model, ARM7.frame, ARM7.kind, q, reached)[0]
+    expect = np.zeros(6)
+    expect[axis], expect[3 + axis] = -dx, -angle
+    np.testing.assert_allclose(e, expect, atol=1e-12)
+
+
+def test_past_limits_measures_how_far_an_answer_leaves_its_range():
+    tree = PANDA.tree
+    q = np.stack([PANDA.home, PANDA.home])
+    q[1, 5] = tree.jnt_range[5, 1] + 5.7e-8
+    np.testing.assert_allclose(past_limits(tree, q), [0.0, 5.7e-8], rtol=1e-6)
+
+
+def test_peers_that_are_not_installed_get_a_reason_instead_of_a_row(monkeypatch, capsys, tmp_path):
+    no_peers(monkeypatch)
+    report = bench_ik(["panda"], targets=2)
+    rows = next(iter(report.tables.values()))
+    assert [r["solver"] for r in rows] == ["mjkin", "mjkin-single-start", "mujoco-dls"]
+    skipped = report.extra["skipped"]
+    assert [(r["model"], r["solver"]) for r in skipped] == [("panda", "mink"), ("panda", "rtb-ik_LM"),
+                                                            ("panda", "trac-ik")]
+    for r, package in zip(skipped, ("mink", "roboticstoolbox-python", "pytracik"), strict=True):
+        assert r["reason"].startswith(f"{package} is not installed (pip install 'mjkin[bench]')")
+    doc = report.as_json()
+    assert doc["skipped"] == skipped and len(doc["rows"]) == 3  # reasons are kept apart from the measured rows
+    out = tmp_path / "ik.json"
+    assert cli.main(["bench", "ik", "--protocol", "trac-ik", "--models", "panda", "--targets", "2",
+                     "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "peers without a row (the reason)" in printed and "pytracik is not installed" in printed
+    assert [r["solver"] for r in json.loads(out.read_text())["skipped"]] == ["rtb-ik_LM", "trac-ik"]
+
+
+def test_fk_bench_without_pinocchio_says_why(monkeypatch):
+    no_peers(monkeypatch)
+    report = bench.bench_fk(["panda", "primate"], sizes=[1], min_time=1e-3)
+    single = list(report.tables.values())[1]
+    assert {r["library"] for r in single} == {"mjkin", "mujoco"}
+    assert [(r["model"], r["reason"].split(" (")[0]) for r in report.extra["skipped"]] == [
+        ("panda", "pin is not installed"), ("primate", "pin is not installed")]
+
+
+def test_fk_bench_refuses_pinocchio_on_a_chain_it_cannot_take(monkeypatch):
+    pytest.importorskip("pinocchio", reason="pinocchio (pip install pin) is in the bench extra")
+    report = bench.bench_fk(["primate"], sizes=[1], min_time=1e-3)
+    (reason,) = [r["reason"] for r in report.extra["skipped"]]
+    assert "is not a hinge" in reason
+
+
+def test_time_limited_rows_count_late_answers_as_failures():
+    q, targets = easy_targets()
+    run = Run(q, np.array([1e-3, 9e-3, 1e-3, 1e-3]), np.ones(4), np.zeros(4))
+    assert row(ARM7, "late", run, targets, 1e-9, 1e-9, within=run.seconds <= 5e-3)["success"] == 75.0
+
+
+def test_table_columns_each_keep_one_number_format():
+    rows = [{"us": 0.342, "per_s": 2_927_954.0, "err": 4.96e-9, "success": 100.0},
+            {"us": 2.7, "per_s": 9870.0, "err": 0.0, "success": 88.25},
+            {"us": 12.5, "per_s": 598.0, "err": 3e-8, "success": None},
+            {"us": 1234.5, "per_s": 1e4, "err": 1.0, "success": 99.94}]
+    lines = bench.format_table(rows).splitlines()
+    cols = list(zip(*(line.split() for line in lines[2:]), strict=True))
+    assert cols[0] == ("0.342", "2.700", "12.500", "1,234.500")
+    assert cols[1] == ("2,927,954", "9,870", "598", "10,000")
+    assert cols[2] == ("4.96e-09", "0.00e+00", "3.00e-08", "1.00e+00")
+    assert cols[3] == ("100.0", "88.2", "-", "99.9")
+
+
+# ------------------------------------------------------------------------- peers: with the bench extra installed
+
+
+def needs(module: str, package: str):
+    return pytest.importorskip(module, reason=f"{package} is in the bench extra (pip install 'mjkin[bench]')")
+
+
+def test_rtb_chain_is_the_panda_to_1e_12():
+    needs("roboticstoolbox", "roboticstoolbox-python")
+    ets = bench_peers.rtb_ets(PANDA.tree, "flange", "site")
+    Q = PANDA.tree.random_q(np.random.default_rng(5), 20)
+    for q, T in zip(Q, PANDA.tree.pose(Q, "flange"), strict=True):
+        np.testing.assert_allclose(ets.fkine(q).A, T, atol=1e-12, rtol=0)
+
+
+def test_trac_ik_and_pinocchio_chains_are_the_panda_to_1e_12():
+    needs("trac_ik", "pytracik")
+    pin = needs("pinocchio", "pin")
+    solver = bench_peers.trac_ik_solver(PANDA.tree, "flange", "site", 0.005, 1e-5)
+    model, data, fid = bench_peers.pinocchio_model(PANDA.tree, "flange", "site")
+    Q = PANDA.tree.random_q(np.random.default_rng(6), 20)
+    for q, T in zip(Q, PANDA.tree.pose(Q, "flange"), strict=True):
+        pos, rot = solver.fk(q)
+        np.testing.assert_allclose(pos, T[:3, 3], atol=1e-12, rtol=0)
+        np.testing.assert_allclose(rot, T[:3, :3], atol=1e-12, rtol=0)
+        pin.forwardKinematics(model, data, q)
+        np.testing.assert_allclose(pin.updateFramePlacement(model, data, fid).homogeneous, T, atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("protocol", ["default", "trac-ik"])
+def test_peer_rows_carry_the_json_keys_and_are_rechecked_by_mujoco(protocol, tmp_path):
+    needs("roboticstoolbox", "roboticstoolbox-python")
+    needs("trac_ik", "pytracik")
+    out = tmp_path / "ik.json"
+    assert cli.main(["bench", "ik", "--protocol", protocol, "--models", "panda", "--targets", "4",
+                     "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    by = {r["solver"]: r for r in doc["rows"]}
+    assert {"rtb-ik_LM", "trac-ik"} <= set(by) and doc["skipped"] == []
+    for name in ("rtb-ik_LM", "trac-ik"):
+        r = by[name]
+        assert {"model", "success", "median_ms", "p95_ms", "mean_ms", "median_ratio", "mean_ratio", "solver_says",
+                "past_limits", "past_limit_max"} <= set(r)
+        assert 0 <= r["success"] <= 100 and r["median_ms"] > 0 and r["p95_ms"] >= r["median_ms"]
+    assert 0 <= by["trac-ik"]["success_per_component"] <= 100
+    ref = by["mjkin" if protocol == "default" else "mjkin single"]
+    assert ref["median_ratio"] == 1.0
+    assert by["rtb-ik_LM"]["median_ratio"] == pytest.approx(by["rtb-ik_LM"]["median_ms"] / ref["median_ms"])
+    if protocol == "trac-ik":
+        assert by["rtb-ik_LM"]["timeouts"] >= 0
+
+
+def test_rtb_answers_are_counted_by_mujoco_not_by_its_own_flag():
+    needs("roboticstoolbox", "roboticstoolbox-python")
+    from mjkin.bench_ik import rtb_ik_lm
+
+    T = targets_for(PANDA, 5, seed=2)
+    run, said = rtb_ik_lm(PANDA, T, PANDA.home, 1e-5, 1e-5, slimit=25)
+    ok = success(PANDA, run.q, T, 1e-5, 1e-5)
+    assert (ok == said).all()  # its E < 0.5 min(tol, rot_tol)^2 keeps both errors within the norms
+    assert (past_limits(PANDA.tree, run.q) == 0).all()  # it rejects answers outside the limits

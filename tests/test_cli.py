@@ -9,13 +9,14 @@ import json
 import subprocess
 import sys
 
+import imageio.v3 as imageio
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin import motion
+from mjkin import motion, progress
 from mjkin.argtypes import nonnegative_int
 from mjkin.cli import build_parser, join_negative_vectors, main
 
@@ -89,7 +90,6 @@ def bad_script(tmp_path, **change):
 BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["demo", "--width", "-5"], "--width: must be a whole number > 0"),
     (["demo", "--width", "100000", "--height", "100000"], "--width must be at most 8192"),
-    (["demo", "--width", "8192", "--height", "8192"], "GiB of memory"),
     (["demo", "--height", "0"], "--height: must be a whole number > 0"),
     (["demo", "--width", "6.5"], "--width: must be a whole number"),
     (["demo", "--fps", "-5"], "--fps: must be a finite number > 0"),
@@ -148,6 +148,12 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["ik", "arm7", "--frame", "ee", "--frame", "link3", "--pos", "0,0,0.5"],
      "argument --frame: given twice ('ee', then 'link3'); give it once"),
     (["fk", "arm7", "--q", "home", "--q", "random"], "argument --q: given twice"),
+    # ik's --root/--joints/--base name bodies and joints the model has
+    (["ik", "primate", "--frame", "left_hand", "--pos", "0.3,0.3,1.2", "--root", "torso"],
+     "unknown body 'torso'; the model's body names: 'world', 'lower_torso', 'left_thigh'"),
+    (["ik", "primate", "--frame", "left_hand", "--pos", "0.3,0.3,1.2", "--joints", "left_shoulder,wrist"],
+     "unknown joint 'wrist'; the model's joint names: 'root', 'left_hip'"),
+    (["ik", "primate", "--frame", "left_hand", "--pos", "0.3,0.3,1.2", "--base", "hips"], "unknown body 'hips'"),
 ]
 
 BAD_SCRIPTS = [  # changes to a good script, text in the one line
@@ -161,6 +167,16 @@ BAD_SCRIPTS = [  # changes to a good script, text in the one line
     ({"targets": [[[0.0, 0.0]]] * 5}, "'targets' must hold x,y,z points for each of the 5 frames"),
     ({"success": [True]}, "'success' must hold one true/false for each of the 5 frames"),
     ({"qpos": [[0.0, 0.0, 0.0]] * 5}, "this model needs (..., 2)"),
+    # found by a probe: an integer beyond float range was an OverflowError, strings and numbers were booleans
+    ({"times": [10**400, 0.1, 0.2, 0.3, 0.4]}, "'times' must be a list of T times in seconds (finite numbers)"),
+    ({"qpos": [[10**400, 0.0]] * 5}, "'qpos' must be a list of T configurations"),
+    ({"success": ["no"] * 5}, "'success' must be one true/false per frame"),
+    ({"success": [1, 0, 1, 0, 1]}, "'success' must be one true/false per frame"),
+    ({"qpos": [["0.5", "1"]] * 5}, "'qpos' must be a list of T configurations"),
+    ({"times": [True, 0.1, 0.2, 0.3, 0.4]}, "'times' must be a list of T times"),
+    ({"times": [0.4, 0.3, 0.2, 0.1, 0.0]}, "'times' must not decrease, but frame 1 is at 0.3 s after 0.4 s"),
+    ({"times": [0.0] * 5}, "'times' are all 0 s; they must increase over the 5 frames"),
+    ({"source": 5}, "'model', 'source' and 'site' must be strings"),
 ]
 
 
@@ -330,11 +346,229 @@ def test_image_output_renders_only_the_frame_asked_for(tmp_path, monkeypatch, sc
     monkeypatch.setattr(render.Painter, "draw", lambda self, q, *a, **k: drawn.append(q) or draw(self, q, *a, **k))
     out = tmp_path / "still.png"
     assert main(["replay", str(script), "-o", str(out), "--frame", "2", "--width", "64", "--height", "48"]) == 0
-    assert len(drawn) == 1 and "frame 2 of 5" in capsys.readouterr().out
+    assert len(drawn) == 1 and "(frame 2 of 5, 64x48)" in capsys.readouterr().out
     # the same image as frame 2 of the whole video (camera framed over all poses, trail up to frame 2)
     tree = mjkin.load("planar_2link")
     traj = motion.Trajectory.load(script)
-    video = render.frames(tree, traj.q, 64, 48, overlay=render.Overlay(points=traj.targets, trail="tip"))
+    video = list(render.frames(tree, traj.q, 64, 48, overlay=render.Overlay(points=traj.targets, trail="tip")))
     import imageio.v2 as imageio
 
     np.testing.assert_array_equal(imageio.imread(out), video[2])
+
+
+# ------------------------------------------------------------------ scripts: JSON a probe made, limits, models
+def deep_script(tmp_path, depth=20_000):
+    """A script whose 'times' is a list nested ``depth`` deep (json's decoder recursed until it failed)."""
+    path = tmp_path / "deep.json"
+    path.write_text('{"format": "mjkin-trajectory", "fingerprint": "x", "qpos": [[0, 0]], "times": '
+                    + "[" * depth + "]" * depth + "}")
+    return path
+
+
+@pytest.mark.parametrize("command", ["replay", "render"])
+def test_a_deeply_nested_script_gives_one_line(command, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    deep = deep_script(tmp_path)
+    argv = ["replay", str(deep)] if command == "replay" else ["render", "planar_2link", "--script", str(deep)]
+    one_line_exit_2(argv + ["-o", "out.mp4"], "its JSON is nested too deeply", capsys, tmp_path, keep=["deep.json"])
+
+
+def arm_script(tmp_path, q):
+    tree = mjkin.load("arm7")
+    traj = motion.Trajectory(times=np.arange(len(q)) / 30, q=np.asarray(q, float), fingerprint=motion.fingerprint(tree),
+                             model="arm7", source="arm7")
+    return traj.save(tmp_path / "arm.json")
+
+
+def test_replay_warns_about_joints_outside_their_limits_or_clips_them(tmp_path, capsys):
+    home = mjkin.load("arm7").model.key_qpos[0]
+    q = np.repeat(home[None], 4, axis=0)
+    q[2, 0] = q[3, 0] = 5.0  # j1 beyond 2.96 from frame 2 on
+    script = arm_script(tmp_path, q)
+    out = ["-o", str(tmp_path / "r.png"), "--width", "64", "--height", "48"]
+    assert main(["replay", str(script), *out, "--frame", "2"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mjkin: warning: joint j1 = 5 is outside its range [-2.96, 2.96] "
+                                                   "at frame 2 (and 1 more frame); rendered as recorded (--clip")
+    as_recorded = imageio.imread(tmp_path / "r.png")
+    assert main(["replay", str(script), *out, "--frame", "2", "--clip"]) == 0
+    assert capsys.readouterr().err == ""
+    assert not np.array_equal(imageio.imread(tmp_path / "r.png"), as_recorded)  # j1 at 2.96, not 5
+    assert main(["render", "arm7", "--script", str(script), *out, "--frame", "0"]) == 0  # render --script warns too
+    assert "joint j1 = 5" in capsys.readouterr().err
+
+
+def test_a_script_remembers_where_its_model_came_from(tmp_path, capsys, monkeypatch):
+    """'mjkin trajectory my.xml' then 'mjkin replay my.json' looked for a model named by the MJCF's name."""
+    made, elsewhere = tmp_path / "made", tmp_path / "elsewhere"
+    made.mkdir()
+    elsewhere.mkdir()
+    xml = mjkin.bundled_models()["arm7"].read_text().replace('model="arm7"', 'model="mine"')
+    (made / "my.xml").write_text(xml)
+    monkeypatch.chdir(made)
+    assert main(["trajectory", "my.xml", "--site", "ee", "--path", "line", "--end", "0.4,0.2,0.6", "--frames", "3",
+                 "-o", "my.json"]) == 0
+    doc = json.loads((made / "my.json").read_text())
+    assert doc["model"] == "mine" and doc["source"] == str(made / "my.xml")  # absolute: replay works from anywhere
+    assert doc["fingerprint"] == motion.fingerprint(mjkin.load(made / "my.xml"))
+    capsys.readouterr()
+    monkeypatch.chdir(elsewhere)
+    still = ["-o", "still.png", "--width", "64", "--height", "48"]
+    assert main(["replay", str(made / "my.json"), *still]) == 0
+    assert "wrote still.png (frame 2 of 3, 64x48)" in capsys.readouterr().out
+    (made / "my.xml").rename(made / "moved.xml")  # the model is not where the script says
+    one_line_exit_2(["replay", str(made / "my.json"), *still], f"the model of {str(made / 'my.json')!r} ('mine', "
+                    f"from {str(made / 'my.xml')!r}) is not found; pass --model PATH", capsys, elsewhere,
+                    keep=["still.png"])
+    assert main(["replay", str(made / "my.json"), "--model", str(made / "moved.xml"), *still]) == 0
+    capsys.readouterr()
+    one_line_exit_2(["replay", str(made / "my.json"), "--model", "ball_chain", *still],  # another fingerprint
+                    "was recorded on model 'mine'", capsys, elsewhere, keep=["still.png"])
+
+
+def test_scripts_without_a_source_still_replay_by_model_name(tmp_path, capsys, script):
+    doc = json.loads(script.read_text())
+    del doc["source"]  # written before scripts recorded where their model came from
+    script.write_text(json.dumps(doc))
+    assert main(["replay", str(script), "-o", str(tmp_path / "old.png"), "--width", "64", "--height", "48"]) == 0
+    assert "(frame 4 of 5, 64x48)" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ pipes
+@pytest.mark.parametrize("argv, status", [
+    (["info", "primate"], 141),  # as a Unix tool ended by SIGPIPE: 128 + 13
+    (["fk", "primate", "--json"], 141),
+    (["ik", "--help"], 0),  # argparse drops a failed write of the help itself
+])
+def test_a_closed_pipe_ends_quietly(argv, status):
+    """'mjkin info primate | head -1' ended in a BrokenPipeError traceback and status 1."""
+    command = subprocess.Popen([sys.executable, "-m", "mjkin.cli", *argv], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    command.stdout.close()  # the reader is gone before anything is written: every write meets a closed pipe
+    err = command.stderr.read().replace(f"mjkin: {progress.COMPILING}\n", "")  # a cold kernel cache says so
+    command.stderr.close()
+    assert command.wait() == status and err == ""
+
+
+def test_piped_into_head(tmp_path):
+    """The same through a shell pipe; the text head shows is the command's first line."""
+    shell = f"{sys.executable} -m mjkin.cli info primate | head -1; exit ${{PIPESTATUS[0]}}"
+    run = subprocess.run(["bash", "-c", shell], capture_output=True, text=True)
+    assert run.stdout.startswith("model primate: nq=37") and run.stdout.count("\n") == 1
+    assert run.returncode in (0, 141)  # 0 when everything fit into the pipe before head left
+    assert run.stderr.replace(f"mjkin: {progress.COMPILING}\n", "") == ""
+
+
+# ------------------------------------------------------------------ ik: what may move
+PRIMATE_IK = ["ik", "primate", "--frame", "left_hand", "--pos", "0.3,0.3,1.2", "--json"]
+
+
+def test_ik_root_plants_a_body_instead_of_moving_the_free_root(capsys):
+    tree = mjkin.load("primate")
+    pelvis = tree.pose(tree.qpos0, "lower_torso", "body")
+    assert main(PRIMATE_IK) == 0
+    free = json.loads(capsys.readouterr().out)
+    assert np.abs(tree.pose(free["q"], "lower_torso", "body")[:3, 3] - pelvis[:3, 3]).max() > 0.05  # it flew
+    for body in ("lower_torso", "left_foot"):
+        assert main(PRIMATE_IK + ["--root", body]) == 0
+        rooted = json.loads(capsys.readouterr().out)
+        assert rooted["success"] is True
+        np.testing.assert_allclose(tree.pose(rooted["q"], body, "body"), tree.pose(tree.qpos0, body, "body"),
+                                   atol=1e-6)
+        np.testing.assert_allclose(tree.pose(rooted["q"], "left_hand")[:3, 3], [0.3, 0.3, 1.2], atol=1e-5)
+
+
+@pytest.mark.parametrize("option, allowed", [
+    (["--joints", "left_shoulder,left_elbow"], ["left_shoulder", "left_elbow"]),
+    (["--base", "upper_torso"], ["left_shoulder", "left_elbow"]),  # the joints between it and the hand
+])
+def test_ik_joints_and_base_limit_the_joints_that_move(option, allowed, capsys):
+    tree = mjkin.load("primate")
+    assert main(PRIMATE_IK + option) == 0
+    q = np.array(json.loads(capsys.readouterr().out)["q"])
+    may = np.zeros(tree.nq, bool)
+    for name in allowed:
+        j = tree.id(name, "joint")
+        may[tree.jnt_qadr[j]:tree.jnt_qadr[j] + {0: 7, 1: 4}.get(int(tree.jnt_type[j]), 1)] = True
+    assert np.abs(q - tree.qpos0)[~may].max() == 0 and np.abs(q - tree.qpos0)[may].max() > 0.1
+
+
+def test_ik_help_says_the_free_root_moves_unless_rooted(capsys):
+    assert main(["ik", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "a free root joint" in text and "unless --root plants a body" in text
+    assert "--root BODY" in text and "--joints J1,J2,..." in text and "--base BODY" in text
+
+
+# ------------------------------------------------------------------ random, quaternions, output
+def test_random_keeps_a_free_root_at_its_qpos0_pose(capsys):
+    """'mjkin render primate --q random' drew a random world pose: the figure sank into the floor."""
+    tree = mjkin.load("primate")
+    root = tree.layout.free_q.ravel()
+    for seed in range(3):
+        assert main(["fk", "primate", "--q", "random", "--seed", str(seed), "--json"]) == 0
+        q = np.array(json.loads(capsys.readouterr().out)["q"])
+        np.testing.assert_array_equal(q[root], tree.qpos0[root])
+        np.testing.assert_allclose(tree.clip(q), q, atol=1e-12)  # the rest: a random draw inside the limits
+        assert np.abs(np.delete(q - tree.qpos0, root)).max() > 0.3
+    assert main(["render", "--help"]) == 0
+    assert "a free root joint keeps its qpos0 pose" in " ".join(capsys.readouterr().out.split())
+
+
+FREE_BALL = """<mujoco model="loose"><compiler angle="radian"/><worldbody>
+<body name="torso"><freejoint name="root"/><geom type="sphere" size="0.1"/>
+  <body pos="0 0 0.2"><joint name="shoulder" type="ball"/><geom type="capsule" fromto="0 0 0 0 0 0.3" size="0.03"/>
+    <site name="tip" pos="0 0 0.3"/></body>
+  <body name="cone" pos="0.2 0 0"><joint name="wrist" type="ball" range="0 0.5"/><geom type="sphere" size="0.05"/>
+  </body></body></worldbody></mujoco>"""
+
+
+def test_quaternions_are_normalised_with_a_warning_and_unlimited_balls_have_no_cone(tmp_path, capsys):
+    """A ball joint without a range warned 'turns beyond its 0 rad cone'; the real news was a non-unit quaternion."""
+    xml = tmp_path / "loose.xml"
+    xml.write_text(FREE_BALL)
+    q = "0 0 1 2 0 0 0  2 0 0 0  1 0 0 0"  # the root's and the shoulder's quaternions have norm 2
+    assert main(["fk", str(xml), "--q", q, "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err == ("mjkin: warning: --q: normalised the quaternions of joint root (norm 2), joint shoulder (norm 2) "
+                   "to unit length\n")
+    np.testing.assert_array_equal(json.loads(out)["q"], [0, 0, 1, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0])
+    assert main(["fk", str(xml), "--q", "0 0 1 1 0 0 0  -1 0 0 0  -1 0 0 0"]) == 0  # -q is q: inside any cone
+    assert capsys.readouterr().err == ""
+    turned = "0 0 1 1 0 0 0  1 0 0 0  0.5403 0.8415 0 0"  # the wrist turned 2 rad in its 0.5 rad cone
+    assert main(["fk", str(xml), "--q", turned]) == 0
+    assert "joint wrist turns 2 rad, beyond its 0.5 rad cone; FK of --q as given" in capsys.readouterr().err
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "0.4,0.2,0.5", "--quat", "0,2,0,0", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "mjkin: warning: --quat: normalised '0,2,0,0' (norm 2) to unit length\n"
+    assert json.loads(out)["success"] is True
+
+
+def test_unnamed_bodies_are_named_by_their_id(tmp_path, capsys):
+    xml = tmp_path / "loose.xml"
+    xml.write_text(FREE_BALL)
+    assert main(["info", str(xml)]) == 0
+    assert "\n    body 2\n      joint shoulder: ball\n" in capsys.readouterr().out
+    assert main(["fk", str(xml)]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[1].startswith("body 2                        pos ")
+
+
+def test_no_negative_zeros_and_unlimited_hinges_wrapped(capsys):
+    assert main(["fk", "planar_2link", "--q", "6.283185307179586,0"]) == 0  # sin(2 pi) = -2.4e-16
+    out = capsys.readouterr().out
+    assert "-0.000000" not in out and "site tip                      pos  1.700000  0.000000  0.000000" in out
+    assert main(["fk", "planar_2link", "--q", "7,-7", "--json"]) == 0
+    np.testing.assert_allclose(json.loads(capsys.readouterr().out)["q"], [7 - 2 * np.pi, 2 * np.pi - 7], atol=1e-12)
+    tree = mjkin.load("planar_2link")
+    assert main(["ik", "planar_2link", "--frame", "tip", "--pos", "0.5,1.2,0", "--q0", "9.5,-9", "--json"]) == 0
+    q = json.loads(capsys.readouterr().out)["q"]
+    assert all(-np.pi < v <= np.pi for v in q)  # unlimited hinges: shown in (-pi, pi]
+    np.testing.assert_allclose(tree.pose(q, "tip")[:3, 3], [0.5, 1.2, 0], atol=1e-6)
+    assert main(["ik", "planar_2link", "--frame", "tip", "--pos", "0.5,1.2,0", "--q0", "9.5,-9"]) == 0
+    assert "-0.000000" not in capsys.readouterr().out
+
+
+def test_a_still_is_called_a_still(tmp_path, capsys):
+    assert main(["render", "planar_2link", "-o", str(tmp_path / "prim.png"), "--width", "64", "--height", "48"]) == 0
+    assert capsys.readouterr().out == f"wrote {tmp_path / 'prim.png'} (still, 64x48)\n"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -106,3 +108,74 @@ def test_cli_walk(tmp_path, capsys):
     assert out.stat().st_size > 1000 and "feet on target in 100%" in capsys.readouterr().out
     assert main(["walk", "--stride", "-1", "-o", str(tmp_path / "w.mp4")]) == 2
     assert "--stride: must be a finite number > 0" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ scripts
+def write_script(tmp_path, name="s.json", **change):
+    """A 4-frame arm7 script as JSON, with ``change`` applied to its keys (values written as given)."""
+    tree = tree_of("arm7")
+    doc = {"format": motion.FORMAT, "version": 1, "model": "arm7", "source": "arm7",
+           "fingerprint": motion.fingerprint(tree), "site": "ee", "times": [0.0, 0.1, 0.2, 0.3],
+           "qpos": np.repeat(tree.model.key_qpos[:1], 4, axis=0).tolist(), "targets": None, "success": None, "meta": {}}
+    doc.update(change)
+    path = tmp_path / name
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize("change, error, text", [
+    ({"qpos": [[10**400] + [0.0] * 6] * 4}, mjkin.InputError, "'qpos' must be a list of T configurations"),
+    ({"times": [0, 1, 2, 10**400]}, mjkin.InputError, "'times' must be a list of T times"),
+    ({"success": ["no", "no", "yes", "no"]}, mjkin.InputError, "'success' must be one true/false per frame"),
+    ({"success": [None, True, True, True]}, mjkin.InputError, "'success' must be one true/false per frame"),
+    ({"times": [0.0, 0.2, 0.1, 0.3]}, mjkin.InputError,
+     "'times' must not decrease, but frame 2 is at 0.1 s after 0.2 s"),
+    ({"times": [1.5] * 4}, mjkin.InputError, "'times' are all 1.5 s; they must increase over the 4 frames"),
+])
+def test_load_refuses_what_json_holds_but_a_script_cannot_mean(tmp_path, change, error, text):
+    with pytest.raises(error) as e:
+        motion.Trajectory.load(write_script(tmp_path, **change), tree_of("arm7"))
+    assert text in str(e.value) and "\n" not in str(e.value)
+
+
+def test_load_survives_json_nested_deeper_than_python_recurses(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text('{"format": "mjkin-trajectory", "times": ' + "[" * 20_000 + "]" * 20_000 + "}")
+    with pytest.raises(mjkin.MjkinIOError, match="its JSON is nested too deeply"):
+        motion.Trajectory.load(path)
+
+
+def test_times_may_repeat_and_one_frame_has_one_time(tmp_path):
+    traj = motion.Trajectory.load(write_script(tmp_path, times=[0.0, 0.1, 0.1, 0.3], success=[True, False, True, True]))
+    assert traj.success.tolist() == [True, False, True, True]  # booleans stay booleans
+    one = write_script(tmp_path, "one.json", times=[7.0], qpos=[tree_of("arm7").qpos0.tolist()])
+    assert len(motion.Trajectory.load(one, tree_of("arm7")).q) == 1
+
+
+def test_a_script_keeps_where_its_model_came_from(tmp_path):
+    tree = tree_of("arm7")
+    traj = motion.Trajectory(times=np.arange(2) / 30, q=np.repeat(tree.qpos0[None], 2, 0),
+                             fingerprint=motion.fingerprint(tree), model="arm7", source="/models/arm7.xml")
+    assert motion.Trajectory.load(traj.save(tmp_path / "t.json")).source == "/models/arm7.xml"
+    doc = json.loads((tmp_path / "t.json").read_text())
+    del doc["source"]  # a script written before the key existed
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    assert motion.Trajectory.load(tmp_path / "old.json", tree).source == ""
+
+
+def test_outside_limits_names_the_joint_and_the_frame():
+    arm = tree_of("arm7")
+    q = np.repeat(arm.model.key_qpos[:1], 4, axis=0)
+    assert motion.outside_limits(arm, q) is None
+    q[2:, 0] = 5.0
+    assert motion.outside_limits(arm, q) == ("joint j1 = 5 is outside its range [-2.96, 2.96] at frame 2 "
+                                             "(and 1 more frame)")
+    assert motion.outside_limits(arm, q[2]) == "joint j1 = 5 is outside its range [-2.96, 2.96]"  # one q: no frame
+    chain = tree_of("ball_chain")  # ball joints limited to a 1.0472 rad cone
+    q = chain.qpos0.copy()
+    a = chain.jnt_qadr[0]
+    q[a:a + 4] = [np.cos(1.0), np.sin(1.0), 0.0, 0.0]  # turned 2 rad
+    name = chain.names("joint")[0] or 0
+    assert motion.outside_limits(chain, q) == f"joint {name} turns 2 rad, beyond its 1.047 rad cone"
+    q[a:a + 4] = [-2.0, 0.0, 0.0, 0.0]  # not unit, and -q: no turn at all
+    assert motion.outside_limits(chain, q) is None

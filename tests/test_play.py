@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import http.client
 import json
+import logging
 import math
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from functools import cache
+from pathlib import Path
 
 import imageio.v3 as imageio
 import numpy as np
@@ -24,8 +28,9 @@ from conftest import tree_of
 from mjkin import build, motion, render
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.files import strict_json as to_strict_json
-from mjkin.play import browser, core
-from mjkin.play.server import BOUNDARY, PART, STREAM_THREAD, is_loopback, start_server, stop_server
+from mjkin.play import browser, core, journal
+from mjkin.play import server as server_module
+from mjkin.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
 from mjkin.play.session import Playground, recordings_folder, view_camera
 
 IK_TOL = 1e-6
@@ -450,24 +455,42 @@ def strict_json(payload: bytes) -> object:
 
 
 class Client:
-    def __init__(self, port: int, name: str = "test") -> None:
-        self.port, self.name = port, name
+    """Requests as the page makes them: its client id, the server's token, JSON bodies; ``headers`` change that."""
 
-    def request(self, method: str, path: str, body: object = None, raw: bytes | None = None):
+    def __init__(self, port: int, token: str | None, name: str = "test") -> None:
+        self.port, self.token, self.name = port, token, name
+
+    @classmethod
+    def of(cls, server, name: str = "test") -> Client:
+        return cls(server.server_address[1], server.token, name)
+
+    def request(self, method: str, path: str, body: object = None, raw: bytes | None = None,
+                headers: dict | None = None):
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
         data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
-        conn.request(method, path, data, {"X-Mjkin-Client": self.name, "Content-Type": "application/json"})
+        sent = {"X-Mjkin-Client": self.name, "Content-Type": "application/json"}
+        if self.token is not None:
+            sent["X-Mjkin-Token"] = self.token
+        sent = {k: v for k, v in {**sent, **(headers or {})}.items() if v is not None}  # None: leave the header out
+        if "Host" in sent:
+            conn.putrequest(method, path, skip_host=True)  # http.client would send its own Host as well
+            for k, v in sent.items():
+                conn.putheader(k, v)
+            conn.putheader("Content-Length", str(len(data or b"")))
+            conn.endheaders(data)
+        else:
+            conn.request(method, path, data, sent)
         resp = conn.getresponse()
         payload = resp.read()
         conn.close()
         kind = resp.getheader("Content-Type") or ""
         return resp.status, strict_json(payload) if kind.startswith("application/json") else payload
 
-    def get(self, path: str):
-        return self.request("GET", path)
+    def get(self, path: str, headers: dict | None = None):
+        return self.request("GET", path, headers=headers)
 
-    def post(self, path: str, body: object = None, raw: bytes | None = None):
-        return self.request("POST", path, {} if body is None and raw is None else body, raw)
+    def post(self, path: str, body: object = None, raw: bytes | None = None, headers: dict | None = None):
+        return self.request("POST", path, {} if body is None and raw is None else body, raw, headers)
 
 
 @pytest.fixture(scope="module")
@@ -483,7 +506,7 @@ def served(tmp_path_factory):
 @pytest.fixture
 def api(served):
     server, _ = served
-    client = Client(server.server_address[1])
+    client = Client.of(server)
     deadline = time.monotonic() + 10
     while client.post("/reset")[0] == 409 and time.monotonic() < deadline:
         time.sleep(0.1)  # another test's client holds control until its lease (0.5 s here) runs out
@@ -577,9 +600,9 @@ def test_frame_jpg_shows_the_current_state(api):
 class Stream:
     """A reader of ``/stream.mjpg``: :meth:`next` is the next JPEG the server streams."""
 
-    def __init__(self, port: int) -> None:
-        self.conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-        self.conn.request("GET", "/stream.mjpg")
+    def __init__(self, server) -> None:
+        self.conn = http.client.HTTPConnection("127.0.0.1", server.server_address[1], timeout=30)
+        self.conn.request("GET", f"/stream.mjpg?token={server.token}")  # as the page's <img> asks
         self.resp = self.conn.getresponse()
         self.data = b""
         while len(self.data) < len(PART) - 2:
@@ -603,7 +626,7 @@ def test_view_route_orbits_zooms_and_resets_what_is_streamed(api, served):
     _, state = api.get("/state")
     home = state["camera"]
     assert api.get("/frame.jpg")[0] == 200  # the current state is drawn: the stream starts with it
-    stream = Stream(server.server_address[1])
+    stream = Stream(server)
     try:
         first = stream.next()
         status, turned = api.post("/view", {"orbit": [50, -20]})
@@ -670,7 +693,7 @@ def test_stream_sends_frames_and_a_client_leaving_mid_stream_costs_nothing(api, 
     server, _ = served
     for _ in range(3):
         conn = http.client.HTTPConnection("127.0.0.1", server.server_address[1], timeout=30)
-        conn.request("GET", "/stream.mjpg")
+        conn.request("GET", f"/stream.mjpg?token={server.token}")
         resp = conn.getresponse()
         assert resp.getheader("Content-Type") == f"multipart/x-mixed-replace; boundary={BOUNDARY}"
         data = b""
@@ -683,19 +706,15 @@ def test_stream_sends_frames_and_a_client_leaving_mid_stream_costs_nothing(api, 
     assert image[:2] == b"\xff\xd8"
     status, state = api.post("/target", {"frame": "ee", "pos": [0.35, 0.25, 0.55]})
     assert status == 200 and api.get("/frame.jpg")[0] == 200
-    def streams() -> list[str]:
-        return [t.name for t in threading.enumerate() if t.name == STREAM_THREAD]
-
     deadline = time.monotonic() + 10
-    while streams() and time.monotonic() < deadline:
-        time.sleep(0.05)  # the stream threads notice the closed socket at the next frame
-    assert not streams(), [t.name for t in threading.enumerate()]
+    while server.routes.streams and time.monotonic() < deadline:
+        time.sleep(0.05)  # the server hears of the closed socket and ends the stream
+    assert server.routes.streams == 0
 
 
 def test_one_client_controls_others_watch(served):
     server, _ = served
-    port = server.server_address[1]
-    a, b = Client(port, "a"), Client(port, "b")
+    a, b = Client.of(server, "a"), Client.of(server, "b")
     time.sleep(0.6)  # any earlier lease (0.5 s in this fixture) has run out
     assert a.post("/target", {"frame": "ee", "pos": [0.4, 0.1, 0.5]})[0] == 200
     status, doc = b.post("/target", {"frame": "ee", "pos": [0.4, -0.1, 0.5]})
@@ -784,13 +803,15 @@ def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, s
     monkeypatch.setattr(motion.Trajectory, "save", fail_once)
     status, doc = api.post("/stop")
     assert status == 500 and "No space left" in doc["error"] and "the recording is kept" in doc["error"]
-    assert set(out.iterdir()) == before  # no video without its script, no temporary file
+    kept = set(out.glob("*.journal.jsonl"))  # the take's journal stays until the take is written
+    assert len(kept) == 1 and set(out.iterdir()) == before | kept  # no video without its script, no temporary file
     status, saved = api.post("/stop")  # the retry
     assert status == 200 and saved["frames"] >= 2
     traj = motion.Trajectory.load(saved["path"], arm())
     np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
     assert imageio.imread(saved["video"], index=None).shape[1:] == (H, W, 3)
-    assert not api.get("/state")[1]["unsaved"]
+    assert not api.get("/state")[1]["unsaved"] and set(out.iterdir()) == before | {Path(saved["path"]),
+                                                                                    Path(saved["video"])}
     assert api.post("/stop")[0] == 400  # written: nothing left to stop
 
 
@@ -847,24 +868,414 @@ def test_loopback_detection():
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4")
 
 
-def test_cli_serves_and_stops_cleanly_on_ctrl_c(tmp_path):
+# ------------------------------------------------------------ the door (token, Host, Origin, Content-Type)
+def still(api) -> tuple:
+    """What a refused request must leave as it was: the pose, the targets, the recording."""
+    _, state = api.get("/state")
+    return state["q"], state["targets"], state["recording"]
+
+
+def test_the_url_carries_a_secret_token_and_every_route_needs_it(api, served):
+    server, out = served
+    port, token = server.server_address[1], server.token
+    assert server.url == f"http://127.0.0.1:{port}/?token={token}" and len(token) >= 32
+    anonymous, wrong = Client(port, None), Client(port, token[:-1] + ("A" if token[-1] != "A" else "B"))
+    before, files = still(api), set(out.iterdir())
+    for client in (anonymous, wrong):
+        for path in ("/state", "/info", "/frame.jpg", "/stream.mjpg?token=nope"):
+            status, doc = client.get(path)
+            assert status == 403 and set(doc) == {"error"} and "\n" not in doc["error"], (path, doc)
+            assert "token" in doc["error"]
+        for path in ("/record", "/stop", "/target"):
+            body = {"frame": "ee", "pos": [0.3, 0.3, 0.3]} if path == "/target" else {}
+            assert client.post(path, body)[0] == 403
+    assert still(api) == before and set(out.iterdir()) == files  # nothing recorded, nothing written
+    status, page = anonymous.get("/")  # the page, too, as Jupyter does
+    assert status == 403 and page.count(b"\n") == 1 and b"mjkin play printed" in page and b"?token=" in page
+    assert anonymous.get(f"/?token={token}")[0] == 200
+    assert anonymous.get("/state", headers={"Authorization": f"token {token}"})[0] == 200
+    assert anonymous.get(f"/state?token={token}")[0] == 200
+    assert anonymous.get("/state", headers={"Authorization": f"Bearer {token}"})[0] == 403
+
+
+def test_a_foreign_host_is_refused_and_the_arm_does_not_move(api, served):
+    """DNS rebinding: a page of evil.example whose name now points here sends its own name as Host."""
+    server, _ = served
+    port = server.server_address[1]
+    before = still(api)
+    for host in (f"evil.example:{port}", "evil.example", f"127.0.0.1:{port + 1}", "localhost", ""):
+        status, doc = api.post("/target", {"frame": "ee", "pos": [0.3, 0.3, 0.3]}, headers={"Host": host})
+        assert status == 421 and "\n" not in doc["error"] and "Host" in doc["error"], (host, doc)
+        assert api.get("/state", headers={"Host": host})[0] == 421
+    assert still(api) == before
+    for host in (f"localhost:{port}", f"LOCALHOST:{port}", f"[::1]:{port}", f"127.0.0.1:{port}"):
+        assert api.get("/state", headers={"Host": host})[0] == 200, host
+
+
+def test_cross_origin_and_non_json_posts_are_refused_and_change_nothing(api, served):
+    server, _ = served
+    port = server.server_address[1]
+    evil = "http://evil.example"
+    move = json.dumps({"frame": "ee", "pos": [0.3, 0.3, 0.3]}).encode()
+    before = still(api)
+    form = Client(port, None).post("/target", raw=move, headers={"Origin": evil, "Content-Type": "text/plain"})
+    assert form[0] == 403  # what a form or a simple fetch of another page sends
+    status, doc = api.post("/target", raw=move, headers={"Origin": evil})
+    assert status == 403 and "another origin" in doc["error"]
+    assert api.post("/record", headers={"Origin": "null"})[0] == 403  # a sandboxed frame or a file:// page
+    for kind in ("text/plain", "application/x-www-form-urlencoded", "multipart/form-data; boundary=x", None):
+        status, doc = api.post("/target", raw=move, headers={"Content-Type": kind})
+        assert status == 415 and "application/json" in doc["error"], (kind, doc)
+    status, doc = api.request("OPTIONS", "/target", headers={"Origin": evil, "Access-Control-Request-Method": "POST",
+                                                           "Access-Control-Request-Headers": "content-type"})
+    assert status == 403 and "Access-Control-Allow-Origin" not in str(doc)  # no preflight passes
+    assert still(api) == before
+    status, doc = api.post("/target", raw=move, headers={"Origin": f"http://127.0.0.1:{port}",
+                                                         "Content-Type": "application/json; charset=utf-8"})
+    assert status == 200 and doc["targets"]["ee"][:3] == [0.3, 0.3, 0.3]  # the page's own origin
+
+
+def test_the_door_holds_for_any_host_address():
+    """--host other than loopback keeps the token and the Host rule (its warning is printed by serve)."""
+    hosts = server_module.host_names("192.168.1.4", 8765, "192.168.1.4")
+    assert {"192.168.1.4:8765", "localhost:8765", "127.0.0.1:8765", "[::1]:8765"} <= hosts
+    assert "192.168.1.5:8765" not in hosts and "192.168.1.4" not in hosts
+    assert "[fe80::1]:8765" in server_module.host_names("fe80::1", 8765, "fe80::1")
+    scope = {"type": "http", "method": "GET", "path": "/state", "query_string": b"",
+             "headers": [(b"host", b"192.168.1.4:8765")]}
+    with pytest.raises(server_module.Refused, match="token") as e:
+        server_module.check_request(scope, "secret", hosts)
+    assert e.value.status == 403
+    server_module.check_request({**scope, "query_string": b"token=secret"}, "secret", hosts)
+
+
+# ------------------------------------------------------------ framing and connections (uvicorn, h11)
+def exchange(port: int, data: bytes, timeout: float = 60.0) -> bytes:
+    """Send raw bytes on a new connection; everything the server answers until it closes the connection."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as sock:
+        sock.sendall(data)
+        answer = b""
+        while chunk := sock.recv(1 << 16):
+            answer += chunk
+    return answer
+
+
+def raw_post(server, path: str, extra: bytes, body: bytes = b"") -> bytes:
+    """A POST's bytes as the ``api`` client's, the framing headers in ``extra``."""
+    port = server.server_address[1]
+    return (f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX-Mjkin-Token: {server.token}\r\n"
+            "X-Mjkin-Client: test\r\nContent-Type: application/json\r\n").encode() + extra + b"\r\n" + body
+
+
+def test_a_huge_integer_or_deep_nesting_is_a_one_line_400_and_the_server_goes_on(api):
+    before = still(api)
+    huge = b"1" + b"0" * 400
+    for path, raw in [("/target", b'{"frame": "ee", "pos": [' + huge + b", 0, 0.5]}"),
+                      ("/joint", b'{"joint": "j1", "value": ' + huge + b"}"),
+                      ("/view", b'{"zoom": -' + huge + b"}"), ("/drag", b'{"frame": "ee", "depth": ' + huge + b"}"),
+                      ("/target", b"[" * 20_000 + b"]" * 20_000), ("/view", b'{"a":' * 10_000 + b"1" + b"}" * 10_000)]:
+        status, doc = api.post(path, raw=raw)
+        assert status == 400 and set(doc) == {"error"} and "\n" not in doc["error"], (path, doc)
+        assert "401 digits" in doc["error"] or "nested too deeply" in doc["error"], doc
+    assert still(api) == before and api.get("/state")[0] == 200
+
+
+def test_bad_framing_is_a_400_or_411_and_leftover_bytes_are_never_a_request(api, served):
+    server, _ = served
+    port = server.server_address[1]
+    _, placed = api.post("/target", {"frame": "ee", "pos": [0.4, 0.1, 0.5]})
+    for length in (b"-1", b"abc", b"2, 3"):
+        answer = exchange(port, raw_post(server, "/reset", b"Content-Length: " + length + b"\r\n", b"{}"))
+        assert answer.startswith(b"HTTP/1.1 400 "), (length, answer)
+    sneaked = raw_post(server, "/target", b"Content-Length: 41\r\n", b'{"frame": "ee", "pos": [0.3, -0.3, 0.6]}\n')
+    answer = exchange(port, raw_post(server, "/target", b"", sneaked))  # no length: the rest is not its body
+    assert answer.startswith(b"HTTP/1.1 411 ") and answer.count(b"HTTP/1.1 ") == 1, answer
+    assert b"Content-Length" in answer.split(b"\r\n\r\n", 1)[1] and b"connection: close" in answer.lower()
+    assert api.get("/state")[1]["targets"] == placed["targets"]  # the request hidden in the leftovers did not run
+    body = b'{"frame": "ee", "pos": [0.35, 0.15, 0.55]}'
+    chunked = b"".join(b"%x\r\n%s\r\n" % (len(part), part) for part in (body[:10], body[10:])) + b"0\r\n\r\n"
+    framing = b"Transfer-Encoding: chunked\r\nConnection: close\r\n"
+    answer = exchange(port, raw_post(server, "/target", framing, chunked))
+    assert answer.startswith(b"HTTP/1.1 200 "), answer
+    assert json.loads(answer.split(b"\r\n\r\n", 1)[1])["targets"]["ee"][:3] == [0.35, 0.15, 0.55]  # decoded
+    big = b"Content-Length: %d\r\n" % (server_module.MAX_BODY + 1)
+    answer = exchange(port, raw_post(server, "/target", big, b"{"))
+    assert answer.startswith(b"HTTP/1.1 413 ") and b"at most 65536" in answer
+
+
+def test_the_listen_queue_holds_300_connections_before_any_is_accepted():
+    """The backlog was 5: with the server busy, the 7th connect waited for SYN retries (58 of 300 timed out)."""
+    pg = Playground(arm(), W, H)
+    server = server_module.bind(pg, "127.0.0.1", 0)  # listening, not yet serving: nothing accepts
+    socks = []
+    try:
+        for _ in range(300):
+            socks.append(socket.create_connection(("127.0.0.1", server.server_address[1]), timeout=30))
+    finally:
+        for sock in socks:
+            sock.close()
+        server.close()
+        pg.close()
+    assert len(socks) == 300
+
+
+def test_a_client_leaving_mid_body_or_mid_stream_costs_nothing(api, served, caplog):
+    server, _ = served
+    port = server.server_address[1]
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(raw_post(server, "/target", b"Content-Length: 100\r\n", b'{"fra'))
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(f"GET /stream.mjpg?token={server.token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+        assert sock.recv(100).startswith(b"HTTP/1.1 200 ")
+    deadline = time.monotonic() + 30
+    while (server.routes.streams or server.server.server_state.tasks) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not server.routes.streams and not server.server.server_state.tasks
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text  # no traceback
+    assert api.get("/state")[0] == 200
+
+
+def test_300_simultaneous_connections_all_get_an_answer(api, served):
+    """The listen backlog was 5: 58 of 300 connects timed out. Now each gets a 200 or, past the cap, a 503."""
+    server, _ = served
+    port = server.server_address[1]
+    request = (f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX-Mjkin-Token: {server.token}\r\n"
+               "Connection: close\r\n\r\n").encode()
+    socks = [socket.create_connection(("127.0.0.1", port), timeout=60) for _ in range(300)]
+    statuses = []
+    try:
+        for sock in socks:
+            sock.sendall(request)
+        for sock in socks:
+            answer = b""
+            while chunk := sock.recv(1 << 16):
+                answer += chunk
+            statuses.append(int(answer.split(b" ", 2)[1]))
+    finally:
+        for sock in socks:
+            sock.close()
+    assert len(statuses) == 300 and set(statuses) <= {200, 503}, statuses  # 503: over the cap while all 300 are open
+    assert api.get("/state")[0] == 200
+
+
+def test_past_the_connection_cap_a_request_is_a_503(api, served):
+    server, _ = served
+    port = server.server_address[1]
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=60) for _ in range(server_module.MAX_CONNECTIONS)]
+    try:
+        deadline = time.monotonic() + 30
+        while len(server.server.server_state.connections) < len(idle) and time.monotonic() < deadline:
+            time.sleep(0.01)  # the server has accepted them all
+        answer = exchange(port, f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+        assert answer.startswith(b"HTTP/1.1 503 "), answer
+    finally:
+        for sock in idle:
+            sock.close()
+    deadline = time.monotonic() + 30
+    while api.get("/info")[0] == 503 and time.monotonic() < deadline:
+        time.sleep(0.05)  # the server hears of the closed sockets
+    assert api.get("/info")[0] == 200
+
+
+def test_replies_do_not_wait_for_the_clients_acks(served):
+    """With Nagle's algorithm on, a reply's body waited for the delayed ACK of its headers: 40 ms a request."""
+    server, _ = served
+    with socket.create_connection(("127.0.0.1", server.server_address[1]), timeout=60) as sock:
+        sock.sendall(f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{server.server_address[1]}\r\n"
+                     f"X-Mjkin-Token: {server.token}\r\n\r\n".encode())
+        assert sock.recv(1 << 16).startswith(b"HTTP/1.1 200 ")  # answered, and kept open for the next request
+        held = [c.transport.get_extra_info("socket") for c in list(server.server.server_state.connections)]
+        assert held and all(s.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) for s in held)
+
+
+def test_idle_connections_are_closed_after_the_timeout():
+    """A socket held open without a request (or half of one, or after its answer) held a thread for ever."""
+    server, thread = start_server(Playground(arm(), W, H).start(), idle_timeout=1)
+    try:
+        port, token = server.server_address[1], server.token
+        request = f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX-Mjkin-Token: {token}\r\n\r\n".encode()
+        for sent in (b"", request[:20], request):
+            with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+                sock.sendall(sent)
+                answer = b""
+                while chunk := sock.recv(1 << 16):  # until the server closes it (a timeout here fails the test)
+                    answer += chunk
+            assert answer.startswith(b"HTTP/1.1 200 ") if sent == request else answer == b"", (sent, answer)
+        assert not server.server.server_state.connections
+    finally:
+        stop_server(server, thread)
+
+
+# ------------------------------------------------------------ the journal of a recording
+def test_recording_journals_its_samples_and_a_normal_stop_removes_the_journal(api, served):
+    _, out = served
+    before = set(out.iterdir())
+    assert api.post("/record")[0] == 200
+    api.post("/target", {"frame": "ee", "pos": [0.4, 0.2, 0.5]})
+    path, lines = journal_lines(out, least_t=0.2)  # on disk while the take goes on
+    assert journal.leftovers(out) == []  # held by this process: not a take cut short
+    status, saved = api.post("/stop")
+    assert status == 200 and not path.exists()
+    assert set(out.iterdir()) == before | {Path(saved["path"]), Path(saved["video"])}
+    assert Path(saved["path"]).name == path.name.replace(".journal.jsonl", ".json")  # one name per take
+    assert lines[0]["frames"] == ["ee"] and len(lines) >= 2
+
+
+def test_a_take_stopped_before_its_first_sample_is_a_still_a_script_can_hold(tmp_path):
+    """It was written as two frames at 0 s, which scripts refuse now (times must increase)."""
+    pg = Playground(arm(), W, H, out_dir=tmp_path, source="arm7")  # not started: no render thread takes samples
+    try:
+        pg.record("a")
+        saved = pg.stop("a")
+    finally:
+        pg.close()
+    traj = motion.Trajectory.load(saved["path"], arm())
+    np.testing.assert_allclose(traj.times, [0.0, 1.0 / pg.fps])
+    np.testing.assert_array_equal(traj.q, [pg.state.q, pg.state.q])
+    assert traj.source == "arm7" and not list(tmp_path.glob("*.journal.jsonl"))
+
+
+def test_a_take_whose_journal_cannot_be_made_does_not_start(api, served):
+    _, out = served
+    away = out.with_name(out.name + "-away")
+    out.rename(away)
+    try:
+        status, doc = api.post("/record")
+    finally:
+        away.rename(out)
+    assert status == 500 and "cannot start the recording's journal" in doc["error"] and "\n" not in doc["error"]
+    assert not api.get("/state")[1]["recording"]
+
+
+def test_a_journal_is_read_as_a_script_even_cut_off_mid_line(tmp_path):
+    tree = arm()
+    take = journal.Journal(tmp_path / "mjkin-play-arm7-x", {"model": "arm7", "source": "arm7",
+                                                            "fingerprint": motion.fingerprint(tree), "frames": ["ee"],
+                                                            "method": "dls", "goal": "position"})
+    qs = tree.random_q(np.random.default_rng(1), 5)
+    for k, q in enumerate(qs):
+        take.add((0.25 + 0.1 * k, q, tree.pose(q, "ee")[None, :3, 3]))
+    deadline = time.monotonic() + 30
+    while take.path.read_text().count("\n") < 6 and time.monotonic() < deadline:
+        time.sleep(0.05)  # the writer flushes on its own, without close
+    assert take.path.read_text().count("\n") == 6
+    assert journal.leftovers(tmp_path) == []  # still held
+    take.close()
+    assert journal.leftovers(tmp_path) == [take.path]
+    with take.path.open("a") as f:
+        f.write('{"t": 0.9, "q": [0.1, 0.')  # the line being written at the crash
+    traj = motion.Trajectory.load(take.path, tree)
+    np.testing.assert_allclose(traj.q, qs)
+    np.testing.assert_allclose(traj.times, 0.1 * np.arange(5), atol=1e-12)
+    assert traj.model == "arm7" and traj.site == "ee" and traj.targets.shape == (5, 1, 3)
+    assert traj.meta["play"]["method"] == "dls"
+    lines = take.path.read_text().splitlines()
+    take.path.write_text("\n".join([lines[0], "{oops", *lines[1:3]]) + "\n")
+    with pytest.raises(mjkin.MjkinError, match="line 2 is not JSON") as e:
+        motion.Trajectory.load(take.path)
+    assert "\n" not in str(e.value)
+    take.path.write_text(lines[0] + "\n")
+    assert journal.recover(take.path) is None and not take.path.exists()  # cut short before its first sample
+
+
+URL_LINE = re.compile(r"mjkin play: http://127\.0\.0\.1:(\d+)/\?token=([\w-]{32,})  \(Ctrl-C stops\)\n")
+
+
+def play_process(out) -> tuple[subprocess.Popen, Client]:
+    """A real ``mjkin play --port 0 --no-browser --out OUT`` and a client with the token from the URL it printed."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     proc = subprocess.Popen([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
-                             "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                            text=True)
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+    line = proc.stdout.readline()
+    found = URL_LINE.fullmatch(line)
+    if found is None:
+        proc.kill()
+        pytest.fail(f"mjkin play printed {line!r}, not its URL with a token; stderr: {proc.communicate()[1]}")
+    return proc, Client(int(found[1]), found[2])
+
+
+def stop_process(proc: subprocess.Popen) -> str:
+    """Ctrl-C; its stderr."""
+    proc.send_signal(signal.SIGINT)
     try:
-        line = proc.stdout.readline()
-        assert line.startswith("mjkin play: http://127.0.0.1:"), line
-        port = int(line.split(":")[3].split("/")[0])
-        client = Client(port)
-        assert client.post("/record")[0] == 200  # a recording on at Ctrl-C writes nothing half-done
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0 and "Traceback" not in err and "stopped" in err
-    assert list(tmp_path.iterdir()) == []
+    assert proc.returncode == 0 and "Traceback" not in err and "mjkin play: stopped\n" in err, err
+    return err
+
+
+def journal_lines(folder, least_t: float = 0.0, timeout: float = 60.0) -> tuple[object, list[dict]]:
+    """The one journal in ``folder`` and its lines, once a sample at least ``least_t`` s into the take is on disk."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = list(folder.glob("*.journal.jsonl"))
+        if found:
+            lines = [json.loads(x) for x in found[0].read_text().splitlines()]
+            if len(lines) > 1 and lines[-1]["t"] >= least_t:
+                return found[0], lines
+        time.sleep(0.1)
+    pytest.fail(f"no journal with a sample {least_t} s into the take in {folder}: {list(folder.iterdir())}")
+
+
+def test_cli_serves_and_stops_cleanly_on_ctrl_c_saving_the_recording_that_was_on(tmp_path):
+    proc, client = play_process(tmp_path)
+    try:
+        assert client.post("/record")[0] == 200
+        path, lines = journal_lines(tmp_path)  # samples are on disk while recording
+    finally:
+        err = stop_process(proc)
+    script = tmp_path / path.name.replace(".journal.jsonl", ".json")
+    assert f"mjkin play: the recording that was on is saved as {str(script)!r} from its journal" in err
+    assert list(tmp_path.iterdir()) == [script]  # the journal is gone, no temporary file is left
+    traj = motion.Trajectory.load(script, arm())
+    assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
+    # a first run's compilation says so itself (mjkin.progress); a start with the kernels cached says nothing of it
+    assert "mjkin play: loading arm7...\n" in err and "first run compiles" not in err
+
+
+def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_journal(tmp_path):
+    proc, client = play_process(tmp_path)
+    try:
+        assert client.post("/record")[0] == 200
+        client.post("/target", {"frame": "ee", "pos": [0.4, 0.2, 0.5]})
+        path, seen = journal_lines(tmp_path, least_t=1.5)  # 1.5 s into the take, on disk
+        proc.kill()  # kill -9: nothing runs after it
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    header, samples = lines[0], lines[1:]
+    assert lines[:len(seen)] == seen  # every sample on disk before the kill is there
+    assert header["format"] == "mjkin-play-journal" and header["model"] == "arm7" and header["frames"] == ["ee"]
+    assert header["fingerprint"] == motion.fingerprint(arm()) and header["source"] == "arm7"  # a bundled name
+    times = [x["t"] for x in samples]
+    assert times == sorted(times) and times[-1] >= 1.5 and all(len(x["q"]) == 7 for x in samples)
+    np.testing.assert_allclose(arm().pose(np.array(samples[-1]["q"]), "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
+
+    video = tmp_path / "replayed.mp4"
+    replay = subprocess.run([sys.executable, "-m", "mjkin.cli", "replay", str(path), "-o", str(video),
+                             "--width", "160", "--height", "120"], capture_output=True, text=True, timeout=300)
+    assert replay.returncode == 0, replay.stderr
+    assert imageio.imread(video, index=None).shape == (len(samples), 120, 160, 3)
+    video.unlink()
+
+    proc, client = play_process(tmp_path)
+    try:
+        assert not client.get("/state")[1]["recording"]
+    finally:
+        err = stop_process(proc)
+    script = tmp_path / path.name.replace(".journal.jsonl", ".json")
+    said = [x for x in err.splitlines() if "cut short" in x]
+    assert said == [f"mjkin play: a recording cut short is saved as {str(script)!r} from its journal (no video: "
+                    f"mjkin replay {script} -o take.mp4 makes one)"]
+    assert list(tmp_path.iterdir()) == [script]
+    traj = motion.Trajectory.load(script, arm())
+    np.testing.assert_allclose(traj.q, [x["q"] for x in samples])
+    np.testing.assert_allclose(traj.times, np.array(times) - times[0])
+    np.testing.assert_allclose(traj.targets, [x["targets"] for x in samples])
 
 
 def test_cli_bad_port_is_one_line():
@@ -884,7 +1295,7 @@ def browser_client(served) -> tuple:
         print(f"browser test skipped: {reason}")
         pytest.skip(reason)
     server, _ = served
-    client = Client(server.server_address[1], "watcher")
+    client = Client.of(server, "watcher")
     time.sleep(0.6)  # the other tests' lease has run out
     client.post("/reset")
     _, state = client.post("/view", {"reset": True})
@@ -904,7 +1315,7 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
             page = browser.open_page(chromium, server.url)
             shot_before = page.locator("#view").screenshot()
             browser.drag_target(page, "ee", 60, 40)
-            page.wait_for_function(f"fetch('/state').then(r => r.json()).then(s => s.version > {before['version']})")
+            page.wait_for_function(f"{browser.STATE}.then(s => s.version > {before['version']})")
             page.wait_for_timeout(500)
             shot_after = page.locator("#view").screenshot()
             assert page.locator("#perr").inner_text().endswith(" m")

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import io
+import os
 import re
+import subprocess
 import sys
 
 import numba
@@ -47,7 +49,7 @@ def test_compiling_is_announced_once_on_a_terminal(terminal):
     assert terminal.getvalue().count(progress.COMPILING) == 1
 
 
-def test_no_notice_without_compiling_or_off_a_terminal(terminal, monkeypatch):
+def test_no_notice_without_compiling(terminal, monkeypatch):
     terminal = terminal()
     kernel = fresh_kernel()
     kernel(0)  # compiled (and announced) here
@@ -55,10 +57,25 @@ def test_no_notice_without_compiling_or_off_a_terminal(terminal, monkeypatch):
     for k in progress.track(range(3), "work"):
         kernel(k)  # already compiled: no compilation, no notice
     assert progress.COMPILING not in terminal.getvalue().split(progress.COMPILING, 1)[1]
+
+
+def test_the_notice_prints_off_a_terminal_too_but_no_bar(terminal, monkeypatch):
+    """In CI or ``| tee`` the first run sat silent for a minute: the notice is for every stderr, bars are not."""
+    terminal = terminal()
     monkeypatch.setattr(terminal, "isatty", lambda: False)
-    fresh_kernel()(1)
-    assert progress.compiling_notice() is False
-    assert terminal.getvalue().count(progress.COMPILING) == 1
+    for k in progress.track(range(3), "work"):
+        fresh_kernel()(k)
+    assert terminal.getvalue() == f"mjkin: {progress.COMPILING}\n"  # once, one line, no bar
+
+
+def test_a_cold_cache_says_it_compiles_and_a_warm_one_is_silent(tmp_path):
+    """The command's stderr is a pipe here, as in CI: the line is there when numba compiles, and only then."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    command = [sys.executable, "-m", "mjkin.cli", "fk", "planar_2link", "--frame", "tip"]
+    cold = subprocess.run(command, env=env, capture_output=True, text=True)
+    assert cold.returncode == 0 and cold.stderr == f"mjkin: {progress.COMPILING}\n"
+    warm = subprocess.run(command, env=env, capture_output=True, text=True)
+    assert warm.returncode == 0 and warm.stderr == "" and warm.stdout == cold.stdout
 
 
 def test_disabled_progress_stops_listening(terminal):

@@ -2,20 +2,35 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import imageio.v3 as imageio
 import mujoco
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from scipy.ndimage import binary_erosion
 
 import mjkin
 from conftest import GYM_ASSETS, bundled, model_id, tree_of
 from mjkin import build, motion, render
 from mjkin.cli import main
+from mjkin.files import write_text
 from mjkin.scene import Scene
 
 SMALL = {"width": 160, "height": 120}
+
+
+def clip(*args, **kwargs) -> np.ndarray:
+    """The frames of :func:`mjkin.render.frames` as one array ``(T, H, W, 3)``."""
+    return np.stack(list(render.frames(*args, **kwargs)))
+
+
 TWO_BALLS = """<mujoco><worldbody><geom name="fixed" type="sphere" size="0.1"/>
 <body name="mover" pos="1 0 0"><joint name="x" type="slide" axis="1 0 0" range="-1 0"/>
 <geom name="ball" type="sphere" size="0.1"/></body></worldbody></mujoco>"""
@@ -42,7 +57,7 @@ def test_primate_self_contact(rng):
 def test_frames_are_not_blank_and_follow_q():
     tree = tree_of("arm7")
     q = np.stack([tree.qpos0, tree.model.key_qpos[0]])
-    img = render.frames(tree, q, **SMALL)
+    img = clip(tree, q, **SMALL)
     assert img.shape == (2, 120, 160, 3) and img.dtype == np.uint8
     assert img.std() > 10  # something is drawn
     assert np.abs(img[0].astype(int) - img[1].astype(int)).mean() > 1  # a different pose looks different
@@ -51,8 +66,8 @@ def test_frames_are_not_blank_and_follow_q():
 def test_overlay_markers_and_trail_are_drawn():
     tree = tree_of("arm7")
     q = tree.random_q(0, 5)
-    plain = render.frames(tree, q, **SMALL)
-    marked = render.frames(tree, q, camera=render.default_camera(tree, q), overlay=render.Overlay(
+    plain = clip(tree, q, **SMALL)
+    marked = clip(tree, q, camera=render.default_camera(tree, q), overlay=render.Overlay(
         points=tree.pose(q, "ee")[:, :3, 3], trail="ee"), **SMALL)
     assert (plain != marked).any(axis=-1).sum() > 50
 
@@ -62,7 +77,7 @@ def test_video_round_trip_and_atomic_writes(tmp_path):
 
     tree = tree_of("planar_2link")
     qs = motion.interpolate(tree, [0, 1], [[0, 0], [1.5, -1.0]], np.linspace(0, 1, 12))
-    img = render.frames(tree, qs, **SMALL)
+    img = clip(tree, qs, **SMALL)
     for name in ("a.mp4", "a.gif"):
         render.write_video(img, tmp_path / name, fps=12)
         back = imageio.mimread(tmp_path / name)
@@ -88,6 +103,117 @@ def test_videos_are_written_at_the_size_asked_for(tmp_path, capfd):
     render.write_video(odd, tmp_path / "odd.gif")  # a GIF holds any size
     assert imageio.mimread(tmp_path / "odd.gif")[0].shape[:2] == (77, 101)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4", "odd.gif"]
+
+
+def test_frames_are_drawn_as_they_are_taken(monkeypatch):
+    """A clip was drawn whole into one array before the first frame reached the encoder."""
+    tree = tree_of("planar_2link")
+    drawn = []
+    draw = render.Painter.draw
+    monkeypatch.setattr(render.Painter, "draw", lambda self, q, *a, **k: drawn.append(q) or draw(self, q, *a, **k))
+    frames = render.frames(tree, np.zeros((50, 2)), 32, 24)
+    assert drawn == []  # nothing drawn yet
+    first = next(frames)
+    assert first.shape == (24, 32, 3) and first.dtype == np.uint8 and len(drawn) == 1
+    assert len(list(frames)) == 49 and len(drawn) == 50
+    with pytest.raises(mjkin.InputError, match="needs"):  # the arguments are checked at the call
+        render.frames(tree, np.zeros((3, 5)), 32, 24)
+
+
+def video_frames(n, fail_at=None, other_size_at=None):
+    """``n`` grey frames 48x64, a RuntimeError at frame ``fail_at``, a 50x64 frame at ``other_size_at``."""
+    for k in range(n):
+        if k == fail_at:
+            raise RuntimeError("the renderer died")
+        yield np.full((50 if k == other_size_at else 48, 64, 3), 20 * k, np.uint8)
+
+
+def test_write_video_takes_frames_as_they_come_and_leaves_no_file_when_it_fails(tmp_path):
+    for name in ("a.mp4", "a.gif"):
+        render.write_video(video_frames(5), tmp_path / name, fps=10)  # a generator: no len(), no indexing
+        back = imageio.imread(tmp_path / name, index=None)
+        assert back.shape[:3] == (5, 48, 64) and back[..., :3].std() > 10
+    with pytest.raises(RuntimeError, match="renderer died"):
+        render.write_video(video_frames(5, fail_at=3), tmp_path / "b.mp4")
+    for name in ("c.mp4", "c.gif"):
+        with pytest.raises(mjkin.InputError, match=r"video frame 2 is \(50, 64, 3\) of uint8, the first \(48, 64, 3\)"):
+            render.write_video(video_frames(5, other_size_at=2), tmp_path / name)
+    with pytest.raises(mjkin.InputError, match="no frames"):
+        render.write_video(iter(()), tmp_path / "d.mp4")
+    with pytest.raises(mjkin.InputError, match="of uint8, got"):
+        render.write_video([np.zeros((48, 64, 3))], tmp_path / "e.mp4")  # floats: not a picture's bytes
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4"]  # no half-written file, no temporary
+
+
+PEAK_MEMORY = """import sys
+from mjkin.cli import main
+code = main(sys.argv[1:])
+print(next(line.split()[1] for line in open("/proc/self/status") if line.startswith("VmHWM:")))  # peak RSS, kB
+sys.exit(code)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="peak memory is read from /proc (Linux)")
+def test_replay_memory_does_not_grow_with_the_clip(tmp_path):
+    """Every frame was held until the encoder ran (3000 frames of 160x120: 170 MB more than 300), and the camera
+    kept the whole trail in view of every frame with a (T, T, 3) array (another 400 MB)."""
+    tree = tree_of("planar_2link")
+    peak = {}
+    for n in (300, 3000):
+        q = np.stack([np.linspace(0.0, 6.0, n), np.sin(np.linspace(0.0, 20.0, n))], -1)
+        script = motion.Trajectory(times=np.arange(n) / 30, q=q, fingerprint=motion.fingerprint(tree),
+                                   model="planar_2link", site="tip")  # the trail of the tip, no targets
+        script.save(tmp_path / f"{n}.json")
+        run = subprocess.run([sys.executable, "-c", PEAK_MEMORY, "replay", str(tmp_path / f"{n}.json"), "-o",
+                              str(tmp_path / f"{n}.mp4"), "--width", "160", "--height", "120"],
+                             capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        assert len(imageio.imread(tmp_path / f"{n}.mp4", index=None)) == n
+        peak[n] = int(run.stdout.split()[-1]) / 1024  # MB
+    assert abs(peak[3000] - peak[300]) < 50, peak
+
+
+KILLED_WRITE = """import itertools, sys, time
+import numpy as np
+from mjkin import render
+
+def frames():
+    for k in itertools.count():
+        if k == 3:
+            print("writing", flush=True)
+        if k >= 3:
+            time.sleep(0.05)  # a long render, killed on the way
+        yield np.zeros((48, 64, 3), np.uint8)
+
+render.write_video(frames(), sys.argv[1])
+"""
+
+
+def test_a_killed_write_leaves_a_temporary_file_that_the_next_write_removes(tmp_path):
+    target = tmp_path / "clip.mp4"
+    writer = subprocess.Popen([sys.executable, "-c", KILLED_WRITE, str(target)], stdout=subprocess.PIPE, text=True)
+    assert writer.stdout.readline() == "writing\n"
+    (left,) = list(tmp_path.iterdir())  # the temporary file beside the target, ours by name
+    assert left.name.startswith(".clip.mp4.mjkin-tmp-") and left.suffix == ".mp4"
+    writer.kill()
+    writer.wait()
+    writer.stdout.close()
+    old = time.time() - 3600
+    live = tmp_path / f".clip.mp4.mjkin-tmp-{os.getpid()}-abcd_123.mp4"  # this process is writing it, an hour on
+    foreign = [tmp_path / n for n in (".clip.mp4.abcd_123.mp4", ".clip.mp4.mjkin-tmp-abcd_123.mp4",  # similar names
+                                      f"clip.mp4.mjkin-tmp-{writer.pid}-abcd_123.mp4",
+                                      f".clip.mp4.mjkin-tmp-{writer.pid}-abcd_123.mp4x")]
+    stale = tmp_path / f".notes.txt.mjkin-tmp-{writer.pid}-efgh_456.txt"  # the killed writer's, an hour old
+    for p in (live, *foreign, stale):
+        p.write_text("x")
+        os.utime(p, (old, old))
+    write_text(tmp_path / "a.txt", "a")  # this process started before the kill: the leftover is newer
+    assert left.exists() and live.exists() and all(p.exists() for p in foreign) and not stale.exists()
+    again = subprocess.run([sys.executable, "-c", "import sys; from mjkin.files import write_text; "
+                            "write_text(sys.argv[1], 'b')", str(tmp_path / "b.txt")], capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    kept = ["a.txt", "b.txt", live.name, *(p.name for p in foreign)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(kept)
 
 
 def test_cli_says_the_size_it_wrote(tmp_path, capsys):
@@ -329,7 +455,7 @@ def test_overlay_geoms_per_frame_do_not_grow_with_the_video(monkeypatch):
 
     monkeypatch.setattr(render.Painter, "draw", counting)
     overlay = render.Overlay(points=np.zeros((2, 3)), trail="tip", trail_points=32)
-    render.frames(tree, qs, 32, 24, overlay=overlay)
+    clip(tree, qs, 32, 24, overlay=overlay)  # every frame drawn
     assert len(added) == T and max(added) <= 2 + 32  # 2 markers + at most 32 trail segments
     assert added[-1] >= 2 + 16  # and the trail is still there at the end
 
@@ -351,16 +477,69 @@ def test_markers_and_trail_cast_no_shadow():
     assert not changed[lowest:].any()  # and nothing below them changed: no shadow on the floor or the arm
 
 
+def unexplained_floor_shadow(tree: mjkin.Tree, q: np.ndarray, width: int = 640, height: int = 480) -> tuple[int, int]:
+    """Floor pixels in shadow with no geom straight above them, and all floor pixels in shadow.
+
+    The bundled models light the scene from straight above, so a floor point can only be
+    shadowed by a geom whose box covers it in x and y (boxes widened by 2 cm: a texel and a pixel).
+    """
+    data = mujoco.MjData(tree.model)
+    data.qpos[:] = q
+    mujoco.mj_kinematics(tree.model, data)
+    m = tree.model
+    casters = np.flatnonzero(m.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+    corners = np.stack([data.geom_xpos[g] + (m.geom_aabb[g, :3] + signs * m.geom_aabb[g, 3:])
+                        @ data.geom_xmat[g].reshape(3, 3).T for g in casters])  # (G, 8, 3)
+    lo, hi = corners[..., :2].min(axis=1) - 0.02, corners[..., :2].max(axis=1) + 0.02
+    with render.Painter(tree, width, height) as painter:
+        cam = painter.camera(None, q[None])
+        r = painter.renderer
+        lit = painter.draw(q, cam).astype(int)
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        unshadowed = r.render().astype(int)
+        r.enable_depth_rendering()
+        depth = r.render().copy()
+        r.disable_depth_rendering()
+        r.enable_segmentation_rendering()
+        seg = r.render().copy()
+        r.disable_segmentation_rendering()
+    floor = (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & (m.geom_type[seg[..., 0]] == mujoco.mjtGeom.mjGEOM_PLANE)
+    floor = binary_erosion(floor, iterations=2)  # not the antialiased pixels at the figure's outline
+    shadow = floor & ((unshadowed - lit).sum(-1) > 30)
+    fwd, right, up = render._basis(cam.azimuth, cam.elevation)
+    ty = np.tan(np.radians(m.vis.global_.fovy) / 2)
+    ys, xs = np.nonzero(shadow)
+    nx, ny = (xs + 0.5) / width * 2 - 1, 1 - (ys + 0.5) / height * 2
+    rays = fwd + (nx * ty * width / height)[:, None] * right + (ny * ty)[:, None] * up
+    points = np.asarray(cam.lookat) - cam.distance * fwd + depth[ys, xs][:, None] * rays  # depth: along fwd
+    under = ((points[:, None, :2] >= lo) & (points[:, None, :2] <= hi)).all(-1).any(-1)
+    return int((~under).sum()), int(shadow.sum())
+
+
+@pytest.mark.parametrize("seed", [1, 5])
+def test_no_shadow_specks_on_the_floor(seed):
+    """Black specks dotted the floor where nothing stood above it: the floor shadowed itself in MuJoCo's shadow map.
+
+    The primate in a random world pose (what ``mjkin render primate --q random`` drew) showed them.
+    """
+    tree = tree_of("primate")
+    q = tree.random_q(np.random.default_rng(seed))
+    specks, shadow = unexplained_floor_shadow(tree, q)
+    assert shadow > 500  # the figure's own shadow is there
+    assert specks == 0
+
+
 def test_captions_are_drawn_in_the_corner():
     tree = tree_of("planar_2link")
     qs = np.zeros((3, 2))
-    plain = render.frames(tree, qs, **SMALL)
-    captioned = render.frames(tree, qs, overlay=render.Overlay(caption=lambda t: f"pinv · frame {t}"), **SMALL)
+    plain = clip(tree, qs, **SMALL)
+    captioned = clip(tree, qs, overlay=render.Overlay(caption=lambda t: f"pinv · frame {t}"), **SMALL)
     diff = np.abs(captioned.astype(int) - plain).sum(-1) > 0
     assert diff[:, :30, :80].any(axis=(1, 2)).all()  # text top-left in every frame
     assert not diff[:, 60:, :].any()  # nothing in the lower half
     assert not np.array_equal(captioned[0], captioned[1])  # the frame number changes
-    listed = render.frames(tree, qs, overlay=render.Overlay(caption=["a", "", "c"]), **SMALL)
+    listed = clip(tree, qs, overlay=render.Overlay(caption=["a", "", "c"]), **SMALL)
     assert np.array_equal(listed[1], plain[1])
 
 

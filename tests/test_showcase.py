@@ -12,7 +12,7 @@ from mjkin.scene import Scene
 
 @pytest.mark.parametrize("scene", ["seeds", "arm", "walk"])
 def test_each_scene_renders_and_moves(scene):
-    images = showcase.showcase(scene, seconds=0.4, fps=20, width=160, height=120)
+    images = np.stack(list(showcase.showcase(scene, seconds=0.4, fps=20, width=160, height=120)))
     assert images.ndim == 4 and images.shape[1:] == (120, 160, 3) and len(images) >= 8
     assert images.std() > 10 and not np.array_equal(images[0], images[-1])
 

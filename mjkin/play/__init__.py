@@ -2,10 +2,22 @@
 
 :mod:`mjkin.play.core` is the pure part (camera rays, drags, the warm-started
 solve), :mod:`mjkin.play.session` the live state and its render thread,
+:mod:`mjkin.play.journal` a recording's journal on disk (what survives a crash),
 :mod:`mjkin.play.server` the HTTP server and its JSON API, :mod:`mjkin.play.bench`
 the frame-rate and latency measurement (``mjkin bench play``).
 """
 
-from .server import serve
+from __future__ import annotations
+
+from typing import Any
 
 __all__ = ["serve"]
+
+
+def __getattr__(name: str) -> Any:
+    """``serve``, imported when first asked for: reading a journal (``mjkin replay``) needs no web server."""
+    if name == "serve":
+        from .server import serve
+
+        return serve
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

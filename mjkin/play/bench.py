@@ -27,15 +27,15 @@ Row = dict[str, object]
 MOUSE_HZ = 60.0  # drags per second in the frame-rate run, as a mouse moves
 
 
-def _post(conn: http.client.HTTPConnection, path: str, doc: dict) -> dict:
-    conn.request("POST", path, json.dumps(doc), {"Content-Type": "application/json"})
+def _post(conn: http.client.HTTPConnection, token: str, path: str, doc: dict) -> dict:
+    conn.request("POST", path, json.dumps(doc), {"Content-Type": "application/json", "X-Mjkin-Token": token})
     return dict(json.loads(conn.getresponse().read()))
 
 
-def _stream_frames(host: str, port: int, stop: threading.Event, stamps: list[float]) -> None:
+def _stream_frames(host: str, port: int, token: str, stop: threading.Event, stamps: list[float]) -> None:
     """Read the MJPEG stream as a browser would; stamp the time each image is complete."""
     with socket.create_connection((host, port), timeout=10) as sock:
-        sock.sendall(b"GET /stream.mjpg HTTP/1.1\r\nHost: bench\r\n\r\n")
+        sock.sendall(f"GET /stream.mjpg?token={token} HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode())
         sock.settimeout(0.2)  # to see ``stop`` when no frame comes
         buffer, body = b"", False
         while not stop.is_set():
@@ -73,7 +73,7 @@ def measure_model(model: str, width: int, height: int, seconds: float, drags: in
     tree = load(model)
     pg = Playground(tree, width, height).start()
     server, thread = start_server(pg)
-    host, port = "127.0.0.1", server.server_address[1]
+    host, port, token = "127.0.0.1", server.server_address[1], server.token
     try:
         conn = http.client.HTTPConnection(host, port, timeout=30)
         frame = next(iter(pg.state.targets))
@@ -81,12 +81,12 @@ def measure_model(model: str, width: int, height: int, seconds: float, drags: in
         # frame rate: a viewer on the stream, a drag on every answer
         stamps: list[float] = []
         stop = threading.Event()
-        viewer = threading.Thread(target=_stream_frames, args=(host, port, stop, stamps))
+        viewer = threading.Thread(target=_stream_frames, args=(host, port, token, stop, stamps))
         viewer.start()
         begin = time.perf_counter()
         k, end = 0, begin + seconds
         while time.perf_counter() < end:  # a mouse reports about 60 moves a second; the page sends one at a time
-            _post(conn, "/drag", {"frame": frame, "uv": _circle(start_uv, k, 60)})
+            _post(conn, token, "/drag", {"frame": frame, "uv": _circle(start_uv, k, 60)})
             k += 1
             time.sleep(max(0.0, begin + k / MOUSE_HZ - time.perf_counter()))
         time.sleep(0.2)
@@ -98,8 +98,8 @@ def measure_model(model: str, width: int, height: int, seconds: float, drags: in
         lat = []
         for i in range(drags):
             t0 = time.perf_counter()
-            _post(conn, "/drag", {"frame": frame, "uv": _circle(start_uv, i, drags)})
-            conn.request("GET", "/frame.jpg")
+            _post(conn, token, "/drag", {"frame": frame, "uv": _circle(start_uv, i, drags)})
+            conn.request("GET", "/frame.jpg", headers={"X-Mjkin-Token": token})
             conn.getresponse().read()
             lat.append(time.perf_counter() - t0)
         conn.close()

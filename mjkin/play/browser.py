@@ -64,9 +64,13 @@ def mouse_drag(page: Any, x: float, y: float, dx: float, dy: float, button: str 
     page.mouse.up(button=button)
 
 
+# the state as the page's script fetches it (with the page's token)
+STATE = "fetch('/state', {headers: headers()}).then(r => r.json())"
+
+
 def drag_target(page: Any, frame: str, dx: float, dy: float, steps: int = 8) -> None:
     """Press on ``frame``'s marker in the view and drag it by ``(dx, dy)`` pixels."""
-    state = page.evaluate("fetch('/state').then(r => r.json())")
+    state = page.evaluate(STATE)
     box = page.locator("#view").bounding_box()
     u, v = state["screen"][frame]
     mouse_drag(page, box["x"] + u * box["width"], box["y"] + v * box["height"], dx, dy, steps=steps)
@@ -93,7 +97,7 @@ def screenshot(path: str | Path, model: str = "arm7") -> Path:
         with sync_playwright() as p:
             browser = launch(p)
             page = open_page(browser, server.url)
-            frame = next(iter(page.evaluate("fetch('/state').then(r => r.json())")["targets"]))
+            frame = next(iter(page.evaluate(STATE)["targets"]))
             drag_target(page, frame, 70, 50)
             page.wait_for_timeout(800)  # the stream shows the last frame, the panel its poll
             with atomic_path(path) as tmp:

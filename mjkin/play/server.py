@@ -1,6 +1,6 @@
 """``mjkin play``'s HTTP server: the page, a small JSON API, single JPEG frames and an MJPEG stream.
 
-Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON in and out):
+A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
 
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
@@ -14,8 +14,8 @@ Standard library only (:class:`http.server.ThreadingHTTPServer`). Routes (JSON i
   (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
-- ``POST /record`` ``{}`` starts recording; ``POST /stop`` ``{}`` writes the script and the mp4 →
-  ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
+- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.play.journal`); ``POST /stop`` ``{}`` writes
+  the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
@@ -23,57 +23,210 @@ A bad request is a 400 with ``{"error": "one line"}``; a change while another cl
 holds control is a 409 (see :mod:`mjkin.play.session`); a recording that cannot be written is a 500
 (it is kept: ``POST /stop`` again writes it). Every reply is strict JSON: a number that is not finite
 (an image point of a target level with the camera, say) is sent as ``null``.
+
+The door, as Jupyter's: every request, the page included, carries the token made at the
+start (:attr:`PlayServer.url` has it as ``?token=``; the API also takes it as the header
+``X-Mjkin-Token: T`` or ``Authorization: token T``), else 403. The ``Host`` header must
+name the bound address, ``localhost``, ``127.0.0.1`` or ``[::1]`` with the port, else 421
+(a page that rebinds its own name to this machine is not served). A POST whose ``Origin``
+is not the page's own is a 403, one whose body is not ``application/json`` a 415 (a browser
+sends neither cross-origin without a preflight) and preflights (``OPTIONS``) are refused.
+
+The connection rules are uvicorn's and h11's: strict HTTP/1.1 framing (a bad
+``Content-Length`` is a 400; a chunked body is decoded; a POST with neither is a 411 here),
+a listen backlog of :data:`BACKLOG`, at most :data:`MAX_CONNECTIONS` connections (more get 503),
+idle connections closed after :data:`IDLE_TIMEOUT` seconds (also one that never completes a
+request), and the blocking work (solves, snapshots, frames) in anyio's bounded thread pool.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import hmac
 import ipaddress
 import json
 import os
-import select
+import secrets
 import socket
 import sys
 import threading
 import webbrowser
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs
+
+import uvicorn
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers
+from starlette.requests import ClientDisconnect, Request
+from starlette.responses import PlainTextResponse, Response, StreamingResponse
+from starlette.routing import Route
+from starlette.types import ASGIApp, Receive, Scope, Send
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..files import strict_json
 from ..tree import Tree, load
-from . import core
+from . import core, journal
 from .session import Busy, Playground, recordings_folder
 
 MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"
 PART = f"\r\n--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n\r\n".encode()  # ends one image, starts the next
-STREAM_THREAD = "mjkin-play-stream"  # the name of a thread serving /stream.mjpg
-STALL_TIMEOUT = 5.0  # seconds a stream write may wait for a viewer that no longer reads
+BACKLOG = 1024  # connections the kernel queues before the server accepts them
+MAX_CONNECTIONS = 64  # open connections (a page keeps 2-3); a request on one more is a 503
+IDLE_TIMEOUT = 5  # seconds a connection may wait between requests, or for its first one to be complete
+BODY_TIMEOUT = 10.0  # seconds a request body may take to arrive
+SHUTDOWN_TIMEOUT = 5  # seconds the server waits for requests in progress when it stops
+NO_STORE = {"Cache-Control": "no-store"}
+CLOSE = {**NO_STORE, "Connection": "close"}  # refusals: the body may be unread, so the connection ends
+PAGE_REFUSED = "403 Forbidden: open the playground at the address mjkin play printed (it ends in ?token=...)"
+TOKEN_HEADER = "x-mjkin-token"
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
 
 
-class PlayServer(ThreadingHTTPServer):
-    """A threading HTTP server that serves one :class:`Playground`."""
+class Refused(Exception):
+    """A request turned away before its route runs: an HTTP status and one line."""
 
-    daemon_threads = True
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
 
-    def __init__(self, address: tuple[str, int], playground: Playground) -> None:
-        self.playground = playground
-        super().__init__(address, Handler)
 
-    @property
-    def url(self) -> str:
-        """The page's address."""
-        host, port = self.server_address[:2]
-        host = str(host)
-        return f"http://{f'[{host}]' if ':' in host else host}:{port}/"
+def one_line(message: str) -> str:
+    """``message`` on one line."""
+    return " ".join(str(message).split())
+
+
+def reply(doc: object, status: int = 200, headers: dict[str, str] | None = None) -> Response:
+    """A strict-JSON reply."""
+    return Response(strict_json(doc), status, headers or NO_STORE, media_type="application/json")
+
+
+def error(status: int, message: str, headers: dict[str, str] | None = None) -> Response:
+    """``{"error": "one line"}`` with ``status``."""
+    return reply({"error": one_line(message)}, status, headers)
+
+
+# ------------------------------------------------------------------ the door
+def host_names(host: str, port: int, bound: str) -> frozenset[str]:
+    """The ``Host`` values this server answers: its address (as given and as bound) or loopback, with the port."""
+    def literal(name: str) -> str:
+        return f"[{name}]" if ":" in name and not name.startswith("[") else name
+
+    names = {literal(n).lower() for n in (host, bound, *LOOPBACK_NAMES)}
+    return frozenset({f"{n}:{port}" for n in names} | (names if port == 80 else set()))
+
+
+def tokens_given(headers: Headers, query: bytes) -> list[str]:
+    """The tokens a request carries: ``X-Mjkin-Token``, ``Authorization: token T``, ``?token=``."""
+    given = [headers.get(TOKEN_HEADER, "")]
+    scheme, _, value = headers.get("authorization", "").partition(" ")
+    if scheme.lower() == "token":
+        given.append(value.strip())
+    given += parse_qs(query.decode("latin-1")).get("token", [])
+    return [t for t in given if t]
+
+
+def check_request(scope: Scope, token: str, hosts: frozenset[str]) -> None:
+    """Turn away what the door does not let in (see the module docstring).
+
+    Raises:
+        Refused: 421 for a foreign ``Host``, 403 for a preflight, a missing or wrong token or a
+            foreign ``Origin``, 415 for a POST body that is not JSON.
+    """
+    headers = Headers(scope=scope)
+    host = headers.get("host", "").lower()
+    if host not in hosts:
+        raise Refused(421, f"Host {host or 'none'!r} is not this server's: use the URL mjkin play printed (the address "
+                           "it serves on, or localhost, 127.0.0.1 or [::1], with its port)")
+    method = scope["method"]
+    if method == "OPTIONS":
+        raise Refused(403, "cross-origin requests are refused: the playground answers its own page only")
+    if not any(hmac.compare_digest(t.encode(), token.encode()) for t in tokens_given(headers, scope["query_string"])):
+        raise Refused(403, PAGE_REFUSED if scope["path"] in ("/", "/index.html") else
+                      "a missing or wrong token: send the one in the URL mjkin play printed, as ?token=..., "
+                      "the header X-Mjkin-Token or Authorization: token ...")
+    if method == "POST":
+        origin = headers.get("origin")
+        if origin is not None and origin.lower() != f"http://{host}":
+            raise Refused(403, f"a change from another origin ({origin}) is refused; use the playground's page")
+        kind = headers.get("content-type", "").split(";", 1)[0].strip().lower()
+        if kind != "application/json":
+            raise Refused(415, f"a POST body must be Content-Type: application/json, got {kind or 'none'}")
+
+
+class Door:
+    """ASGI middleware: :func:`check_request` before every request; a refusal is one line (JSON, text for the page)."""
+
+    def __init__(self, app: ASGIApp, token: str, hosts: frozenset[str]) -> None:
+        self.app, self.token, self.hosts = app, token, hosts
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Check, then pass the request on."""
+        if scope["type"] == "http":
+            try:
+                check_request(scope, self.token, self.hosts)
+            except Refused as e:
+                page = scope["path"] in ("/", "/index.html")
+                response = PlainTextResponse(f"{e}\n", e.status, CLOSE) if page else error(e.status, str(e), CLOSE)
+                await response(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
+# ------------------------------------------------------------- request bodies
+async def read_json(request: Request) -> dict:
+    """The JSON object of a POST body (empty: ``{}``), at most :data:`MAX_BODY` bytes within :data:`BODY_TIMEOUT`.
+
+    Raises:
+        Refused: 411 without a length (neither ``Content-Length`` nor chunked), 413 too large,
+            408 too slow, 400 cut off.
+        InputError: not a JSON object (too deeply nested included).
+    """
+    length = request.headers.get("content-length")
+    if length is None and "transfer-encoding" not in request.headers:
+        raise Refused(411, "a POST needs a Content-Length (or a chunked body)")
+    if length is not None and int(length) > MAX_BODY:  # h11 let only digits through
+        raise Refused(413, f"request body too large ({length} bytes; at most {MAX_BODY})")
+
+    async def gather() -> bytes:
+        body = bytearray()
+        async for chunk in request.stream():
+            body += chunk
+            if len(body) > MAX_BODY:
+                raise Refused(413, f"request body too large (more than {MAX_BODY} bytes)")
+        return bytes(body)
+
+    try:
+        raw = await asyncio.wait_for(gather(), BODY_TIMEOUT)
+    except asyncio.TimeoutError:
+        raise Refused(408, f"the request body did not arrive within {BODY_TIMEOUT:g} s") from None
+    except ClientDisconnect:  # no one is left to read the answer
+        raise Refused(400, "the client left before its request body was complete") from None
+    try:
+        doc = json.loads(raw or b"{}")
+    except RecursionError:
+        raise InputError("request body is nested too deeply to be a request") from None
+    except ValueError:
+        raise InputError("request body must be JSON, e.g. {\"frame\": \"ee\", \"pos\": [0.4, 0, 0.5]}") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"request body must be a JSON object, got {type(doc).__name__}")
+    return doc
 
 
 def _number(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"{what} must be a number, got {json.dumps(value)}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        raise InputError(f"{what} must be a number within floating point range (about 1e308), got an integer of "
+                         f"{len(str(abs(value)))} digits") from None
 
 
 def _numbers(value: Any, n: int, what: str) -> tuple[float, ...]:
@@ -105,166 +258,251 @@ def _view_event(doc: dict) -> core.ViewEvent:
     return core.ResetView()
 
 
-class Handler(BaseHTTPRequestHandler):
-    """Routes of the playground (see the module docstring)."""
+def _target(pg: Playground, who: str, doc: dict) -> dict:
+    quat = doc.get("quat")
+    return pg.apply(who, core.Place(_text(doc, "frame"), _numbers(doc.get("pos"), 3, "pos"),  # type: ignore[arg-type]
+                                    None if quat is None else _numbers(quat, 4, "quat")))  # type: ignore[arg-type]
 
-    server: PlayServer
-    protocol_version = "HTTP/1.1"
-    timeout = 60
-    disable_nagle_algorithm = True  # headers and body go out in two writes: Nagle would hold the body ~40 ms
 
-    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002  (quiet: the terminal shows the URL)
-        """Do not log every request."""
+def _drag(pg: Playground, who: str, doc: dict) -> dict:
+    frame = _text(doc, "frame")
+    if "uv" in doc:
+        return pg.apply(who, core.Drag(frame, _numbers(doc["uv"], 2, "uv")))  # type: ignore[arg-type]
+    if "depth" in doc:
+        return pg.apply(who, core.Push(frame, _number(doc["depth"], "depth")))
+    if "turn" in doc:
+        return pg.apply(who, core.Turn(frame, _number(doc["turn"], "turn")))
+    raise InputError("a drag needs \"uv\": [u, v] (image fractions), \"depth\": metres or \"turn\": radians")
 
-    # ------------------------------------------------------------- replies
-    def _send(self, status: int, body: bytes, kind: str) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", kind)
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        self.end_headers()
-        self.wfile.write(body)
 
-    def _json(self, doc: object, status: int = 200) -> None:
-        self._send(status, strict_json(doc).encode(), "application/json")
+def _frames(pg: Playground, who: str, doc: dict) -> dict:
+    frames = doc.get("frames")
+    if not isinstance(frames, list) or not all(isinstance(f, str) for f in frames):
+        raise InputError(f"\"frames\" must be a list of site or body names, got {json.dumps(frames)}")
+    return pg.set_frames(who, frames)
 
-    def _error(self, status: int, message: str) -> None:
-        self._json({"error": " ".join(message.split())}, status)
+
+def _step(pg: Playground, who: str, doc: dict) -> dict:
+    on = doc.get("on")
+    if not isinstance(on, bool):
+        raise InputError(f"\"on\" must be true or false, got {json.dumps(on)}")
+    return pg.set_step(who, on)
+
+
+# POST /NAME with a JSON body, as a client: the new state (blocking: a solve may run); MjkinError for a bad request
+ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
+    "target": _target,
+    "drag": _drag,
+    "view": lambda pg, who, doc: pg.apply(who, _view_event(doc)),
+    "method": lambda pg, who, doc: pg.set_method(who, _text(doc, "method")),
+    "goal": lambda pg, who, doc: pg.set_goal(who, _text(doc, "goal")),
+    "frames": _frames,
+    "joint": lambda pg, who, doc: pg.set_joint(who, _text(doc, "joint"), _number(doc.get("value"), "value")),
+    "step": _step,
+    "reset": lambda pg, who, doc: pg.reset(who),
+    "record": lambda pg, who, doc: pg.record(who),
+    "stop": lambda pg, who, doc: pg.stop(who),
+}
+PAGES = ("/", "/state", "/info", "/frame.jpg", "/stream.mjpg")
+
+
+# ------------------------------------------------------------------ streams
+class FrameFeed:
+    """Wakes the streams (coroutines on the server's loop) when the render thread has a new frame."""
+
+    def __init__(self) -> None:
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.event = asyncio.Event()
+
+    def notify(self) -> None:
+        """From any thread: a frame is ready (or the playground stops)."""
+        loop = self.loop
+        if loop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(self._pulse)
+            except RuntimeError:  # the loop closed meanwhile: no stream is left to wake
+                pass
+
+    def _pulse(self) -> None:
+        self.event.set()
+        self.event = asyncio.Event()
+
+
+class Routes:
+    """The endpoints of one :class:`Playground` (see the module docstring)."""
+
+    def __init__(self, playground: Playground) -> None:
+        self.pg = playground
+        self.feed = FrameFeed()
+        playground.watch(self.feed.notify)
+        self.streams = 0  # open /stream.mjpg responses
+        self.ending = False  # the server stops: streams end
+
+    def app(self, token: str, hosts: frozenset[str]) -> ASGIApp:
+        """The ASGI app: these routes behind the :class:`Door`."""
+        routes = [Route("/", self.page), Route("/index.html", self.page), Route("/state", self.state),
+                  Route("/info", self.info), Route("/frame.jpg", self.frame), Route("/stream.mjpg", self.stream),
+                  *(Route(f"/{name}", self.post, methods=["POST"]) for name in ACTIONS)]
+        handlers: dict[Any, Callable[[Request, Exception], Awaitable[Response]]] = {
+            404: self.not_found, 405: self.not_allowed}
+        return Door(Starlette(routes=routes, exception_handlers=handlers), token, hosts)
+
+    async def page(self, request: Request) -> Response:
+        """The page."""
+        body = files("mjkin.play").joinpath("static", "index.html").read_bytes()
+        return Response(body, headers={**NO_STORE, "Referrer-Policy": "no-referrer"},
+                        media_type="text/html; charset=utf-8")
+
+    async def state(self, request: Request) -> Response:
+        """``GET /state``."""
+        return reply(await run_in_threadpool(self.pg.snapshot))
+
+    async def info(self, request: Request) -> Response:
+        """``GET /info``."""
+        return reply(self.pg.info())
+
+    async def frame(self, request: Request) -> Response:
+        """``GET /frame.jpg``: waits (in a worker thread) for a frame of the state as of the request."""
+        try:
+            _, jpeg = await run_in_threadpool(self.pg.frame)
+        except MjkinError as e:
+            return error(503, str(e))
+        return Response(jpeg, headers=NO_STORE, media_type="image/jpeg")
+
+    async def stream(self, request: Request) -> Response:
+        """``GET /stream.mjpg``."""
+        self.feed.loop = asyncio.get_running_loop()
+        return StreamingResponse(self.parts(), headers=NO_STORE,
+                                 media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}")
+
+    async def parts(self) -> AsyncIterator[bytes]:
+        """The stream's bytes: the first part's headers, then each new image with the next part's headers."""
+        self.streams += 1
+        try:
+            yield PART[2:]
+            number = -1
+            while not (self.ending or self.pg.closed):
+                wake = self.feed.event  # taken before looking: a frame published after the look still wakes us
+                got = self.pg.next_frame(number, 0.0)
+                if got is None:
+                    try:
+                        await asyncio.wait_for(wake.wait(), 1.0)
+                    except asyncio.TimeoutError:
+                        pass
+                    continue
+                number, jpeg = got
+                # each image is followed at once by the next part's headers: browsers show a part only when
+                # the next one has begun, so the parts carry no length (a reader splits on PART)
+                yield jpeg + PART
+        finally:
+            self.streams -= 1
+
+    def end_streams(self) -> None:
+        """Let every stream end (the server stops)."""
+        self.ending = True
+        self.feed.notify()
+
+    async def post(self, request: Request) -> Response:
+        """``POST /action``: the body read here, the action run in a worker thread."""
+        try:
+            doc = await read_json(request)
+            who = request.headers.get("x-mjkin-client") or (request.client.host if request.client else "?")
+            return reply(await run_in_threadpool(ACTIONS[request.url.path[1:]], self.pg, who, doc))
+        except Refused as e:
+            return error(e.status, str(e), CLOSE)
+        except Busy as e:
+            return error(409, str(e))
+        except MjkinIOError as e:
+            return error(500, str(e))
+        except MjkinError as e:
+            return error(400, str(e))
+
+    async def not_found(self, request: Request, exc: Exception) -> Response:
+        """404 in one line."""
+        path = request.url.path
+        if request.method == "POST":
+            return error(404, f"no such action {path!r}; POST {', '.join(f'/{a}' for a in ACTIONS)}")
+        return error(404, f"no such page {path!r}; GET {', '.join(PAGES)}")
+
+    async def not_allowed(self, request: Request, exc: Exception) -> Response:
+        """405 in one line."""
+        path = request.url.path
+        return error(405, f"{request.method} {path} is not served: " + (f"POST {path} changes the state"
+                     if path[1:] in ACTIONS else f"GET {path} reads it"))
+
+
+# ------------------------------------------------------------------ the server
+class IdleClosingH11(H11Protocol):
+    """uvicorn's h11 protocol, and a connection that never completes a request is closed when idle too.
+
+    uvicorn times out a connection between requests only; one that connects and says
+    nothing (or sends half a request) would hold a connection slot for ever.
+    """
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        """Start the idle clock at once."""
+        super().connection_made(transport)
+        self.timeout_keep_alive_task = self.loop.call_later(self.timeout_keep_alive, self.timeout_keep_alive_handler)
+
+    def data_received(self, data: bytes) -> None:
+        """Bytes that do not complete a request keep the idle clock running."""
+        idle, self.timeout_keep_alive_task = self.timeout_keep_alive_task, None
+        super().data_received(data)
+        if idle is None:
+            return
+        if (self.cycle is None or self.cycle.response_complete) and self.timeout_keep_alive_task is None:
+            self.timeout_keep_alive_task = idle
+        else:
+            idle.cancel()
+
+
+class _Uvicorn(uvicorn.Server):
+    """uvicorn's server; its shutdown ends the streams first (they would run until the playground closes)."""
+
+    def __init__(self, config: uvicorn.Config, routes: Routes) -> None:
+        super().__init__(config)
+        self.routes = routes
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        """End the streams, then shut down as uvicorn does."""
+        self.routes.end_streams()
+        await super().shutdown(sockets)
+
+
+class PlayServer:
+    """One :class:`Playground` served on a bound socket: :meth:`serve_forever` (this thread), :meth:`shutdown`."""
+
+    def __init__(self, playground: Playground, sock: socket.socket, host: str,
+                 idle_timeout: int = IDLE_TIMEOUT) -> None:
+        self.playground, self.socket = playground, sock
+        self.server_address: tuple[str, int] = sock.getsockname()[:2]
+        self.token = secrets.token_urlsafe(32)
+        self.routes = Routes(playground)
+        bound, port = self.server_address
+        app = self.routes.app(self.token, host_names(host, port, bound))
+        config = uvicorn.Config(app, http=IdleClosingH11, ws="none", lifespan="off", log_config=None,
+                                log_level="error", access_log=False, proxy_headers=False, server_header=False,
+                                backlog=BACKLOG, limit_concurrency=MAX_CONNECTIONS, timeout_keep_alive=idle_timeout,
+                                timeout_graceful_shutdown=SHUTDOWN_TIMEOUT)
+        self.server = _Uvicorn(config, self.routes)
 
     @property
-    def client(self) -> str:
-        """Who is asking: the page's id, else the address."""
-        return self.headers.get("X-Mjkin-Client") or self.client_address[0]
+    def url(self) -> str:
+        """The page's address, with the token."""
+        host, port = self.server_address
+        return f"http://{f'[{host}]' if ':' in host else host}:{port}/?token={self.token}"
 
-    def _body(self) -> dict:
-        try:
-            length = int(self.headers.get("Content-Length") or 0)
-        except ValueError:
-            raise InputError("Content-Length must be a number") from None
-        if length > MAX_BODY:
-            raise InputError(f"request body too large ({length} bytes; at most {MAX_BODY})")
-        raw = self.rfile.read(length) if length else b"{}"
-        try:
-            doc = json.loads(raw or b"{}")
-        except ValueError:
-            raise InputError("request body must be JSON, e.g. {\"frame\": \"ee\", \"pos\": [0.4, 0, 0.5]}") from None
-        if not isinstance(doc, dict):
-            raise InputError(f"request body must be a JSON object, got {type(doc).__name__}")
-        return doc
+    def serve_forever(self) -> None:
+        """Serve until :meth:`shutdown` or, in the main thread, Ctrl-C (then SIGTERM's handler, too, is uvicorn's)."""
+        self.server.run(sockets=[self.socket])
 
-    # -------------------------------------------------------------- routes
-    def do_GET(self) -> None:  # noqa: N802
-        """Serve the page, the state, a frame or the stream."""
-        pg = self.server.playground
-        path = self.path.split("?", 1)[0]
-        try:
-            if path in ("/", "/index.html"):
-                page = files("mjkin.play").joinpath("static", "index.html").read_bytes()
-                self._send(200, page, "text/html; charset=utf-8")
-            elif path == "/state":
-                self._json(pg.snapshot())
-            elif path == "/info":
-                self._json(pg.info())
-            elif path == "/frame.jpg":
-                self._send(200, pg.frame()[1], "image/jpeg")
-            elif path == "/stream.mjpg":
-                self._stream()
-            else:
-                self._error(404, f"no such page {path!r}; try /, /state, /info, /frame.jpg or /stream.mjpg")
-        except MjkinError as e:
-            self._error(503, str(e))
-        except (BrokenPipeError, ConnectionResetError, ConnectionAbortedError, TimeoutError):
-            self.close_connection = True
+    def shutdown(self) -> None:
+        """Ask :meth:`serve_forever` to return (from another thread)."""
+        self.server.should_exit = True
 
-    def do_POST(self) -> None:  # noqa: N802
-        """Change the state (see the module docstring for the routes)."""
-        pg, path = self.server.playground, self.path.split("?", 1)[0]
-        try:
-            doc = self._body()
-            who = self.client
-            if path == "/target":
-                quat = doc.get("quat")
-                event = core.Place(_text(doc, "frame"), _numbers(doc.get("pos"), 3, "pos"),  # type: ignore[arg-type]
-                                   None if quat is None else _numbers(quat, 4, "quat"))  # type: ignore[arg-type]
-                self._json(pg.apply(who, event))
-            elif path == "/drag":
-                frame = _text(doc, "frame")
-                if "uv" in doc:
-                    self._json(pg.apply(who, core.Drag(frame, _numbers(doc["uv"], 2, "uv"))))  # type: ignore[arg-type]
-                elif "depth" in doc:
-                    self._json(pg.apply(who, core.Push(frame, _number(doc["depth"], "depth"))))
-                elif "turn" in doc:
-                    self._json(pg.apply(who, core.Turn(frame, _number(doc["turn"], "turn"))))
-                else:
-                    raise InputError("a drag needs \"uv\": [u, v] (image fractions), \"depth\": metres "
-                                     "or \"turn\": radians")
-            elif path == "/view":
-                self._json(pg.apply(who, _view_event(doc)))
-            elif path == "/method":
-                self._json(pg.set_method(who, _text(doc, "method")))
-            elif path == "/goal":
-                self._json(pg.set_goal(who, _text(doc, "goal")))
-            elif path == "/frames":
-                frames = doc.get("frames")
-                if not isinstance(frames, list) or not all(isinstance(f, str) for f in frames):
-                    raise InputError(f"\"frames\" must be a list of site or body names, got {json.dumps(frames)}")
-                self._json(pg.set_frames(who, frames))
-            elif path == "/joint":
-                self._json(pg.set_joint(who, _text(doc, "joint"), _number(doc.get("value"), "value")))
-            elif path == "/step":
-                on = doc.get("on")
-                if not isinstance(on, bool):
-                    raise InputError(f"\"on\" must be true or false, got {json.dumps(on)}")
-                self._json(pg.set_step(who, on))
-            elif path == "/reset":
-                self._json(pg.reset(who))
-            elif path == "/record":
-                self._json(pg.record(who))
-            elif path == "/stop":
-                self._json(pg.stop(who))
-            else:
-                self._error(404, f"no such action {path!r}; POST /target, /drag, /view, /method, /goal, /frames, "
-                                 "/joint, /step, /reset, /record or /stop")
-        except Busy as e:
-            self._error(409, str(e))
-        except MjkinIOError as e:
-            self._error(500, str(e))
-        except MjkinError as e:
-            self._error(400, str(e))
-        except (BrokenPipeError, ConnectionResetError, ConnectionAbortedError):
-            self.close_connection = True
-
-    def _stream(self) -> None:
-        """Every new frame as a part of ``multipart/x-mixed-replace``, until the client or the server goes."""
-        pg = self.server.playground
-        threading.current_thread().name = STREAM_THREAD  # so a lingering stream can be told from other requests
-        self.connection.settimeout(STALL_TIMEOUT)  # a viewer that stops reading without closing frees the thread
-        self.close_connection = True
-        self.send_response(200)
-        self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={BOUNDARY}")
-        self.send_header("Cache-Control", "no-store")
-        self.send_header("Connection", "close")
-        self.end_headers()
-        self.wfile.write(PART[2:])
-        number = -1
-        while not pg.closed and not self._client_gone():
-            got = pg.next_frame(number)
-            if got is None:
-                continue
-            number, jpeg = got
-            # each image is followed at once by the next part's headers: browsers show a part only when
-            # the next one has begun, so the parts carry no length (a reader splits on PART)
-            self.wfile.write(jpeg + PART)
-            self.wfile.flush()
-
-
-    def _client_gone(self) -> bool:
-        """The viewer closed its end (a stream client only ever sends its request)."""
-        try:
-            readable, _, _ = select.select([self.connection], [], [], 0)
-            return bool(readable) and self.connection.recv(1, socket.MSG_PEEK) == b""
-        except OSError:
-            return True
+    def close(self) -> None:
+        """Close the listening socket."""
+        self.socket.close()
 
 
 def is_loopback(host: str) -> bool:
@@ -282,10 +520,11 @@ def has_display() -> bool:
     return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def start_server(playground: Playground, host: str = "127.0.0.1", port: int = 0) -> tuple[PlayServer, threading.Thread]:
+def start_server(playground: Playground, host: str = "127.0.0.1", port: int = 0,
+                 idle_timeout: int = IDLE_TIMEOUT) -> tuple[PlayServer, threading.Thread]:
     """Serve ``playground`` from a background thread (tests, benchmarks); stop with :func:`stop_server`."""
-    server = bind(playground, host, port)
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, name="mjkin-play-http")
+    server = bind(playground, host, port, idle_timeout)
+    thread = threading.Thread(target=server.serve_forever, name="mjkin-play-http")
     thread.start()
     return server, thread
 
@@ -295,33 +534,66 @@ def stop_server(server: PlayServer, thread: threading.Thread) -> None:
     server.playground.close()
     server.shutdown()
     thread.join()
-    server.server_close()
+    server.close()
 
 
-def bind(playground: Playground, host: str, port: int) -> PlayServer:
-    """A server for ``playground`` bound to ``host:port``; a port in use is a one-line error."""
+def bind(playground: Playground, host: str, port: int, idle_timeout: int = IDLE_TIMEOUT) -> PlayServer:
+    """A server for ``playground`` listening on ``host:port`` (0: any free port); a port in use is a one-line error."""
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    # proto TCP, not 0: asyncio turns Nagle off only on sockets that say so, and with Nagle on a reply's body waits
+    # for the client's delayed ACK of its headers (40 ms a request)
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     try:
-        return PlayServer((host, port), playground)
+        if os.name == "posix":
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a restart may reuse a port just left
+        sock.bind((host, port))
+        sock.listen(BACKLOG)
     except OSError as e:
+        sock.close()
         raise MjkinIOError(f"cannot serve on {host}:{port} ({e.strerror or e}); choose another --port or --host") \
             from None
+    return PlayServer(playground, sock, host, idle_timeout)
+
+
+def recover_journals(folder: Path) -> None:
+    """Turn the journals of recordings cut short in ``folder`` into scripts, one line on stderr for each."""
+    for path in journal.leftovers(folder):
+        say(rescue(path, "a recording cut short"))
+
+
+def rescue(path: Path, what: str) -> str:
+    """Write the script of ``what`` from its journal ``path``; the line that says how it went."""
+    try:
+        script = journal.recover(path)
+    except MjkinError as e:
+        return f"{what} stays in its journal {str(path)!r} (the next mjkin play here tries again): {e}"
+    if script is None:
+        return f"{what} held no sample; its journal {str(path)!r} is removed"
+    return (f"{what} is saved as {str(script)!r} from its journal (no video: mjkin replay {script} -o take.mp4 "
+            "makes one)")
+
+
+def say(line: str) -> None:
+    """One line on stderr, as ``mjkin play: ...``."""
+    print(f"mjkin play: {line}", file=sys.stderr, flush=True)
 
 
 def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int = 8765, browser: bool = True,
           out_dir: str | Path = ".") -> int:
-    """Run ``mjkin play`` until Ctrl-C: print the URL, open a browser when there is a display."""
+    """Run ``mjkin play`` until Ctrl-C: print the URL (with its token), open a browser when there is a display."""
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
-    recordings_folder(out_dir, tree.name or "model")  # before the long start
+    recover_journals(recordings_folder(out_dir, tree.name or "model"))  # before the long start
     if not is_loopback(host):
-        print(f"mjkin play: warning: serving on {host}, not loopback: anyone who can reach it can control "
-              "the playground (there is no login)", file=sys.stderr)
-    print(f"mjkin play: loading {tree.name or model} (the first run compiles the IK kernels, about a minute)...",
-          file=sys.stderr, flush=True)
-    playground = Playground(tree, out_dir=out_dir)
+        say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
+            "can control the playground")
+    say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.progress)
+    from ..cli import model_source  # not at the top: the CLI imports this module
+
+    playground = Playground(tree, out_dir=out_dir, source="" if isinstance(model, Tree) else model_source(str(model)))
     try:
         server = bind(playground, host, port)
     except BaseException:
@@ -332,17 +604,15 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if browser and has_display():
         threading.Thread(target=webbrowser.open, args=(server.url,), daemon=True).start()
     try:
-        server.serve_forever(poll_interval=0.2)
-    except KeyboardInterrupt:
-        print("mjkin play: stopped", file=sys.stderr)
+        with contextlib.suppress(KeyboardInterrupt):  # uvicorn takes Ctrl-C, shuts down and returns
+            server.serve_forever()
+        say("stopped")
     finally:
-        if playground.recording:
-            print("mjkin play: a recording was on; nothing was written (POST /stop writes it)", file=sys.stderr)
-        if playground.unsaved:
-            print("mjkin play: a stopped recording could not be written and is lost (see the page's error)",
-                  file=sys.stderr)
         if playground.exporting:
-            print("mjkin play: finishing the recording being written...", file=sys.stderr)
+            say("finishing the recording being written...")
+        left = "the recording that was on" if playground.recording else "the recording not written"
         playground.close()
-        server.server_close()
+        server.close()
+        if playground.journal is not None:
+            say(rescue(playground.journal, left))
     return 0

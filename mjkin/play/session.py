@@ -17,7 +17,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 import mujoco
@@ -27,7 +26,8 @@ from .. import motion, render, spatial
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..files import check_writable
 from ..tree import Tree
-from . import core
+from . import core, journal
+from .journal import Journal, Sample
 
 AXIS_LENGTH = 0.08  # metres: the target's frame axes drawn on the page for pose goals
 TRAIL, TRAIL_STEP = 40, 0.005  # trail points kept, and the least effector move (m) that adds one
@@ -40,14 +40,20 @@ class Busy(MjkinError):
     """Another client controls the playground for now."""
 
 
-Sample = tuple[float, np.ndarray, np.ndarray]  # (seconds since the start, q, target points (n, 3))
+@dataclass(frozen=True)
+class Recording:
+    """A take being recorded: its samples (also in its journal on disk), from ``start`` (monotonic seconds)."""
+
+    samples: list[Sample]
+    journal: Journal
+    start: float
 
 
 @dataclass(frozen=True)
 class Take:
-    """A stopped recording until it is written: its samples, and the camera and state when it stopped."""
+    """A stopped recording until it is written, with the camera and state when it stopped."""
 
-    samples: list[Sample]
+    recording: Recording
     camera: core.Camera
     state: core.State
 
@@ -110,11 +116,12 @@ class Playground:
     """The state of one ``mjkin play`` session and its render thread (call :meth:`start`, then :meth:`close`)."""
 
     def __init__(self, tree: Tree, width: int = 640, height: int = 480, fps: float = 30.0, lease: float = 5.0,
-                 out_dir: str | Path = ".", frames: Sequence[str] | None = None) -> None:
+                 out_dir: str | Path = ".", frames: Sequence[str] | None = None, source: str = "") -> None:
         if not fps > 0 or not lease >= 0:
             raise InputError(f"fps must be > 0 and lease >= 0, got {fps!r}, {lease!r}")
         self.tree, self.width, self.height, self.fps, self.lease = tree, width, height, fps, lease
         self.out_dir = Path(out_dir)  # checked by serve(); not here: benchmarks and stills never record
+        self.source = source  # where the model came from, as scripts record it (a file's path, a bundled name)
         home = core.initial_state(tree, frames)
         self.home = core.Camera.of(view_camera(tree, home.q))  # the initial camera, where "reset view" goes
         self.camera = self.home  # the camera of the moment (orbit, zoom); guarded by the lock like the state
@@ -123,13 +130,13 @@ class Playground:
         self._wake = threading.Event()
         self._closed = threading.Event()
         self._frame_ready = threading.Condition()
+        self._watchers: list[Callable[[], None]] = []
         self._version = 0
         self._frame: tuple[int, int, bytes] = (-1, -1, b"")  # (state version, frame number, jpeg)
         self._controller: str | None = None
         self._lease_until = 0.0
-        self._recording: list[Sample] | None = None
+        self._recording: Recording | None = None
         self._unsaved: Take | None = None  # stopped, not yet written (the folder failed): POST /stop retries
-        self._record_start = 0.0
         self._error: BaseException | None = None
         self._export = threading.Lock()  # held while a recording is written; close() waits for it
         self._thread = threading.Thread(target=self._render_loop, name="mjkin-play-render")
@@ -141,15 +148,43 @@ class Playground:
         return self
 
     def close(self) -> None:
-        """Stop the render thread, wake every waiting stream, let a recording being written finish (idempotent)."""
+        """Stop the render thread, wake every waiting stream, let a recording being written finish (idempotent).
+
+        The journal of a take not written (:attr:`journal`) is flushed and closed, and stays on disk.
+        """
         self._closed.set()
         self._wake.set()
-        with self._frame_ready:
-            self._frame_ready.notify_all()
+        self._notify()
         if self._thread.is_alive():
             self._thread.join()
         with self._export:  # a video half-encoded when the process ends would leave its temporary file
             pass
+        log = self._take_journal
+        if log is not None:
+            log.close()
+
+    @property
+    def _take_journal(self) -> Journal | None:
+        """The journal of the take being recorded, or stopped and not yet written."""
+        with self._lock:
+            take = self._recording or (self._unsaved and self._unsaved.recording)
+        return take.journal if take else None
+
+    @property
+    def journal(self) -> Path | None:
+        """The journal of a take not written yet (being recorded, or stopped and not saved), if any."""
+        log = self._take_journal
+        return None if log is None else log.path
+
+    def watch(self, callback: Callable[[], None]) -> None:
+        """Have ``callback()`` called after every new frame, a render failure and :meth:`close` (from any thread)."""
+        self._watchers.append(callback)
+
+    def _notify(self) -> None:
+        with self._frame_ready:
+            self._frame_ready.notify_all()
+        for callback in self._watchers:
+            callback()
 
     @property
     def exporting(self) -> bool:
@@ -228,14 +263,22 @@ class Playground:
 
     # ------------------------------------------------------------ recording
     def record(self, client: str) -> dict:
-        """Start recording (the pose and targets at the frame rate)."""
+        """Start recording (the pose and targets at the frame rate), journaled to the recordings folder.
+
+        Raises:
+            MjkinIOError: the journal cannot be made there.
+        """
         with self._lock:
             self._claim(client)
             if self._recording is not None:
                 raise InputError("already recording; POST /stop first")
             if self._unsaved is not None:
                 raise InputError("the last recording is not written yet; Stop & save (POST /stop) writes it")
-            self._recording, self._record_start = [], time.monotonic()
+            s = self.state
+            log = Journal(journal.base_name(self.out_dir, self.tree.name or "model"), {
+                "model": self.tree.name, "source": self.source, "fingerprint": motion.fingerprint(self.tree),
+                "frames": list(s.targets), "method": s.method, "goal": s.goal})
+            self._recording = Recording([], log, time.monotonic())
         self._wake.set()
         return self.snapshot()
 
@@ -262,32 +305,30 @@ class Playground:
             except MjkinIOError as e:
                 raise MjkinIOError(f"{e}; the recording is kept: free space or fix the folder, then Stop & save "
                                    "again (POST /stop)") from None
+            take.recording.journal.remove()
             with self._lock:
                 self._unsaved = None
             return saved
 
     def _write(self, take: Take) -> dict:
-        samples, state = take.samples, take.state
-        if len(samples) < 2:
-            samples = samples + [samples[-1]] if samples else [(0.0, state.q, self._points(state))] * 2
-        times = np.array([s[0] for s in samples])
-        qs = np.array([s[1] for s in samples])
-        counts = {len(s[2]) for s in samples}
-        targets = np.array([s[2] for s in samples]) if len(counts) == 1 else None
-        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-        base = self.out_dir / f"mjkin-play-{self.tree.name or 'model'}-{stamp}"
+        samples, state = take.recording.samples, take.state
+        if len(samples) < 2:  # a still: the pose held for one frame (a script's times must increase)
+            first = samples[0] if samples else (0.0, state.q, self._points(state))
+            samples = [first, (first[0] + 1.0 / self.fps, *first[1:])]
+        times, qs, targets = journal.columns(samples)
+        base = take.recording.journal.base
         frames = list(state.targets)
-        traj = motion.Trajectory(times=times - times[0], q=qs, fingerprint=motion.fingerprint(self.tree),
-                                 model=self.tree.name, site=frames[0], targets=targets,
+        traj = motion.Trajectory(times=times, q=qs, fingerprint=motion.fingerprint(self.tree),
+                                 model=self.tree.name, site=frames[0], targets=targets, source=self.source,
                                  meta={"play": {"frames": frames, "method": state.method, "goal": state.goal}})
         video_fps = 30.0
         pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
         overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
         images = render.frames(self.tree, qs[pick], self.width, self.height,
                                camera=take.camera.mjv(self.tree.model), overlay=overlay)
-        video = render.write_video(images, base.with_suffix(".mp4"), video_fps)
+        video = render.write_video(images, base.with_name(f"{base.name}.mp4"), video_fps)
         try:
-            script = traj.save(base.with_suffix(".json"))
+            script = traj.save(base.with_name(f"{base.name}.json"))
         except BaseException:
             video.unlink(missing_ok=True)  # no video without its script: the retry writes both
             raise
@@ -382,7 +423,9 @@ class Playground:
                         self._version += 1
                     state, version, camera = self.state, self._version, self.camera
                     if self._recording is not None:
-                        self._recording.append((tick - self._record_start, state.q.copy(), self._points(state)))
+                        sample = (tick - self._recording.start, state.q.copy(), self._points(state))
+                        self._recording.samples.append(sample)
+                        self._recording.journal.add(sample)
                     busy = core.needs_step(state) or self._recording is not None
                 if version != shown:
                     tip = self.tree.pose(state.q, next(iter(state.targets)))[:3, 3]
@@ -394,7 +437,7 @@ class Playground:
                     number += 1
                     with self._frame_ready:
                         self._frame = (version, number, jpeg)
-                        self._frame_ready.notify_all()
+                    self._notify()
                     shown = version
                 if busy:
                     self._closed.wait(max(0.0, period - (time.monotonic() - tick)))
@@ -409,4 +452,4 @@ class Playground:
     def _fail(self, e: BaseException) -> None:
         with self._frame_ready:
             self._error = e
-            self._frame_ready.notify_all()
+        self._notify()
