@@ -15,6 +15,7 @@ import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin import goals as G
 from mjkin.ik import kernel
+from mjkin.ik.solve import AUTO_RESTARTS
 
 
 def pose_targets(tree, site, rng, n):
@@ -85,6 +86,9 @@ def test_timeout_works_with_every_method_and_inf_is_no_limit(method):
     b = mjkin.solve(tree, goal, q0, method=method, timeout=float("inf"))
     np.testing.assert_array_equal(a.q, b.q)
     assert b.success
+    if method == "auto":  # no limit: the usual restarts, not the 1000 a time limit allows
+        far = mjkin.solve(tree, G.Position("tip", (5.0, 0.0, 0.0)), q0, timeout=float("inf"))
+        assert far.restarts == AUTO_RESTARTS
     late = mjkin.solve(tree, goal, q0, method=method, timeout=1e-9)  # was refused for ccd, reach, optimize, analytic2
     assert late.status == ("converged" if method == "analytic2" else "timeout")  # the closed form takes no time
     np.testing.assert_allclose(tree.clip(late.q), late.q, atol=1e-12)

@@ -359,7 +359,7 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
                                                                                           whole_floats=True)
     iters = _MAX_ITERS.get(name, 100) if max_iters is None else check_count(max_iters, "max_iters", 0,
                                                                              whole_floats=True)
-    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
+    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if time_limit is None else TIMED_RESTARTS) \
         if restarts is None else check_count(restarts, "restarts", 0, whole_floats=True)
     active, restart_q = _masks(tree, prog, base, joints, root is not None)
     starts = _random_starts(tree, seed, n_restarts)
