@@ -252,7 +252,12 @@ def show(frame: NDArray[np.uint8], fps: float) -> None:  # pragma: no cover - ne
 
 
 def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
-    """A scripted expert: the action that moves toward mjkin's IK solution for the current target."""
+    """A scripted expert: the action that moves toward mjkin's IK solution for the current target.
+
+    The solution is solved from ``qpos0``, not from the arm's pose, so every step of an episode aims at the
+    same one: from a nearly straight arm, solves warm-started at each step can land on alternate elbow branches,
+    and moving toward each in turn (the short way round, as solve wraps unlimited hinges) can cycle forever.
+    """
     p, target = env.effector(), env.target
     if env.action_type == "cartesian":
         step = (target[:3] - p) / env.step_size
@@ -266,5 +271,6 @@ def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
         goal: G.Goal = G.Pose(env.site, T)
     else:
         goal = G.Position(env.site, target)
-    res = mjkin.solve(env.tree, goal, q0=env.q, tol=0.1 * env.success_tol, rot_tol=0.1 * env.rot_tol)
-    return np.clip(env.tree.difference(res.q, env.q) / env.step_size, -1, 1).astype(np.float32)
+    res = mjkin.solve(env.tree, goal, q0=env.tree.qpos0, tol=0.1 * env.success_tol, rot_tol=0.1 * env.rot_tol)
+    step = env.tree.difference(res.q, env.q, periodic=True)  # unlimited hinges the short way round
+    return np.clip(step / env.step_size, -1, 1).astype(np.float32)

@@ -217,7 +217,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     tree = load(args.model)
     body = tree.frame_body(args.frame)[0]  # a clear error for an unknown name
     if not len(tree.body_dofs[body]):
-        raise InputError(f"no joint moves {args.frame!r}: choose a site or body below a joint")
+        why = "the model has no joints" if tree.nv == 0 else "choose a site or body below a joint"
+        raise InputError(f"no joint moves {args.frame!r}: {why}")
     joints = None if args.joints is None else [j.strip() for j in args.joints.split(",") if j.strip()]
     for name in joints or []:
         tree.id(name, "joint")  # unknown names: one line listing the model's joints

@@ -59,7 +59,8 @@ class Plan:
         jt = tree.jnt_type
         start = np.array(m.body_jntadr, dtype=np.int64)
         count = np.array(m.body_jntnum, dtype=np.int64)
-        is_free = (count > 0) & (jt[np.maximum(start, 0)] == FREE)
+        is_free = np.zeros(len(count), dtype=bool)  # a free joint is its body's first (and only) joint
+        is_free[count > 0] = jt[start[count > 0]] == FREE
         dof_jnt = np.array(m.dof_jntid, dtype=np.int64)
         dof_k = np.arange(tree.nv) - tree.jnt_dofadr[dof_jnt]  # index of the dof within its joint
         dof_t = jt[dof_jnt]
@@ -165,7 +166,7 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
 def forward(tree: Tree, q: Array) -> Frames:
     """World frames of all bodies for ``q (..., nq)`` (already validated)."""
     batch = q.shape[:-1]
-    qf = np.ascontiguousarray(q.reshape(-1, q.shape[-1]))
+    qf = np.ascontiguousarray(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]))  # also for nq = 0
     B = qf.shape[0]
     arrays = fk_arrays(tree)
     nbody, n_inner = len(arrays[0]), tree.__dict__["_fk_n_inner"]

@@ -77,7 +77,12 @@ njit_inline = numba.njit(cache=True, nogil=True, fastmath=False, inline="always"
 @njit
 def quat_to_mat(w: float, x: float, y: float, z: float, out: np.ndarray) -> None:
     """Write the rotation matrix of the quaternion ``(w, x, y, z)``, normalised, into ``out (3, 3)``."""
-    n = np.sqrt(w * w + x * x + y * y + z * z)
+    n2 = w * w + x * x + y * y + z * z
+    if not n2 < 1e300:  # huge components (1e308): their squares overflow, so scale by the largest first
+        m = max(abs(w), abs(x), abs(y), abs(z))
+        w, x, y, z = w / m, x / m, y / m, z / m
+        n2 = w * w + x * x + y * y + z * z
+    n = np.sqrt(n2)
     w, x, y, z = w / n, x / n, y / n, z / n
     out[0, 0] = 1 - 2 * (y * y + z * z)
     out[0, 1] = 2 * (x * y - w * z)

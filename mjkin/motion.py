@@ -216,8 +216,8 @@ class Trajectory:
     source: str = ""
 
     def jumps(self, tree: Tree) -> Array:
-        """Largest joint change between consecutive frames ``(T-1,)`` (rad or m)."""
-        return np.abs(tree.difference(self.q[1:], self.q[:-1])).max(axis=-1)
+        """Largest joint change between consecutive frames ``(T-1,)`` (rad or m; unlimited hinges the short way)."""
+        return np.abs(tree.difference(self.q[1:], self.q[:-1], periodic=True)).max(axis=-1)
 
     def discontinuities(self, tree: Tree, threshold: float = 0.5) -> NDArray[np.int64]:
         """Frames whose step from the previous one exceeds ``threshold`` (a flip to another IK branch)."""

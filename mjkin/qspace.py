@@ -43,11 +43,14 @@ class Layout:
     scalar_lo: Array  # (ns,) lower limit, -inf when unlimited
     scalar_hi: Array
     ball_q: Index  # (nb, 4)
+    ball_v: Index  # (nb, 3) the ball joints' velocity (dof) indices
     ball_max: Array  # (nb,) largest rotation angle, inf when unlimited
     free_q: Index  # (nf, 7)
     quats: Index  # (nb + nf, 4) every quaternion in q
     jnt_lo: Array  # (njnt,) per joint: hinge/slide lower limit, -inf when unlimited
     jnt_hi: Array  # (njnt,) upper limit, or a ball joint's largest angle; inf when unlimited
+    unlimited_hinge_q: Index  # (nu,) qpos index of each hinge without limits (its angle is periodic)
+    unlimited_hinge_v: Index  # (nu,) and its velocity (dof) index
 
     @classmethod
     def of(cls, tree: Tree) -> Layout:
@@ -56,13 +59,17 @@ class Layout:
         s = np.flatnonzero((t == HINGE) | (t == SLIDE))
         b = np.flatnonzero(t == BALL)
         f = np.flatnonzero(t == FREE)
+        unlimited = np.flatnonzero((t == HINGE) & ~tree.jnt_limited)
         lo = np.where(tree.jnt_limited, tree.jnt_range[:, 0], -np.inf)
         hi = np.where(tree.jnt_limited, tree.jnt_range[:, 1], np.inf)
         ball_q = tree.jnt_qadr[b, None] + np.arange(4)
+        ball_v = tree.jnt_dofadr[b, None] + np.arange(3)
         free_q = tree.jnt_qadr[f, None] + np.arange(7)
         return cls(scalar_q=tree.jnt_qadr[s], scalar_hinge=t[s] == HINGE, scalar_lo=lo[s], scalar_hi=hi[s],
-                   ball_q=ball_q, ball_max=hi[b], free_q=free_q, quats=np.concatenate([ball_q, free_q[:, 3:]]),
-                   jnt_lo=lo, jnt_hi=hi)
+                   ball_q=ball_q, ball_v=ball_v, ball_max=hi[b], free_q=free_q,
+                   quats=np.concatenate([ball_q, free_q[:, 3:]]),
+                   jnt_lo=lo, jnt_hi=hi, unlimited_hinge_q=tree.jnt_qadr[unlimited],
+                   unlimited_hinge_v=tree.jnt_dofadr[unlimited])
 
 
 def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
@@ -163,9 +170,17 @@ def _batch_shape(n: object) -> tuple[int, ...]:
 
 @njit
 def _quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
-    """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``."""
+    """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``.
+
+    Huge components (1e308), whose squares overflow, are scaled by the largest first.
+    """
     w, x, y, z = q[a], q[a + 1], q[a + 2], q[a + 3]
-    n = np.sqrt(w * w + x * x + y * y + z * z)
+    n2 = w * w + x * x + y * y + z * z
+    if not n2 < 1e300:
+        m = max(abs(w), abs(x), abs(y), abs(z))
+        w, x, y, z = w / m, x / m, y / m, z / m
+        n2 = w * w + x * x + y * y + z * z
+    n = np.sqrt(n2)
     w, x, y, z = w / n, x / n, y / n, z / n
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
@@ -259,7 +274,26 @@ def difference_kernel(q1: Array, q0: Array, jnt_type: Index, jnt_qadr: Index, jn
 
 
 def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
-    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(-1, n), dtype=np.float64)
+    rows = int(np.prod(shape, dtype=np.int64))  # not -1: a model without joints has n = 0
+    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(rows, n), dtype=np.float64)
+
+
+def wrap(tree: Tree, q: Array, index: Index | None = None) -> None:
+    """Turn unlimited hinges of ``q (..., nq)`` into ``(-π, π]`` about ``qpos0``, in place (the same pose).
+
+    MuJoCo turns a hinge by ``q - qpos0``, so that difference is what is wrapped; ``index``
+    (default: every unlimited hinge, :attr:`Layout.unlimited_hinge_q`) says which entries.
+    Values already inside are left bit for bit; huge ones (1e308) keep the angle FK sees.
+    """
+    a = tree.layout.unlimited_hinge_q if index is None else index
+    if not len(a):
+        return
+    d = q[..., a] - tree.qpos0[a]
+    outside = (d > np.pi) | (d <= -np.pi)
+    if outside.any():
+        # the angle FK turns by, as sin/cos reduce it (by the true π: d mod the float 2π is off for huge d)
+        w = np.arctan2(np.sin(d), np.cos(d))
+        q[..., a] = np.where(outside, tree.qpos0[a] + np.where(w == -np.pi, np.pi, w), q[..., a])
 
 
 def clip(tree: Tree, q: Array) -> Array:
@@ -279,10 +313,19 @@ def integrate(tree: Tree, q: Array, v: Array) -> Array:
     return out.reshape(shape + (tree.nq,))
 
 
-def difference(tree: Tree, q1: Array, q0: Array) -> Array:
-    """``q1 ⊖ q0``: the velocity ``(..., nv)`` with ``integrate(q0, v) == q1``."""
+def difference(tree: Tree, q1: Array, q0: Array, periodic: bool = False) -> Array:
+    """``q1 ⊖ q0``: the velocity ``(..., nv)`` with ``integrate(q0, v) == q1``.
+
+    ``periodic``: unlimited hinges take the short way round, in ``(-π, π]`` (their values are angles
+    that :func:`wrap` and :func:`mjkin.solve` bring into one turn); otherwise plain differences, as
+    MuJoCo's ``mj_differentiatePos``.
+    """
     shape = np.broadcast_shapes(q1.shape[:-1], q0.shape[:-1])
     v = np.empty((int(np.prod(shape, dtype=np.int64)), tree.nv))
     a1, a0 = _rows(q1, tree.nq, shape), _rows(q0, tree.nq, shape)
     difference_kernel(a1, a0, tree.jnt_type, tree.jnt_qadr, tree.jnt_dofadr, v)
+    d = tree.layout.unlimited_hinge_v
+    if periodic and len(d):
+        w = np.arctan2(np.sin(v[:, d]), np.cos(v[:, d]))
+        v[:, d] = np.where(w == -np.pi, np.pi, w)
     return v.reshape(shape + (tree.nv,))

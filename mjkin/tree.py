@@ -57,7 +57,12 @@ class Tree:
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
-        """Read the kinematic tree of a compiled model."""
+        """Read the kinematic tree of a compiled model.
+
+        Raises:
+            ModelError: a number the tree reads is NaN or inf (MuJoCo compiles them with a warning only).
+        """
+        check_finite(model)
         return cls(
             model=model,
             body_parent=_ro(model.body_parentid, np.int64),
@@ -190,9 +195,13 @@ class Tree:
         """Move ``q (..., nq)`` along a velocity ``v (..., nv)`` for unit time (as ``mj_integratePos``)."""
         return qspace.integrate(self, self.check_q(q), np.asarray(v, dtype=np.float64))
 
-    def difference(self, q1: ArrayLike, q0: ArrayLike) -> Array:
-        """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``)."""
-        return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"))
+    def difference(self, q1: ArrayLike, q0: ArrayLike, periodic: bool = False) -> Array:
+        """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``).
+
+        ``periodic=True``: unlimited hinges the short way round (``(-π, π]``), for steps between poses
+        whose hinge angles were wrapped (as :func:`mjkin.solve` returns them).
+        """
+        return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
     def kinematics(self, q: ArrayLike) -> Frames:
@@ -228,6 +237,32 @@ class Tree:
         frame_jacobian_one(kinematic_arrays(self), np.ascontiguousarray(q).reshape(1, -1), body,
                            local if offset is None else moved(local, check_offset(offset)), J)
         return J
+
+
+# what Tree (and, for contacts, Scene) reads from a model: (element kind, MjModel array, what it is)
+_FINITE = (("body", "body_pos", "pos"), ("body", "body_quat", "quat"), ("joint", "jnt_pos", "pos"),
+           ("joint", "jnt_axis", "axis"), ("joint", "jnt_range", "range"), ("site", "site_pos", "pos"),
+           ("site", "site_quat", "quat"), ("geom", "geom_pos", "pos"), ("geom", "geom_quat", "quat"),
+           ("geom", "geom_size", "size"))
+_NAME_ADR = {"body": "name_bodyadr", "joint": "name_jntadr", "site": "name_siteadr", "geom": "name_geomadr"}
+
+
+def check_finite(model: mujoco.MjModel) -> None:
+    """Refuse a model with a NaN or inf where the kinematics (or contacts) read it; the message names the element.
+
+    Raises:
+        ModelError: e.g. ``joint 'j1' has a non-finite axis [nan 0. 1.]``.
+    """
+    qpos0 = np.asarray(model.qpos0)  # a joint's ref; a free body's pos and quat are checked with the bodies
+    ref = np.searchsorted(model.jnt_qposadr, np.flatnonzero(~np.isfinite(qpos0)), side="right") - 1
+    for kind, attr, what in _FINITE + (("joint", None, "reference position (qpos0)"),):
+        bad = np.flatnonzero(~np.isfinite(getattr(model, attr)).all(axis=-1)) if attr else ref
+        if len(bad):
+            i = int(bad[0])
+            name = model.names[getattr(model, _NAME_ADR[kind])[i]:].split(b"\0", 1)[0].decode()
+            value = f" {getattr(model, attr)[i]}" if attr else ""
+            raise ModelError(f"{kind} {repr(name) if name else i} has a non-finite {what}{value}; "
+                             "every number of a body, joint, site and geom must be finite")
 
 
 def fingerprint(tree: Tree) -> str:

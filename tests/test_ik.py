@@ -175,3 +175,22 @@ def test_goal_weight_and_priority_validation():
         G.Position("tip", [0, 0, 0], priority=-2)
     with pytest.raises(mjkin.GoalError, match="different batch sizes"):
         mjkin.solve(tree_of("arm7"), [G.Position("ee", np.zeros((3, 3))), G.Position("link4", np.zeros((2, 3)))])
+
+
+@pytest.mark.parametrize("target", [[2.0, 0.5, 0.5], [0.0, 0.0, 3.0], [1.0, 1.0, 1.0]])
+def test_ccd_out_of_reach_is_unreachable_and_leaves_the_twist_alone(target):
+    """arm7's j7 turns about the axis through its tool: CCD turned it by the atan2 of rounding errors, to its
+    limit, and then said "limits" (auto says "unreachable") for a target simply beyond reach."""
+    tree = tree_of("arm7")
+    home = tree.model.key_qpos[0]
+    res = mjkin.solve(tree, G.Position("ee", target), home, method="ccd")
+    assert res.status == "unreachable" and not res.success
+    assert res.q[6] == home[6]  # the twist cannot move the tool: it stays
+    auto = mjkin.solve(tree, G.Position("ee", target), home)
+    assert res.error[0] == pytest.approx(auto.error[0], abs=1e-6)  # stretched toward it as far as auto gets
+
+
+def test_ccd_says_limits_when_a_limit_blocks_the_way():
+    tree = tree_of("planar_prismatic")
+    res = mjkin.solve(tree, G.Position("tip", [-1.5, 0.1, 0.0]), q0=[0.0, 0.3, 0.0], method="ccd")  # behind the
+    assert res.status == "limits" and res.q[0] == pytest.approx(2.6)  # shoulder's limit, which holds it there

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import pickle
 
@@ -14,6 +15,7 @@ import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin import goals as G
 from mjkin.ik import kernel
+from mjkin.ik.solve import AUTO_RESTARTS
 
 
 def pose_targets(tree, site, rng, n):
@@ -76,14 +78,40 @@ def test_generous_timeout_changes_nothing(rng):
     np.testing.assert_array_equal(a.status, b.status)
 
 
-def test_timeout_works_with_the_compiled_methods_only_and_inf_is_no_limit():
-    tree = tree_of("planar_3link")
-    goal = G.Position("tip", (10.0, 5.0, 0.0))
-    with pytest.raises(mjkin.InputError, match="timeout= works with the methods"):
-        mjkin.solve(tree, goal, timeout=1.0, method="ccd")
-    a, b = mjkin.solve(tree, goal), mjkin.solve(tree, goal, timeout=float("inf"))
+@pytest.mark.parametrize("method", ["auto", "dls", "pinv", "transpose", "ccd", "reach", "optimize", "analytic2"])
+def test_timeout_works_with_every_method_and_inf_is_no_limit(method):
+    tree = tree_of("planar_2link")
+    goal, q0 = G.Position("tip", (1.2, 0.5, 0.0)), [0.3, 0.5]
+    a = mjkin.solve(tree, goal, q0, method=method)
+    b = mjkin.solve(tree, goal, q0, method=method, timeout=float("inf"))
     np.testing.assert_array_equal(a.q, b.q)
     assert b.success
+    if method == "auto":  # no limit: the usual restarts, not the 1000 a time limit allows
+        far = mjkin.solve(tree, G.Position("tip", (5.0, 0.0, 0.0)), q0, timeout=float("inf"))
+        assert far.restarts == AUTO_RESTARTS
+    late = mjkin.solve(tree, goal, q0, method=method, timeout=1e-9)  # was refused for ccd, reach, optimize, analytic2
+    assert late.status == ("converged" if method == "analytic2" else "timeout")  # the closed form takes no time
+    np.testing.assert_allclose(tree.clip(late.q), late.q, atol=1e-12)
+
+
+# found by a probe: SciPy's SLSQP on the primate with a half-space and a plane goal and a planted upper arm runs
+# to its iteration limit in every level and re-centring pass (2042 iterations, 30-140 s here, up to 489 s there)
+PRIMATE_WALLS = [G.HalfSpace("right_hand", point=[-0.223, -0.339, 1.47], normal=[-0.378, 2.043, 0.647]),
+                 G.Plane("head", point=[0.016, -0.384, 1.123], normal=[0.663, -0.514, -1.648])]
+
+
+@pytest.mark.parametrize("timeout", [0.5, None])
+def test_optimize_stops_on_time_with_the_best_so_far(timeout, monkeypatch):
+    front = importlib.import_module("mjkin.ik.solve")  # the module (mjkin.ik.solve is also the function's name)
+    assert 0 < front.OPTIMIZE_TIMEOUT <= 10  # a default bound of a few seconds per target
+    monkeypatch.setattr(front, "OPTIMIZE_TIMEOUT", 0.5)  # the default's path, without waiting for it
+    tree = tree_of("primate")
+    start = mjkin.solve(tree, PRIMATE_WALLS, method="optimize", root="left_upper_arm", max_iters=0)
+    res = mjkin.solve(tree, PRIMATE_WALLS, method="optimize", root="left_upper_arm", timeout=timeout)
+    assert res.status == "timeout" and not res.success
+    np.testing.assert_allclose(tree.clip(res.q), res.q, atol=1e-12)
+    # an SLSQP iterate cut short can be far worse than where it began (2 m off the planted arm): never kept
+    assert np.all(np.isfinite(res.goal_errors)) and res.error[0] <= start.error[0] + 1e-12
 
 
 # options: (name, what a good value must be) -> the checks solve makes
@@ -396,3 +424,95 @@ def test_threads_set_restores_the_setting_not_the_number(monkeypatch):
         assert mjkin.threads() == 1
     monkeypatch.setenv("MJKIN_NUM_THREADS", "3")
     assert mjkin.threads() == 3  # the environment applies again
+
+
+# ------------------------------------------------------------- nothing may move
+EVERY_METHOD = ["auto", "lm", "dls", "pinv", "transpose", "ccd", "analytic2", "optimize", "reach"]
+ZERO_DOF = """<mujoco><worldbody><body name="b" pos="0 0 1"><geom size=".1"/><site name="s" pos="0.1 0 0"/>
+</body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("method", EVERY_METHOD)
+def test_a_model_without_joints_gives_its_pose_with_every_method(method):
+    """0 DoF: every method raised IndexError; now the start comes back, met or not, after no iteration."""
+    tree = mjkin.load(ZERO_DOF)
+    there = mjkin.solve(tree, G.Position("s", (0.1, 0.0, 1.0)), method=method)
+    assert there.success and there.status == "converged" and there.q.shape == (0,) and there.iterations == 0
+    away = mjkin.solve(tree, G.Position("s", np.array([[0.1, 0.0, 1.0], [1.0, 0.0, 0.0]])), method=method)
+    assert away.success.tolist() == [True, False] and away.status.tolist() == ["converged", "unreachable"]
+    np.testing.assert_allclose(away.error[1, 0], np.sqrt(0.9 ** 2 + 1.0), atol=1e-12)
+
+
+@pytest.mark.parametrize("method", [m for m in EVERY_METHOD if m != "analytic2"])  # it takes no joints= or base=
+@pytest.mark.parametrize("limit", [{"joints": []}, {"base": "link3"}])
+def test_no_movable_dof_is_the_same_answer_with_every_method(method, limit):
+    """joints=[] or base= the goal's own body: optimize raised SciPy's 'not enough values to unpack'."""
+    tree = tree_of("planar_3link")
+    q0 = np.array([0.3, 0.4, 0.5])
+    tip = tree.pose(q0, "tip")[:3, 3]
+    res = mjkin.solve(tree, G.Position("tip", np.stack([tip, tip + (1.0, 0.0, 0.0)])), q0, method=method, **limit)
+    np.testing.assert_array_equal(res.q, [q0, q0])
+    assert res.status.tolist() == ["converged", "unreachable"] and res.iterations.tolist() == [0, 0]
+
+
+# ------------------------------------------------------------- unlimited hinges
+@pytest.mark.parametrize("method", EVERY_METHOD)
+def test_unlimited_hinges_come_back_in_minus_pi_to_pi(method):
+    """The seeds' arm has unlimited hinges: from a start near π, answers came back as e.g. -3.28 or 4.5 rad."""
+    tree = tree_of("planar_2link" if method == "analytic2" else "planar_3link")
+    goal = G.Position("tip", (-1.2, -0.5, 0.0) if method == "analytic2" else (-20.0, -5.0, 0.0))
+    for q0 in (np.full(tree.nq, 3.0), np.full(tree.nq, -9.0), np.full(tree.nq, 1e308)):
+        res = mjkin.solve(tree, goal, q0, method=method)
+        assert res.success, (q0, res.status)
+        assert np.all((res.q > -np.pi) & (res.q <= np.pi)), res.q  # qpos0 = 0 on these arms
+        np.testing.assert_allclose(tree.pose(res.q, "tip")[:3, 3], goal.xyz, atol=1e-5)
+
+
+LIMITED_WIDE = """<mujoco><compiler angle="radian"/><worldbody><body name="a">
+<joint name="j1" axis="0 0 1" range="-5 5"/><geom size=".1"/>
+<body name="b" pos="1 0 0"><joint name="j2" axis="0 0 1"/><geom size=".1"/>
+<site name="tip" pos="1 0 0"/></body></body></worldbody></mujoco>"""
+
+
+def test_limited_and_coupled_hinges_are_never_wrapped():
+    tree = mjkin.load(LIMITED_WIDE)
+    q0 = np.array([4.0, 0.3])  # j1 limited to ±5 rad: 4.0 is a value of its own, not 4.0 - 2π
+    res = mjkin.solve(tree, G.Position("tip", tree.pose([4.1, 0.2], "tip")[:3, 3]), q0)
+    assert res.success and res.q[0] > np.pi
+    coupled = mjkin.solve(tree, [G.Position("tip", tree.pose([1.0, 4.0], "tip")[:3, 3]),
+                                 G.Coupling(coefficients={"j2": 1.0}, value=4.0)], [1.0, 4.0])
+    assert coupled.success and coupled.q[1] == pytest.approx(4.0)  # its equation is in the value itself
+
+
+# ------------------------------------------------------------- extreme starts
+extreme = st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.sampled_from([1e308, -1e308, 0.0, 1e-300]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(model=st.sampled_from(["ball_chain", "planar_3link", "planar_2link"]), method=st.sampled_from(EVERY_METHOD),
+       values=st.lists(extreme, min_size=20, max_size=20))
+def test_any_finite_start_gives_an_answer_inside_the_limits(model, method, values):
+    """A ball joint's q0 component of -1e308 was clipped to [0, -0, 0, 0] and every method raised ZeroDivisionError."""
+    tree = tree_of(model)
+    q0 = np.array(values[:tree.nq])
+    goal = G.Position("tip", tree.pose(tree.random_q(1), "tip")[:3, 3])
+    try:
+        res = mjkin.solve(tree, goal, q0, method=method, timeout=2.0)
+    except mjkin.InputError as e:  # a zero quaternion, or a method that does not fit the chain: one line
+        assert "\n" not in str(e)
+        return
+    assert np.all(np.isfinite(res.q)) and np.all(np.isfinite(res.error))
+    np.testing.assert_allclose(tree.clip(res.q), res.q, atol=1e-12)
+    hinges = tree.layout.unlimited_hinge_q
+    assert np.all((res.q[hinges] > -np.pi) & (res.q[hinges] <= np.pi))
+
+
+def test_a_huge_quaternion_is_normalised_without_overflow():
+    tree = tree_of("ball_chain")
+    q0 = tree.qpos0.copy()
+    q0[0] = -1e308  # the probe's start: it came out of the clip as [0, -0, 0, 0]
+    np.testing.assert_array_equal(np.abs(tree.clip(q0)[:4]), [1.0, 0.0, 0.0, 0.0])
+    q0[:4] = [1e308, 1e308, 0.0, 0.0]
+    np.testing.assert_allclose(tree.fk(q0), tree.fk(np.r_[1.0, 1.0, 0.0, 0.0, q0[4:]]), atol=1e-15)
+    res = mjkin.solve(tree, G.Position("tip", tree.pose(tree.random_q(2), "tip")[:3, 3]), q0)
+    assert res.success

@@ -177,3 +177,75 @@ def test_tree_arrays_are_read_only():
 def test_public_names_exist():
     for name in mjkin.__all__:
         assert hasattr(mjkin, name), name
+
+
+# ------------------------------------------------------------------ a model without joints
+ZERO_DOF = """<mujoco model="zero"><worldbody><body name="b" pos="0 0 1" quat="0.7071068 0 0 0.7071068">
+<geom size=".1"/><site name="s" pos="0.1 0 0"/></body></worldbody></mujoco>"""
+
+
+def test_a_model_without_joints_has_kinematics():
+    """Zero DoF is a legal model (a fixed fixture): FK, poses, Jacobians (6, 0) and random q (n, 0) work."""
+    t = mjkin.load(ZERO_DOF)
+    assert (t.nq, t.nv, t.njnt) == (0, 0, 0)
+    d = mujoco.MjData(t.model)
+    mujoco.mj_kinematics(t.model, d)
+    np.testing.assert_allclose(t.pose(t.qpos0, "s")[:3, 3], d.site_xpos[0], atol=1e-12)  # was an IndexError
+    np.testing.assert_allclose(t.fk(t.qpos0)[:, :3, 3], d.xpos, atol=1e-12)
+    assert t.jacobian(t.qpos0, "s").shape == (6, 0)
+    Q = t.random_q(3, 4)
+    assert Q.shape == (4, 0) and t.random_q(3).shape == (0,)
+    assert t.fk(Q).shape == (4, 2, 4, 4) and t.pose(Q.reshape(2, 2, 0), "s").shape == (2, 2, 4, 4)
+    assert t.jacobian(Q, "s").shape == (4, 6, 0) and t.clip(Q).shape == (4, 0)
+
+
+def test_the_cli_on_a_model_without_joints(tmp_path, capsys):
+    from mjkin.cli import main
+
+    path = tmp_path / "zero_dof.xml"
+    path.write_text(ZERO_DOF)
+    assert main(["fk", str(path), "--q", "random"]) == 0  # was a ValueError traceback
+    assert "site s" in capsys.readouterr().out
+    assert main(["ik", str(path), "--frame", "s", "--pos", "0.1,0,1"]) == 2
+    assert capsys.readouterr().err == "mjkin: error: no joint moves 's': the model has no joints\n"
+
+
+# ------------------------------------------------------------------ NaN and inf in a model
+NUMBERS = dict(axis="0 0 1", ref="0", range="-1 1", quat="1 0 0 0", pos="1 0 0", site="0.5 0 0", geom="0 0 0")
+FINITE_MODEL = """<mujoco><compiler angle="radian"/><worldbody>
+<body name="link1" quat="{quat}"><joint name="j1" axis="{axis}" ref="{ref}" range="{range}"/><geom size=".1"/>
+<body name="link2" pos="{pos}"><joint name="j2" axis="0 0 1"/><geom name="g2" size=".1" pos="{geom}"/>
+<site name="tip" pos="{site}"/></body></body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("field, value, text", [
+    ("axis", "nan 0 1", "joint 'j1' has a non-finite axis"),
+    ("axis", "inf 0 1", "joint 'j1' has a non-finite axis"),
+    ("pos", "nan 0 0", "body 'link2' has a non-finite pos"),
+    ("pos", "0 -inf 0", "body 'link2' has a non-finite pos"),
+    ("quat", "nan 1 0 0", "body 'link1' has a non-finite quat"),
+    ("ref", "nan", r"joint 'j1' has a non-finite reference position \(qpos0\)"),
+    ("range", "-inf 1", "joint 'j1' has a non-finite range"),
+    ("site", "nan 0 0", "site 'tip' has a non-finite pos"),
+    ("geom", "0 inf 0", "geom 'g2' has a non-finite pos"),
+])
+def test_non_finite_numbers_in_a_model_are_refused_at_load(field, value, text):
+    """MuJoCo compiles NaN and inf with a warning only; FK then gave NaN and solve numpy's LinAlgError."""
+    xml = FINITE_MODEL.format(**{**NUMBERS, field: value})
+    for src in (xml, mujoco.MjModel.from_xml_string(xml)):
+        with pytest.raises(mjkin.ModelError, match=text) as info:
+            mjkin.load(src)
+        assert "\n" not in str(info.value)
+    mjkin.load(FINITE_MODEL.format(**NUMBERS))  # the same model with finite numbers loads
+
+
+def test_periodic_difference_takes_unlimited_hinges_the_short_way():
+    """solve returns unlimited hinges in (-π, π]: a step from -3.1 to 3.1 rad is -0.08 rad, not 6.2."""
+    t = tree_of("planar_3link")  # unlimited hinges
+    q1, q0 = np.array([3.1, -3.1, 1.0]), np.array([-3.1, 3.1, 0.5])
+    short = 6.2 - 2 * np.pi  # from -3.1 on past -π to 3.1
+    np.testing.assert_allclose(t.difference(q1, q0, periodic=True), [short, -short, 0.5], atol=1e-12)
+    np.testing.assert_allclose(t.difference(q1, q0), [6.2, -6.2, 0.5], atol=1e-12)  # as mj_differentiatePos
+    arm = tree_of("arm7")  # limited hinges: their values are never wrapped, their differences never either
+    a, b = arm.random_q(0, 2)
+    np.testing.assert_array_equal(arm.difference(a, b, periodic=True), arm.difference(a, b))

@@ -94,8 +94,12 @@ def settings(tol: float, rot_tol: float, damping: float, lm_factor: float = 0.0,
              timeout: float | None = None, progress: float = 1e-9) -> Settings:
     """:class:`Settings` with Python types fixed, so every call shares one compiled specialisation."""
     return Settings(float(tol), float(rot_tol), float(damping), float(lm_factor), float(alpha), float(max_step),
-                    bool(halving), int(patience), float(goal_step),
-                    0 if timeout is None else max(1, int(round(timeout * 1e9))), float(progress))
+                    bool(halving), int(patience), float(goal_step), timeout_ns(timeout), float(progress))
+
+
+def timeout_ns(timeout: float | None) -> int:
+    """A time limit in seconds as the compiled loops take it: nanoseconds, 0 for none."""
+    return 0 if timeout is None else max(1, int(round(timeout * 1e9)))
 
 
 def program_arrays(prog: Program) -> GoalArrays:

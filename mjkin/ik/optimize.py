@@ -2,17 +2,24 @@
 
 Minimise the goal potentials ``Σ w |g|²`` level by level (lexicographic
 priorities: a level may not raise the cost of the levels above it), subject
-to the joint limits as bounds (ball cones as inequalities),
+to the joint limits as bounds (ball cones as inequalities, see :func:`_cone_gradient`),
 :class:`~mjkin.goals.Coupling` goals as linear
 equalities and :class:`~mjkin.goals.HalfSpace` goals as inequalities, with
 SciPy's SLSQP and analytic gradients ``Jᵀg``. Variables are a velocity ``v``
 in the tangent space at the start (``q = q_start ⊕ v``), re-centred a few times
 so ball and free joints stay exact. A local minimum is accepted; ``restarts``
 tries perturbed starts for another.
+
+SciPy's SLSQP has no time limit of its own, and its callback comes only between
+iterations (one iteration can take many evaluations), so the time limit is
+checked at every evaluation: when it runs out
+the evaluation raises, SciPy's loop unwinds, and the last iterate SciPy reported
+stands.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -23,22 +30,44 @@ from .. import spatial
 from ..goals import COUPLING, HALFSPACE, Program
 from ..qspace import HINGE, SLIDE
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, evaluate_program
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, evaluate_program
 from .solve import Result, package
 
 Array = NDArray[np.float64]
+
+
+def _cone_gradient(q: Array, v: Array) -> Array:
+    """Gradient ``(3,)`` of the rotation angle of the unit quaternion ``q = q_start ⊗ exp(v)`` with respect to ``v``.
+
+    A small turn ``δ`` after ``q`` changes the angle by ``uᵀδ`` (``u``: the unit axis of ``q``; the right
+    Jacobian's correction terms are orthogonal to it), and ``exp(v + dv) = exp(v) exp(J_r(v) dv)``, so the
+    gradient is ``J_r(v)ᵀ u``. Zero at no rotation (there the cone cannot bind).
+    """
+    phi = spatial.quat_to_rotvec(q)
+    angle = float(np.linalg.norm(phi))
+    if angle < 1e-12:
+        return np.zeros(3)
+    t = float(np.linalg.norm(v))
+    a, b = (0.5, 1.0 / 6.0) if t < 1e-6 else ((1.0 - np.cos(t)) / t**2, (t - np.sin(t)) / t**3)
+    K = spatial.skew(v)
+    return (np.eye(3) - a * K + b * K @ K).T @ (phi / angle)
 
 
 def _target(prog: Program, b: int) -> Program:
     return replace(prog, data=prog.data[b:b + 1], rest_q=prog.rest_q[:, b:b + 1], batch=())
 
 
-def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int,
-               active: NDArray[np.bool_]) -> tuple[Array, bool, int]:
-    """Lexicographic SLSQP from ``q0``.
+class _OutOfTime(Exception):
+    """Raised inside an evaluation SciPy asked for once the time limit has passed; it ends the SLSQP run."""
 
-    Returns the configuration, whether SciPy hit its iteration limit, and SciPy's iterations summed over the
-    priority levels and re-centring passes.
+
+def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDArray[np.bool_],
+               deadline: float) -> tuple[Array, bool, int, bool]:
+    """Lexicographic SLSQP from ``q0``, until ``deadline`` (``time.monotonic()``; ``inf`` = none).
+
+    Returns the configuration, whether SciPy hit its iteration limit, SciPy's iterations summed over the
+    priority levels and re-centring passes, and whether the time ran out (then the configuration is the
+    last iterate SciPy reported).
     """
     rows = prog.row
     free = np.flatnonzero(active)
@@ -48,10 +77,23 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int,
     hit_limit = False
     iterations = 0
 
-    def at(v: Array) -> Array:
+    def spread(index: NDArray[np.intp], values: Array) -> Array:  # (nv,), ``values`` at the dofs ``index``
         full = np.zeros(tree.nv)
-        full[free] = v
-        return tree.integrate(q_start, full)
+        full[index] = values
+        return full
+
+    last: dict = {}  # SciPy evaluates the objective and each constraint at the same v in turn: integrate once
+
+    def at(v: Array, clocked: bool = True) -> Array:  # every evaluation SciPy asks for comes through here
+        if clocked and time.monotonic() > deadline:
+            raise _OutOfTime
+        key = v.tobytes()
+        if last.get("key") != key:
+            last["key"], last["q"] = key, tree.integrate(q_start, spread(free, v))
+        return last["q"]
+
+    def cone_jac(v: Array, qi: NDArray[np.intp], di: NDArray[np.intp]) -> Array:  # of the constraint limit - angle >= 0
+        return -spread(di, _cone_gradient(at(v)[qi], spread(free, v)[di]))[free]
 
     def rows_of(mask: Array) -> Array:
         return np.concatenate([np.arange(rows[i], rows[i + 1]) for i in np.flatnonzero(mask)] or [np.zeros(0, int)])
@@ -78,38 +120,48 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int,
                          "fun": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[0][0, r],
                          "jac": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
         lay = tree.layout
-        for qi, limit in zip(lay.ball_q, lay.ball_max, strict=True):  # ball cones (numeric gradients)
+        for qi, di, limit in zip(lay.ball_q, lay.ball_v, lay.ball_max, strict=True):  # ball cones
             if np.isfinite(limit):
                 cons.append({"type": "ineq", "fun": lambda v, qi=qi, c=limit: c - float(
-                    spatial.quat_distance(at(v)[qi], [1.0, 0.0, 0.0, 0.0]))})
+                    spatial.quat_distance(at(v)[qi], [1.0, 0.0, 0.0, 0.0])),
+                    "jac": lambda v, qi=qi, di=di: cone_jac(v, qi, di)})
         v = np.zeros(len(free))
         for lv in range(len(prog.level_rows) - 1):
             idx = rows_of((level_of == lv) & ~constraint_goal)
             if len(idx) == 0:
                 continue
-            res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
-                           options={"maxiter": max_iters, "ftol": 1e-16})
+            reported = [v]  # the start and SciPy's iterates (its callback comes after each iteration)
+            try:
+                res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                               options={"maxiter": max_iters, "ftol": 1e-16},
+                               callback=lambda x, seen=reported: seen.append(x.copy()))
+            except _OutOfTime:
+                return tree.clip(at(reported[-1], False)), hit_limit, iterations + len(reported) - 1, True
             hit_limit = hit_limit or res.status == 9
             iterations += int(res.nit)
             v = res.x
             achieved = res.fun
             cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
                             "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
-        q_new = tree.clip(at(v))
+        q_new = tree.clip(at(v, False))
         done = np.abs(tree.difference(q_new, q_start)).max() < 1e-12
         q_start = q_new
+        last.clear()
         if done or not (tree.layout.quats.size):
             break
-    return q_start, hit_limit, iterations
+    return q_start, hit_limit, iterations, False
 
 
 def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
-                   active: NDArray[np.bool_], restarts: Array, restart_q: NDArray[np.bool_]) -> Result:
+                   active: NDArray[np.bool_], restarts: Array, restart_q: NDArray[np.bool_],
+                   timeout: float | None = None) -> Result:
     """Solve every target with SLSQP (see :func:`mjkin.solve`).
 
     A target that is not met restarts from ``restarts (K, nq)``, taken where
     ``restart_q`` is True and from the target's start elsewhere. ``iterations``
-    are SciPy's, summed over every start tried.
+    are SciPy's, summed over every start tried. ``timeout``: seconds per target,
+    every start included (None: no limit); a target that runs out keeps the best
+    configuration so far with status ``TIMEOUT``.
     """
     B = prog.B
     out = np.empty_like(q)
@@ -119,15 +171,17 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     iters = np.zeros(B, np.int64)
     for b in range(B):
         one = _target(prog, b)
-        _, _, e = evaluate_program(tree, one, q[b][None])  # the start stands until a run ends with a finite cost
+        g, _, e = evaluate_program(tree, one, q[b][None])  # the start stands until a run ends with a finite cost
         best, best_cost, err[b], status[b] = q[b], np.inf, e[0], UNREACHABLE
+        start_cost = float(g[0] @ g[0])  # a run cut short by the clock must also beat the start
         starts = [q[b], *np.where(restart_q, restarts, q[b])]
+        deadline = np.inf if timeout is None else time.monotonic() + timeout
         for k, start in enumerate(starts):
-            qb, hit, n = _solve_one(tree, one, start, max_iters, active)
+            qb, hit, n, late = _solve_one(tree, one, start, max_iters, active, deadline)
             iters[b] += n
             g, _, e = evaluate_program(tree, one, qb[None])
             c = float(g[0] @ g[0])
-            if c < best_cost:
+            if c < best_cost and not (late and c >= start_cost):
                 best, best_cost, err[b], used[b] = qb, c, e[0], k
                 ok = np.all((e[0][one.counted, 0] <= tol) & (e[0][one.counted, 1] <= rot_tol))
                 lay = tree.layout
@@ -136,5 +190,8 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
                 status[b] = CONVERGED if ok else MAX_ITERATIONS if hit else LIMITS if at_limit else UNREACHABLE
                 if ok:
                     break
+            if late:
+                status[b] = TIMEOUT if status[b] != CONVERGED else CONVERGED
+                break
         out[b] = best
     return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize", tree=tree)

@@ -26,6 +26,7 @@ and on 3-, 6- and 12-hinge chains), so they are refused.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import Any
 
@@ -37,7 +38,7 @@ from ..fk import fk_scratch
 from ..goals import POSITION, Program
 from ..qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, UNREACHABLE, _fk, kinematic_arrays
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk, kinematic_arrays
 from .solve import History, Result, package
 
 Array = NDArray[np.float64]
@@ -183,8 +184,9 @@ class _Chain:
                     v1, v2 = np.reshape(v1, (-1, 3)), np.reshape(v2, (-1, 3))
                     sin = float(np.sum(np.cross(v1, v2) @ u))
                     cos = float(np.sum(v1 * v2) - np.sum((v1 @ u) * (v2 @ u)))
-                    q[c] = min(max(q[c] + np.arctan2(sin, cos), lo[j]), hi[j])
-                    pinned = pinned or q[c] in (lo[j], hi[j])
+                    turned = q[c] + np.arctan2(sin, cos)
+                    q[c] = min(max(turned, lo[j]), hi[j])
+                    pinned = pinned or abs(turned - q[c]) > 1e-12  # the limit cut the turn
                 else:  # ball: the shortest arc from v1 to v2, as a rotation vector in the joint frame
                     w = np.cross(v1, v2)
                     s = float(np.linalg.norm(w))
@@ -203,11 +205,12 @@ class _Chain:
         return np.array([anchors[m[0]] for m in groups] + [tool])
 
 
-def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int,
+def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int, deadline: float,
               hist_q: Array, hist_err: Array) -> tuple[int, int | str, float]:
     """Recursive reach for one target; ``q (nq,)`` is updated in place. Returns (passes, status, error).
 
     Pass ``k``'s configuration and error go into ``hist_q[k]``, ``hist_err[k, 0]`` while there is room.
+    The run stops with ``TIMEOUT`` once ``time.monotonic()`` passes ``deadline`` (read after each pass).
     """
     pts, groups = chain.points(q)
     if len(hist_q):
@@ -242,16 +245,23 @@ def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int,
             return it, LIMITS if pinned else UNREACHABLE, best
         if it == max_iters:
             break
+        if time.monotonic() > deadline:
+            q[:] = best_q
+            return it, TIMEOUT, best
         pinned = chain.align(q, reach_points(pts, goal, chain.normal)[0], groups)
     q[:] = best_q
     return max_iters, MAX_ITERATIONS, best
 
 
 def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
-                active: NDArray[np.bool_], history: bool = False) -> Result:
+                active: NDArray[np.bool_], history: bool, restarts: Array, restart_q: NDArray[np.bool_],
+                timeout: float | None = None) -> Result:
     """Recursive reach on one position goal (see :func:`mjkin.solve`); ``q (B, nq)`` holds the starts.
 
-    One iteration is one pass; with ``history`` every pass's configuration is kept.
+    One iteration is one pass; with ``history`` every pass's configuration is kept (of the first run).
+    A target that is not met (a clamped joint stalled the passes) starts again from ``restarts (K, nq)``,
+    taken where ``restart_q`` is True and from its own start elsewhere; the best run is kept.
+    ``timeout``: seconds per target, restarts included (None: none).
     """
     if len(prog.goals) != 1 or prog.kind[0] != POSITION:
         raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
@@ -275,16 +285,29 @@ def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float,
     H = max_iters + 1 if history else 0
     hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
     hist_err[..., 1] = 0.0
+    used = np.zeros(B, np.int64)
     for b in range(B):
-        it, code, e = reach_one(chain, q[b], np.asarray(goals[b], dtype=np.float64), tol, max_iters, hist_q[b],
-                                hist_err[b])
-        iters[b], err[b] = it, e
-        root_moves[b] = code == ROOT_WOULD_MOVE
-        codes[b] = UNREACHABLE if root_moves[b] else int(code)
+        deadline = np.inf if timeout is None else time.monotonic() + timeout
+        goal, start = np.asarray(goals[b], dtype=np.float64), q[b].copy()
+        it, code, e = reach_one(chain, q[b], goal, tol, max_iters, deadline, hist_q[b], hist_err[b])
+        iters[b], err[b], best_code, last = it, e, code, code
+        for k in range(len(restarts)):
+            if last in (CONVERGED, TIMEOUT, ROOT_WOULD_MOVE):  # met, out of time, or no start can help
+                break
+            qk = np.where(restart_q, restarts[k], start)
+            it, last, e = reach_one(chain, qk, goal, tol, max_iters, deadline, hist_q[b, :0], hist_err[b, :0])
+            iters[b] += it
+            used[b] = k + 1
+            if e < err[b]:
+                q[b], err[b], best_code = qk, e, last
+        if last == TIMEOUT and best_code != CONVERGED:
+            best_code = TIMEOUT
+        root_moves[b] = best_code == ROOT_WOULD_MOVE
+        codes[b] = UNREACHABLE if root_moves[b] else int(best_code)
     errors = np.zeros((B, 1, 2))
     errors[:, 0, 0] = err
     hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
-    res = package(prog, q, errors, iters, codes, np.zeros(B, np.int64), tol, rot_tol, "reach",
+    res = package(prog, q, errors, iters, codes, used, tol, rot_tol, "reach",
                   History(hist_q, hist_err) if history else None, tree)
     if root_moves.any():
         labels: NDArray[Any] = np.where(root_moves, ROOT_WOULD_MOVE, np.asarray(res.status).reshape(-1))

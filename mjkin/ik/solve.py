@@ -36,7 +36,10 @@ TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (
 _CODES = {"lm": kernel.LM, "dls": kernel.DLS, "pinv": kernel.PINV, "transpose": kernel.TRANSPOSE}
 _MAX_ITERS = {"lm": 50, "dls": 1000, "pinv": 100, "transpose": 2000, "ccd": 200, "optimize": 500}
 _STATUS = np.array(STATUS_NAMES)
-_TIMED = ("auto", "lm", "dls", "pinv", "transpose")  # methods whose compiled loop checks a time limit
+# optimize's time limit per target when none is given: SciPy's SLSQP has no other bound on its wall time (on the
+# primate with a half-space and a plane goal and a planted root it ran for minutes), while its usual solves take
+# milliseconds (the test suite's slowest target, on ball_chain's cones, 500 SLSQP iterations in about 1 s)
+OPTIMIZE_TIMEOUT = 5.0
 
 
 @dataclass(frozen=True)
@@ -61,10 +64,10 @@ class Result:
         success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians).
         error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
         iterations: ``(...)`` steps taken (CCD: sweeps).
-        status: ``"converged"``, ``"unreachable"`` (stalled away from the goal), ``"limits"``
-            (stalled with a joint held at its limit), ``"max_iterations"``, ``"timeout"`` (the
-            ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``: every pose found
-            was in contact).
+        status: ``"converged"``, ``"unreachable"`` (stalled away from the goal, or nothing may
+            move), ``"limits"`` (stalled with a joint limit blocking the way), ``"max_iterations"``,
+            ``"timeout"`` (the ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``:
+            every pose found was in contact).
         goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
         goals: the goals as solved.
         method: the method that ran.
@@ -147,7 +150,8 @@ def singular_values(tree: Tree, goals: G.Goal | Sequence[G.Goal], q: ArrayLike) 
     return s.reshape(q.shape[:-1] + s.shape[-1:]) if q.ndim > 1 else (s[0] if prog.batch == () else s)
 
 
-def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> Array:
+def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...], wrap: NDArray[np.int64]) -> Array:
+    """The starts ``(B, nq)``: ``q0`` clipped into the limits, quaternions normalised, ``wrap`` hinges wrapped."""
     if q0 is None:
         q0 = tree.qpos0
     q = tree.check_q(q0, "q0")
@@ -156,6 +160,7 @@ def _start(tree: Tree, q0: ArrayLike | None, B: int, batch: tuple[int, ...]) -> 
     out = np.empty((B, tree.nq))
     out[:] = q
     clip_kernel(out, tree.jnt_type, tree.jnt_qadr, tree.layout.jnt_lo, tree.layout.jnt_hi)
+    qspace.wrap(tree, out, wrap)
     return out
 
 
@@ -245,7 +250,8 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         tree: the kinematic tree.
         goals: one goal or several (see :mod:`mjkin.goals`); targets may carry one
             leading batch axis ``B``, solved together.
-        q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits.
+        q0: start ``(nq,)`` or one per target ``(B, nq)``; clipped into the limits (quaternions
+            normalised, unlimited hinges wrapped as in the result).
         method: ``"auto"`` (= ``"lm"``: damped least squares with an adaptive,
             error-dependent λ, step acceptance and 24 seeded random restarts when it
             stalls — the most robust), ``"dls"`` (fixed λ), ``"pinv"``,
@@ -267,9 +273,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         goal_step: the most residual (m, or rad for orientation rows) a step aims to
             remove, so the effector walks toward a far goal (error clamping); default
             unlimited.
-        restarts: random restarts (within limits) when a solve stalls; default 24
-            for ``auto`` (1000 with a ``timeout``: restart until the time runs out),
-            0 otherwise.
+        restarts: random restarts (within limits) when a solve stalls (every iterative
+            method); default 24 for ``auto`` (1000 with a ``timeout``: restart until the
+            time runs out), 0 otherwise.
         seed: seeds the restarts, so solves are reproducible.
         patience: iterations without progress before a run counts as stalled; default
             4 for ``lm``/``auto`` (progress there: an unmet goal's error fell by 10 %;
@@ -285,14 +291,23 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
             non-adjacent bodies, or with the world): re-solve from seeded random
             starts (``restarts`` of them, at least 8); if none is free of contact,
             ``success`` is False and ``status`` is ``"collision"``.
-        timeout: seconds each target may take (checked inside the compiled loop,
-            per target, also in batches; ``auto``/``lm``/``dls``/``pinv``/
-            ``transpose``); a target that runs out returns its best pose so far
-            with ``status="timeout"``; ``inf`` means no limit.
+        timeout: seconds each target may take, restarts included, with every method
+            (checked inside the compiled loops per iteration, by ``reach`` per pass, by
+            ``optimize`` at every evaluation SciPy asks for; ``analytic2`` takes no time);
+            a target that runs out returns its best pose so far with
+            ``status="timeout"``. Default none, except ``optimize``:
+            :data:`OPTIMIZE_TIMEOUT` (5 s) per target; ``inf`` means no limit.
 
     Restarts (and collision retries) randomise only the joints that move a goal
     frame and may move (``joints``/``base``); every other joint keeps its ``q0``
-    value, and with ``root`` the free joint keeps its pose.
+    value, and with ``root`` the free joint keeps its pose. When nothing may move
+    (a model without joints, ``joints=[]``, ``base=`` the goals' own body) every
+    method returns the start after 0 iterations: ``"converged"`` if the goals
+    already hold there, else ``"unreachable"``.
+
+    Unlimited hinges come back in ``(-π, π]`` about ``qpos0`` (the angle MuJoCo turns
+    them by), except those a :class:`~mjkin.goals.Coupling` goal names (its equation
+    is in the joint values themselves); limited hinges are never wrapped.
 
     Repeated calls with the same goal structure (kinds, frames, weights,
     priorities) and new targets reuse the encoded goals and the restart starts,
@@ -307,10 +322,9 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         raise InputError(f"unknown IK method {method!r}; choose one of: {', '.join(METHODS)}")
     tol, rot_tol = check_number(tol, "tol", 0, strict=True), check_number(rot_tol, "rot_tol", 0, strict=True)
     if timeout is not None:
-        if method not in _TIMED:
-            raise InputError(f"timeout= works with the methods {', '.join(_TIMED)}, not {method!r}")
         timeout = check_number(timeout, "timeout (seconds)", 0, strict=True, infinite=True)
-        timeout = None if timeout == np.inf else timeout
+    time_limit = (OPTIMIZE_TIMEOUT if method == "optimize" else None) if timeout is None else (
+        None if timeout == np.inf else timeout)
     for value, label, inf in ((damping, "damping", False), (alpha, "alpha", False), (max_step, "max_step", True),
                               (goal_step, "goal_step", True)):
         if value is not None:
@@ -338,38 +352,42 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
         goal_list = [G.Pose(root, kind="body", T=pose)] + [replace(g, priority=g.priority + 1 - low)
                                                           if isinstance(g, G.Goal) else g for g in goal_list]
     prog = G.compile_goals(tree, goal_list)
-    q = _start(tree, q0, prog.B, prog.batch)
+    wrap = _wrapped_hinges(tree, prog)
+    q = _start(tree, q0, prog.B, prog.batch, wrap)
     name = "lm" if method == "auto" else method
-    if name == "analytic2":
-        from .analytic import solve_analytic2
-
-        return replace(solve_analytic2(tree, prog, q, tol), tree=tree)
     patience = (LM_PATIENCE if name == "lm" else 10) if patience is None else check_count(patience, "patience",
                                                                                           whole_floats=True)
     iters = _MAX_ITERS.get(name, 100) if max_iters is None else check_count(max_iters, "max_iters", 0,
                                                                              whole_floats=True)
-    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if timeout is None else TIMED_RESTARTS) \
+    n_restarts = (0 if method != "auto" else AUTO_RESTARTS if time_limit is None else TIMED_RESTARTS) \
         if restarts is None else check_count(restarts, "restarts", 0, whole_floats=True)
     active, restart_q = _masks(tree, prog, base, joints, root is not None)
     starts = _random_starts(tree, seed, n_restarts)
-    if name == "optimize":
+    if not active.any():  # nothing may move: the start is the answer, whatever the method
+        result = _immobile(tree, prog, q, tol, rot_tol, method, history)
+    elif name == "analytic2":
+        from .analytic import solve_analytic2
+
+        result = replace(solve_analytic2(tree, prog, q, tol), tree=tree)
+    elif name == "optimize":
         from .optimize import solve_optimize
 
-        result = solve_optimize(tree, prog, q, tol, rot_tol, iters, active, starts, restart_q)
+        result = solve_optimize(tree, prog, q, tol, rot_tol, iters, active, starts, restart_q, time_limit)
     elif name == "ccd":
         from .ccd import solve_ccd
 
-        result = solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, restart_q, patience)
+        result = solve_ccd(tree, prog, q, tol, rot_tol, iters, sweep, active, history, starts, restart_q, patience,
+                           time_limit)
     elif name == "reach":
         from .reach import solve_reach
 
-        result = solve_reach(tree, prog, q, tol, rot_tol, iters, active, history)
+        result = solve_reach(tree, prog, q, tol, rot_tol, iters, active, history, starts, restart_q, time_limit)
     else:
         extent = float(tree.model.stat.extent) or 1.0
         st = kernel.settings(tol, rot_tol, ((1e-5 if name == "lm" else 0.05) * extent) if damping is None else damping,
                              LM_MU if name == "lm" else 0.0, 0.0 if alpha is None else alpha,
                              (LM_MAX_STEP if name == "lm" else np.inf) if max_step is None else max_step, halving,
-                             patience, np.inf if goal_step is None else goal_step, timeout,
+                             patience, np.inf if goal_step is None else goal_step, time_limit,
                              LM_PROGRESS if name == "lm" else 1e-9)
         result = run_kernel(tree, prog, q, _CODES[name], st, iters, starts, restart_q, active, history, method)
     if avoid_collisions:
@@ -378,7 +396,32 @@ def solve(tree: Tree, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | None = N
                                  dict(tol=tol, rot_tol=rot_tol, max_iters=max_iters, damping=damping, alpha=alpha,
                                       max_step=max_step, halving=halving, goal_step=goal_step, patience=patience,
                                       base=base, joints=joints, sweep=sweep, timeout=timeout))
+    if len(wrap):
+        q_out = np.array(result.q)
+        qspace.wrap(tree, q_out, wrap)
+        result = replace(result, q=q_out)
     return result
+
+
+def _wrapped_hinges(tree: Tree, prog: G.Program) -> NDArray[np.int64]:
+    """The q entries :func:`solve` wraps into (-π, π]: unlimited hinges that no Coupling goal names."""
+    hinges = tree.layout.unlimited_hinge_q
+    if not len(hinges) or not len(prog.coupling):
+        return hinges
+    coupled = tree.jnt_qadr[tree.plan.dof_jnt[np.flatnonzero(np.any(prog.coupling != 0, axis=0))]]
+    return hinges[~np.isin(hinges, coupled)]
+
+
+def _immobile(tree: Tree, prog: G.Program, q: Array, tol: float, rot_tol: float, method: str,
+              history: bool) -> Result:
+    """The result when no dof may move: the starts ``q (B, nq)`` as they are, met or not, after 0 iterations."""
+    _, _, err = kernel.evaluate_program(tree, prog, q)
+    worst, met = np.empty((prog.B, 2)), np.empty(prog.B, dtype=bool)
+    kernel.summarise(err, prog.counted, tol, rot_tol, worst, met)
+    zeros = np.zeros(prog.B, np.int64)
+    status = np.where(met, kernel.CONVERGED, kernel.UNREACHABLE)
+    return package(prog, q, err, zeros, status, zeros, tol, rot_tol, method,
+                   History(q[:, None].copy(), worst[:, None].copy()) if history else None, tree)
 
 
 def _collision_free(tree: Tree, prog: G.Program, result: Result, q0: Array, retries: Array,
