@@ -23,10 +23,10 @@ import mjkin
 from mjkin import goals as G
 from mjkin import spatial
 from mjkin.checks import check_choice, check_flag, check_number, shown
-from mjkin.fk import Frames
 from mjkin.jit import njit
+from mjkin.kinematics.fk import Frames
+from mjkin.kinematics.tree import bundled_models
 from mjkin.scene import Scene
-from mjkin.tree import bundled_models
 
 Array = NDArray[np.float64]
 

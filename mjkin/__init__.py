@@ -12,12 +12,12 @@ import os
 if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and os.name == "posix":
     os.environ["MUJOCO_GL"] = "egl"  # headless default for offscreen rendering; set before mujoco loads
 
-from . import goals, spatial  # noqa: E402
-from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError  # noqa: E402
-from .ik import Result, singular_values, solve  # noqa: E402
-from .parallel import set_threads, threads  # noqa: E402
-from .tree import Tree, bundled_models, load  # noqa: E402
-from .workspace import workspace  # noqa: E402
+from . import goals, spatial
+from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError
+from .ik import Result, singular_values, solve
+from .kinematics.tree import Tree, bundled_models, load
+from .parallel import set_threads, threads
+from .workspace import workspace
 
 __version__ = "0.1.0"
 

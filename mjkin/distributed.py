@@ -55,9 +55,9 @@ from . import goals as G
 from . import motion
 from .errors import InputError, MjkinError
 from .ik import History, Result, solve
+from .kinematics.tree import Tree, load
 from .parallel import set_threads, threads
 from .spatial import mat_to_quat, quat_to_mat
-from .tree import Tree, load
 
 try:
     import ray

@@ -29,10 +29,10 @@ from numpy.typing import ArrayLike, NDArray
 from . import spatial
 from .errors import GoalError, MjkinError
 from .jit import njit
-from .qspace import HINGE, SLIDE, all_finite
+from .kinematics.qspace import HINGE, SLIDE, all_finite
 
 if TYPE_CHECKING:
-    from .tree import Kind, Tree
+    from .kinematics.tree import Kind, Tree
 
 Array = NDArray[np.float64]
 

@@ -22,9 +22,9 @@ from . import spatial
 from .errors import InputError, MjkinIOError
 from .files import write_text
 from .ik import solve
+from .kinematics.qspace import BALL, HINGE, SLIDE
+from .kinematics.tree import Tree, fingerprint
 from .progress import track
-from .qspace import BALL, HINGE, SLIDE
-from .tree import Tree, fingerprint
 
 Array = NDArray[np.float64]
 FORMAT = "mjkin-trajectory"
@@ -249,7 +249,7 @@ class Trajectory:
         Times must not decrease and, over two frames or more, must not all be equal.
         Joint values are read as recorded: :func:`outside_limits` says which are
         outside the joint limits, ``tree.clip`` clips them. A ``.jsonl`` file is read as
-        the journal of a recording ``mjkin play`` took (:mod:`mjkin.play.journal`).
+        the journal of a recording ``mjkin play`` took (:mod:`mjkin.apps.play.journal`).
 
         Raises:
             MjkinIOError: the file is missing, unreadable, not JSON, or nested too deeply.
@@ -312,8 +312,8 @@ class Trajectory:
 
 
 def _journal_script(path: str | os.PathLike[str]) -> dict:
-    """The script a ``mjkin play`` recording's journal holds (:func:`mjkin.play.journal.script`)."""
-    from .play import journal
+    """The script a ``mjkin play`` recording's journal holds (:func:`mjkin.apps.play.journal.script`)."""
+    from .apps.play import journal
 
     return journal.script(path)
 

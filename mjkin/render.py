@@ -29,10 +29,10 @@ from numpy.typing import ArrayLike, NDArray
 from . import spatial
 from .errors import InputError, MjkinIOError
 from .files import atomic_path
+from .kinematics.qspace import BALL, FREE, HINGE
+from .kinematics.tree import Tree
 from .progress import track
-from .qspace import BALL, FREE, HINGE
 from .scene import Scene
-from .tree import Tree
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MARGIN = 0.07  # the camera keeps the figure this fraction of the image away from every edge (≥ 5 % asked)

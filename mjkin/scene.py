@@ -23,10 +23,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .jit import njit, njit_inline
-from .tree import Tree
+from .kinematics.tree import Tree
 
 if TYPE_CHECKING:
-    from .fk import Frames
+    from .kinematics.fk import Frames
 
 _NO_GEOMS = np.empty((0, 2), np.int32)
 _NO_DISTANCES = np.empty(0)

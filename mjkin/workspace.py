@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from . import spatial
 from .errors import InputError, MjkinIOError
 from .files import atomic_path
-from .tree import Tree
+from .kinematics.tree import Tree
 
 Array = NDArray[np.float64]
 FrameKind = Literal["body", "site"]

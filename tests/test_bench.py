@@ -13,8 +13,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin import bench, bench_peers, build, cli
-from mjkin.bench_ik import (
+from mjkin.apps import bench, cli
+from mjkin.apps.bench import peers
+from mjkin.apps.bench.ik import (
     TRAC_IK_ARMS,
     TRAC_IK_SOURCE,
     Run,
@@ -31,7 +32,8 @@ from mjkin.bench_ik import (
     success,
     targets_for,
 )
-from mjkin.build import dh_fk
+from mjkin.kinematics import build
+from mjkin.kinematics.build import dh_fk
 from mjkin.spatial import axis_angle_to_mat
 
 HAS_MINK = importlib.util.find_spec("mink") is not None
@@ -157,8 +159,7 @@ def test_trac_ik_success_criterion_on_the_real_arms(name):
 
 
 def test_trac_ik_passes_the_time_limit_to_solve(monkeypatch):
-    from mjkin import bench_ik
-
+    from mjkin.apps.bench import ik as bench_ik
     seen = []
     real = bench_ik.solve
 
@@ -174,7 +175,7 @@ def test_trac_ik_passes_the_time_limit_to_solve(monkeypatch):
 
 
 def test_trac_ik_published_rows_are_labelled_and_not_measured(tmp_path, monkeypatch):
-    from mjkin import bench_ik
+    from mjkin.apps.bench import ik as bench_ik
 
     monkeypatch.setattr(bench_ik, "arms", lambda names, default=(): [bench_ik.Arm("panda", ARM7.tree, "ee", "site")])
     report = bench_trac_ik(["panda"], targets=2, peers=())
@@ -337,7 +338,7 @@ def test_the_panda_of_bench_ik_is_the_bundled_dh_model():
 
 def test_chain_check_refuses_an_fk_that_differs_beyond_1e_12():
     tree = PANDA.tree
-    exact = bench_peers.check_fk(lambda q: tree.pose(q, "flange"), tree, "flange", "site", "itself")
+    exact = peers.check_fk(lambda q: tree.pose(q, "flange"), tree, "flange", "site", "itself")
     assert exact == 0.0
 
     def shifted(q):
@@ -345,15 +346,15 @@ def test_chain_check_refuses_an_fk_that_differs_beyond_1e_12():
         T[0, 3] += 1e-9
         return T
 
-    with pytest.raises(bench_peers.Unavailable, match=r"a peer's FK differs from tree.pose\(q, 'flange'\) by 1.0e-09"):
-        bench_peers.check_fk(shifted, tree, "flange", "site", "a peer")
+    with pytest.raises(peers.Unavailable, match=r"a peer's FK differs from tree.pose\(q, 'flange'\) by 1.0e-09"):
+        peers.check_fk(shifted, tree, "flange", "site", "a peer")
 
 
 @pytest.mark.parametrize("model, frame, kind", [("panda", "flange", "site"), ("panda", "link7", "body"),
                                                 ("arm7", "ee", "site")])
 def test_urdf_of_the_chain_loaded_by_mujoco_gives_the_same_frame_pose(model, frame, kind):
     tree = mjkin.load(model)
-    urdf = mujoco.MjModel.from_xml_string(bench_peers.chain_urdf(tree, frame, kind))
+    urdf = mujoco.MjModel.from_xml_string(peers.chain_urdf(tree, frame, kind))
     np.testing.assert_array_equal(urdf.jnt_range, tree.model.jnt_range)
     data = mujoco.MjData(urdf)
     tip = mujoco.mj_name2id(urdf, mujoco.mjtObj.mjOBJ_BODY, frame)
@@ -366,18 +367,18 @@ def test_urdf_of_the_chain_loaded_by_mujoco_gives_the_same_frame_pose(model, fra
 
 
 def test_urdf_writer_refuses_what_a_urdf_chain_cannot_say():
-    with pytest.raises(bench_peers.Unavailable, match="'root' is not a hinge"):
-        bench_peers.chain_urdf(mjkin.load("primate"), "right_hand", "site")
+    with pytest.raises(peers.Unavailable, match="'root' is not a hinge"):
+        peers.chain_urdf(mjkin.load("primate"), "right_hand", "site")
     fork = mjkin.load(build.links_mjcf([build.Link("a"), build.Link("b", "a"), build.Link("c", "a")]))
-    with pytest.raises(bench_peers.Unavailable, match="not a serial chain: the model has 3 joints, 2 of them"):
-        bench_peers.chain_urdf(fork, "b", "body")
+    with pytest.raises(peers.Unavailable, match="not a serial chain: the model has 3 joints, 2 of them"):
+        peers.chain_urdf(fork, "b", "body")
     still = mjkin.load(build.links_mjcf([build.Link("a", joint="fixed")]))
-    with pytest.raises(bench_peers.Unavailable, match="no joint"):
-        bench_peers.mdh_table(still, "a", "body")
+    with pytest.raises(peers.Unavailable, match="no joint"):
+        peers.mdh_table(still, "a", "body")
 
 
 def test_modified_dh_table_read_from_the_panda_is_its_published_table():
-    rows, base, tool = bench_peers.mdh_table(PANDA.tree, "flange", "site")
+    rows, base, tool = peers.mdh_table(PANDA.tree, "flange", "site")
     Q = PANDA.tree.random_q(np.random.default_rng(4), 200)
     np.testing.assert_allclose(base @ dh_fk(rows, Q, convention="modified") @ tool, PANDA.tree.pose(Q, "flange"),
                                atol=1e-12, rtol=0)
@@ -385,8 +386,8 @@ def test_modified_dh_table_read_from_the_panda_is_its_published_table():
                                                  [0, 0], [0.088, 0]], atol=1e-15)
     np.testing.assert_allclose(rows[:, 1], np.pi / 2 * np.array([0, -1, 1, 1, -1, 1, 1]), atol=1e-15)
     np.testing.assert_allclose(tool[:3, 3], [0, 0, 0.107], atol=1e-15)
-    with pytest.raises(bench_peers.Unavailable, match="turns about .* not its body's z"):
-        bench_peers.mdh_table(ARM7.tree, "ee", "site")  # arm7's second hinge turns about y
+    with pytest.raises(peers.Unavailable, match="turns about .* not its body's z"):
+        peers.mdh_table(ARM7.tree, "ee", "site")  # arm7's second hinge turns about y
 
 
 @given(dx=st.floats(-1e-4, 1e-4), angle=st.floats(-1e-3, 1e-3), axis=st.integers(0, 2))
@@ -473,7 +474,7 @@ def needs(module: str, package: str):
 
 def test_rtb_chain_is_the_panda_to_1e_12():
     needs("roboticstoolbox", "roboticstoolbox-python")
-    ets = bench_peers.rtb_ets(PANDA.tree, "flange", "site")
+    ets = peers.rtb_ets(PANDA.tree, "flange", "site")
     Q = PANDA.tree.random_q(np.random.default_rng(5), 20)
     for q, T in zip(Q, PANDA.tree.pose(Q, "flange"), strict=True):
         np.testing.assert_allclose(ets.fkine(q).A, T, atol=1e-12, rtol=0)
@@ -482,8 +483,8 @@ def test_rtb_chain_is_the_panda_to_1e_12():
 def test_trac_ik_and_pinocchio_chains_are_the_panda_to_1e_12():
     needs("trac_ik", "pytracik")
     pin = needs("pinocchio", "pin")
-    solver = bench_peers.trac_ik_solver(PANDA.tree, "flange", "site", 0.005, 1e-5)
-    model, data, fid = bench_peers.pinocchio_model(PANDA.tree, "flange", "site")
+    solver = peers.trac_ik_solver(PANDA.tree, "flange", "site", 0.005, 1e-5)
+    model, data, fid = peers.pinocchio_model(PANDA.tree, "flange", "site")
     Q = PANDA.tree.random_q(np.random.default_rng(6), 20)
     for q, T in zip(Q, PANDA.tree.pose(Q, "flange"), strict=True):
         pos, rot = solver.fk(q)
@@ -518,7 +519,7 @@ def test_peer_rows_carry_the_json_keys_and_are_rechecked_by_mujoco(protocol, tmp
 
 def test_rtb_answers_are_counted_by_mujoco_not_by_its_own_flag():
     needs("roboticstoolbox", "roboticstoolbox-python")
-    from mjkin.bench_ik import rtb_ik_lm
+    from mjkin.apps.bench.ik import rtb_ik_lm
 
     T = targets_for(PANDA, 5, seed=2)
     run, said = rtb_ik_lm(PANDA, T, PANDA.home, 1e-5, 1e-5, slimit=25)

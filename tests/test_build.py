@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin import build
+from mjkin.kinematics import build
 
 UR5E_DH = [[0, np.pi / 2, 0.1625, 0], [-0.425, 0, 0, 0], [-0.3922, 0, 0, 0],
            [0, np.pi / 2, 0.1333, 0], [0, -np.pi / 2, 0.0997, 0], [0, 0, 0.0996, 0]]
@@ -18,7 +18,7 @@ def test_dh_round_trip(convention, joints, rng):
     rows = rng.normal(size=(6, 4))
     ranges = [(-1.0, 1.0)] * 6
     tree = mjkin.load(build.dh_chain(rows, joints, convention, ranges=ranges))
-    assert [mjkin.qspace.JOINT_NAMES[k] for k in tree.jnt_type] == ["hinge" if c == "R" else "slide" for c in joints]
+    assert [mjkin.kinematics.qspace.JOINT_NAMES[k] for k in tree.jnt_type] == ["hinge" if c == "R" else "slide" for c in joints]
     np.testing.assert_array_equal(tree.jnt_range, ranges)
     Q = tree.random_q(rng, 100)
     np.testing.assert_allclose(tree.pose(Q, "ee"), build.dh_fk(rows, Q, joints, convention), atol=1e-12)

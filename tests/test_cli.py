@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 
 import mjkin
 from mjkin import motion, progress
-from mjkin.argtypes import nonnegative_int
-from mjkin.cli import build_parser, join_negative_vectors, main
+from mjkin.apps.argtypes import nonnegative_int
+from mjkin.apps.cli import build_parser, join_negative_vectors, main
 
 
 def test_info_outlines_the_tree(capsys):
@@ -59,7 +59,7 @@ def test_user_mistakes_exit_2_with_one_line(argv, text, capsys):
 def test_console_script_exits_2_without_traceback(tmp_path):
     bad = tmp_path / "bad.xml"
     bad.write_text("<mujoco><worldbody><body>")
-    r = subprocess.run([sys.executable, "-m", "mjkin.cli", "info", str(bad)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "mjkin.apps.cli", "info", str(bad)], capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.startswith("mjkin: error: cannot compile model") and "Traceback" not in r.stderr
 
@@ -193,13 +193,14 @@ def one_line_exit_2(argv, text, capsys, folder, keep=()):
 def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkeypatch, script):
     monkeypatch.chdir(tmp_path)
     # IK and rendering must not start: make them fail loudly if they do
-    monkeypatch.setattr("mjkin.showcase.showcase", lambda *a, **k: pytest.fail("the demo ran before the checks"))
+    monkeypatch.setattr("mjkin.apps.demo.showcase.showcase",
+                        lambda *a, **k: pytest.fail("the demo ran before the checks"))
     monkeypatch.setattr("mjkin.motion.walk_cycle", lambda *a, **k: pytest.fail("the walk ran before the checks"))
     monkeypatch.setattr("mjkin.motion.follow", lambda *a, **k: pytest.fail("IK ran before the checks"))
-    monkeypatch.setattr("mjkin.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
+    monkeypatch.setattr("mjkin.apps.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
     monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
                         lambda *a, **k: pytest.fail("sampling ran before the checks"))
-    monkeypatch.setattr("mjkin.bench.bench_seeds", lambda *a, **k: pytest.fail("the seeds ran before the checks"))
+    monkeypatch.setattr("mjkin.apps.bench.bench_seeds", lambda *a, **k: pytest.fail("the seeds ran before the checks"))
     argv = [a.format(script=script) for a in argv]
     one_line_exit_2(argv, text, capsys, tmp_path, keep=["five.json"])
 
@@ -238,7 +239,7 @@ def test_every_option_of_every_command_has_help():
 # ------------------------------------------------------------------ ik, keyframes, random, limits
 @pytest.mark.parametrize("model, frame", [("arm7", "world"), ("primate", "world")])
 def test_ik_refuses_a_frame_no_joint_moves(model, frame, capsys, monkeypatch):
-    monkeypatch.setattr("mjkin.cli.solve", lambda *a, **k: pytest.fail("IK ran for a frame nothing moves"))
+    monkeypatch.setattr("mjkin.apps.cli.solve", lambda *a, **k: pytest.fail("IK ran for a frame nothing moves"))
     assert main(["ik", model, "--frame", frame, "--pos", "0,0,0.5"]) == 2
     err = capsys.readouterr().err
     assert err == f"mjkin: error: no joint moves {frame!r}: choose a site or body below a joint\n"
@@ -442,7 +443,7 @@ def test_scripts_without_a_source_still_replay_by_model_name(tmp_path, capsys, s
 ])
 def test_a_closed_pipe_ends_quietly(argv, status):
     """'mjkin info primate | head -1' ended in a BrokenPipeError traceback and status 1."""
-    command = subprocess.Popen([sys.executable, "-m", "mjkin.cli", *argv], stdout=subprocess.PIPE,
+    command = subprocess.Popen([sys.executable, "-m", "mjkin.apps.cli", *argv], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
     command.stdout.close()  # the reader is gone before anything is written: every write meets a closed pipe
     err = command.stderr.read().replace(f"mjkin: {progress.COMPILING}\n", "")  # a cold kernel cache says so
@@ -452,7 +453,7 @@ def test_a_closed_pipe_ends_quietly(argv, status):
 
 def test_piped_into_head(tmp_path):
     """The same through a shell pipe; the text head shows is the command's first line."""
-    shell = f"{sys.executable} -m mjkin.cli info primate | head -1; exit ${{PIPESTATUS[0]}}"
+    shell = f"{sys.executable} -m mjkin.apps.cli info primate | head -1; exit ${{PIPESTATUS[0]}}"
     run = subprocess.run(["bash", "-c", shell], capture_output=True, text=True)
     assert run.stdout.startswith("model primate: nq=37") and run.stdout.count("\n") == 1
     assert run.returncode in (0, 141)  # 0 when everything fit into the pipe before head left

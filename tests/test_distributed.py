@@ -17,7 +17,7 @@ FIELDS = ("q", "success", "error", "iterations", "status", "goal_errors", "resta
 
 @pytest.fixture(scope="module", autouse=True)
 def cluster():
-    from mjkin.warmup import warmup
+    from mjkin.apps.warmup import warmup
 
     warmup()  # workers load the kernels this compiles from the same cache
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import tree_of
 from mjkin import motion
-from mjkin.cli import main
+from mjkin.apps.cli import main
 
 MM = 1e-3
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 import mjkin
-from mjkin.build import dh_fk
+from mjkin.kinematics.build import dh_fk
 from mjkin.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,13 +25,14 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import tree_of
-from mjkin import build, motion, render
+from mjkin import motion, render
+from mjkin.apps.play import browser, core, journal
+from mjkin.apps.play import server as server_module
+from mjkin.apps.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
+from mjkin.apps.play.session import Playground, recordings_folder, view_camera
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.files import strict_json as to_strict_json
-from mjkin.play import browser, core, journal
-from mjkin.play import server as server_module
-from mjkin.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
-from mjkin.play.session import Playground, recordings_folder, view_camera
+from mjkin.kinematics import build
 
 IK_TOL = 1e-6
 W, H = 320, 240
@@ -837,7 +838,7 @@ def test_an_unwritable_recordings_folder_is_refused_at_the_start(tmp_path, out, 
     with pytest.raises(MjkinIOError, match="--out") as e:
         recordings_folder(out, "arm7")
     assert needle in str(e.value) and "\n" not in str(e.value)
-    proc = subprocess.run([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
+    proc = subprocess.run([sys.executable, "-m", "mjkin.apps.cli", "play", "arm7", "--port", "0", "--no-browser",
                            "--out", out], capture_output=True, text=True, timeout=300)  # serves forever if accepted
     assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.strip().count("\n") == 0
     assert needle in proc.stderr and "Traceback" not in proc.stderr
@@ -1184,7 +1185,7 @@ URL_LINE = re.compile(r"mjkin play: http://127\.0\.0\.1:(\d+)/\?token=([\w-]{32,
 def play_process(out) -> tuple[subprocess.Popen, Client]:
     """A real ``mjkin play --port 0 --no-browser --out OUT`` and a client with the token from the URL it printed."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    proc = subprocess.Popen([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "0", "--no-browser",
+    proc = subprocess.Popen([sys.executable, "-m", "mjkin.apps.cli", "play", "arm7", "--port", "0", "--no-browser",
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
     line = proc.stdout.readline()
     found = URL_LINE.fullmatch(line)
@@ -1256,7 +1257,7 @@ def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_
     np.testing.assert_allclose(arm().pose(np.array(samples[-1]["q"]), "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
 
     video = tmp_path / "replayed.mp4"
-    replay = subprocess.run([sys.executable, "-m", "mjkin.cli", "replay", str(path), "-o", str(video),
+    replay = subprocess.run([sys.executable, "-m", "mjkin.apps.cli", "replay", str(path), "-o", str(video),
                              "--width", "160", "--height", "120"], capture_output=True, text=True, timeout=300)
     assert replay.returncode == 0, replay.stderr
     assert imageio.imread(video, index=None).shape == (len(samples), 120, 160, 3)
@@ -1279,7 +1280,7 @@ def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_
 
 
 def test_cli_bad_port_is_one_line():
-    proc = subprocess.run([sys.executable, "-m", "mjkin.cli", "play", "arm7", "--port", "70000", "--no-browser"],
+    proc = subprocess.run([sys.executable, "-m", "mjkin.apps.cli", "play", "arm7", "--port", "70000", "--no-browser"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "--port" in proc.stderr
 

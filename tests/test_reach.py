@@ -9,9 +9,10 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import ROOT, tree_of
-from mjkin import build, seeds
 from mjkin import goals as G
+from mjkin.apps.demo import seeds
 from mjkin.ik.reach import ROOT_WOULD_MOVE, circle_point, reach_points
+from mjkin.kinematics import build
 
 PLANAR = build.planar_chain([1.0, 0.7, 0.4])
 BALLS = build.links_mjcf([build.Link(name=f"s{i}", parent=None if i == 0 else f"s{i - 1}", joint="ball",

@@ -19,7 +19,7 @@ def test_defaults_shown_in_the_command_line_section_are_the_real_ones():
     import argparse
     import re
 
-    from mjkin.cli import build_parser
+    from mjkin.apps.cli import build_parser
 
     readme = (ROOT / "README.md").read_text()
     block = readme.split("## Command line", 1)[1].split("```sh", 1)[1].split("```", 1)[0]

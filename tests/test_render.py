@@ -18,9 +18,10 @@ from scipy.ndimage import binary_erosion
 
 import mjkin
 from conftest import GYM_ASSETS, bundled, model_id, tree_of
-from mjkin import build, motion, render
-from mjkin.cli import main
+from mjkin import motion, render
+from mjkin.apps.cli import main
 from mjkin.files import write_text
+from mjkin.kinematics import build
 from mjkin.scene import Scene
 
 SMALL = {"width": 160, "height": 120}
@@ -146,7 +147,7 @@ def test_write_video_takes_frames_as_they_come_and_leaves_no_file_when_it_fails(
 
 
 PEAK_MEMORY = """import sys
-from mjkin.cli import main
+from mjkin.apps.cli import main
 code = main(sys.argv[1:])
 print(next(line.split()[1] for line in open("/proc/self/status") if line.startswith("VmHWM:")))  # peak RSS, kB
 sys.exit(code)
@@ -340,8 +341,8 @@ def test_replay_refuses_a_script_from_another_model(tmp_path, capsys):
 
 def test_ik_can_avoid_collisions():
     """Two elbow solutions reach the target; an obstacle sits on one elbow; avoid_collisions picks the other."""
-    from mjkin import build
     from mjkin.ik.analytic import solutions
+    from mjkin.kinematics import build
 
     xml = build.planar_chain([1.0, 0.7])
     free = mjkin.load(xml)

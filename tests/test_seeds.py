@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin import seeds
+from mjkin.apps.demo import seeds
 
 GAP = np.hypot(35.0, 5.0) - 30.0  # how close a 30-unit arm gets to (-35, 5)
 

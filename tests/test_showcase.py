@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin import motion, showcase
+from mjkin import motion
+from mjkin.apps.demo import showcase
 from mjkin.scene import Scene
 
 

@@ -42,7 +42,7 @@ def test_lm_follows_a_slowly_converging_run():
     targets = {f: tree.pose(tree.qpos0, f, "body")[:3, 3] for f in ("left_foot", "right_foot", "head", "right_hand")}
     targets["left_hand"] = tree.pose(tree.qpos0, "left_hand", "body")[:3, 3] + [0.15, 0.05, 0.1]
     goals = [G.Position(f, xyz, kind="body") for f, xyz in targets.items()]
-    free = [n for n, t in zip(tree.names("joint"), tree.jnt_type, strict=True) if t != mjkin.qspace.FREE]
+    free = [n for n, t in zip(tree.names("joint"), tree.jnt_type, strict=True) if t != mjkin.kinematics.qspace.FREE]
     res = mjkin.solve(tree, goals, tree.qpos0, max_iters=200, restarts=0, joints=free)
     assert res.success and res.iterations > 40, (res.status, res.iterations)
 
@@ -394,7 +394,7 @@ def test_repeated_calls_reuse_the_goal_structure(rng):
 
 def test_spread_restart_starts_stratify_every_joint():
     """Sobol starts put exactly one of 64 draws in each 1/64th of every joint's range (uniform draws do not)."""
-    from mjkin import qspace
+    from mjkin.kinematics import qspace
 
     tree = tree_of("arm7")
     q = qspace.random(tree, 0, 64, spread=True)

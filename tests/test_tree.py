@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 import mjkin
 from conftest import GYM_ASSETS, tree_of
-from mjkin.qspace import BALL, HINGE, SLIDE
+from mjkin.kinematics.qspace import BALL, HINGE, SLIDE
 
 TWO_LINK = """<mujoco><worldbody><body name="a"><joint name="j1" axis="0 0 1"/><geom size=".1"/>
 <body name="b" pos="1 0 0"><joint name="j2" axis="0 0 1" range="-1 1"/><geom size=".1"/>
@@ -200,7 +200,7 @@ def test_a_model_without_joints_has_kinematics():
 
 
 def test_the_cli_on_a_model_without_joints(tmp_path, capsys):
-    from mjkin.cli import main
+    from mjkin.apps.cli import main
 
     path = tmp_path / "zero_dof.xml"
     path.write_text(ZERO_DOF)

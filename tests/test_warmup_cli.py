@@ -8,8 +8,8 @@ import types
 
 import numba
 
-from mjkin import warmup
-from mjkin.cli import main
+from mjkin.apps import warmup
+from mjkin.apps.cli import main
 from mjkin.ik import kernel
 
 

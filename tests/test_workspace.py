@@ -9,8 +9,8 @@ import pytest
 
 import mjkin
 from conftest import tree_of
-from mjkin import build
-from mjkin.cli import main
+from mjkin.apps.cli import main
+from mjkin.kinematics import build
 
 
 @pytest.mark.parametrize("lengths", [(1.0, 0.7), (0.6, 1.1), (2.0, 0.5, 0.3), (15.0, 10.0, 5.0)])

@@ -16,8 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GoalError
 from ..goals import POSITION, Program
-from ..qspace import HINGE
-from ..tree import Tree
+from ..kinematics.qspace import HINGE
+from ..kinematics.tree import Tree
 from .kernel import CONVERGED, UNREACHABLE, evaluate_program
 from .solve import Result, package
 

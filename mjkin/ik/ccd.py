@@ -18,12 +18,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
-from ..fk import fk_scratch
 from ..goals import POSITION, Program
 from ..jit import matvec3, monotonic_ns, njit
+from ..kinematics.fk import fk_scratch
+from ..kinematics.qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
+from ..kinematics.tree import Tree
 from ..parallel import parallel_chunks
-from ..qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
-from ..tree import Tree
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk, kinematic_arrays
 from .solve import History, Result, package

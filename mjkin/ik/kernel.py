@@ -37,15 +37,15 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ..fk import Kinematics, fk_kernel, fk_scratch, kinematic_arrays
 from ..goals import AIM, AXIS, COUPLING, HALFSPACE, LINE, ORIENTATION, PLANE, POSE, POSITION, REST
-from ..jacobian import jacobian_kernel
 from ..jit import matvec3, monotonic_ns, njit, njit_inline
-from ..qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel
+from ..kinematics.fk import Kinematics, fk_kernel, fk_scratch, kinematic_arrays
+from ..kinematics.jacobian import jacobian_kernel
+from ..kinematics.qspace import BALL, FREE, HINGE, SLIDE, clip_kernel, difference_kernel, integrate_kernel
 
 if TYPE_CHECKING:
     from ..goals import Program
-    from ..tree import Tree
+    from ..kinematics.tree import Tree
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

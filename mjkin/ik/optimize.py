@@ -28,8 +28,8 @@ from scipy.optimize import minimize
 
 from .. import spatial
 from ..goals import COUPLING, HALFSPACE, Program
-from ..qspace import HINGE, SLIDE
-from ..tree import Tree
+from ..kinematics.qspace import HINGE, SLIDE
+from ..kinematics.tree import Tree
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, evaluate_program
 from .solve import Result, package
 

@@ -34,10 +34,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
-from ..fk import fk_scratch
 from ..goals import POSITION, Program
-from ..qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
-from ..tree import Tree
+from ..kinematics.fk import fk_scratch
+from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
+from ..kinematics.tree import Tree
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk, kinematic_arrays
 from .solve import History, Result, package
 

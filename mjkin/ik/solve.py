@@ -9,12 +9,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
-from .. import qspace
 from ..checks import check_count, check_flag, check_number
 from ..errors import GoalError, InputError
+from ..kinematics import qspace
+from ..kinematics.qspace import FREE, NQ, NV, clip_kernel
+from ..kinematics.tree import Tree, fingerprint
 from ..parallel import parallel_chunks
-from ..qspace import FREE, NQ, NV, clip_kernel
-from ..tree import Tree, fingerprint
 from . import kernel
 from .kernel import STATUS_NAMES
 
@@ -92,7 +92,7 @@ class Result:
     def __getstate__(self) -> dict:
         """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it).
 
-        The tree's :func:`~mjkin.tree.fingerprint` travels instead, for :meth:`with_tree` to check.
+        The tree's :func:`~mjkin.kinematics.tree.fingerprint` travels instead, for :meth:`with_tree` to check.
         """
         made_on = fingerprint(self.tree) if self.tree is not None else self.__dict__.get("_fingerprint")
         return {**self.__dict__, "tree": None, "_fingerprint": made_on}
@@ -222,7 +222,7 @@ def _restart_q(tree: Tree, prog: G.Program, active: NDArray[np.bool_], rooted: b
 def _random_starts(tree: Tree, seed: int | None, n: int) -> Array:
     """``n`` restart configurations ``(n, nq)``, the same for the same seed (kept on the tree).
 
-    Quasi-random (:func:`mjkin.qspace.random` with ``spread``): on the TRAC-IK
+    Quasi-random (:func:`mjkin.kinematics.qspace.random` with ``spread``): on the TRAC-IK
     protocol it cut the Panda's mean iterations by about 15 %.
     """
     if seed is None:

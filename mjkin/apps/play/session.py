@@ -22,10 +22,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .. import motion, render, spatial
-from ..errors import InputError, MjkinError, MjkinIOError
-from ..files import check_writable
-from ..tree import Tree
+from ... import motion, render, spatial
+from ...errors import InputError, MjkinError, MjkinIOError
+from ...files import check_writable
+from ...kinematics.tree import Tree
 from . import core, journal
 from .journal import Journal, Sample
 

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import spatial
-from .errors import InputError
-from .jit import njit, njit_inline
+from .. import spatial
+from ..errors import InputError
+from ..jit import njit, njit_inline
 
 if TYPE_CHECKING:
     from .tree import Tree

@@ -19,12 +19,12 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import goals as G
-from .. import spatial
-from ..errors import InputError
-from ..ik.solve import METHODS, solve
-from ..qspace import FREE, HINGE, SLIDE
-from ..tree import Tree
+from ... import goals as G
+from ... import spatial
+from ...errors import InputError
+from ...ik.solve import METHODS, solve
+from ...kinematics.qspace import FREE, HINGE, SLIDE
+from ...kinematics.tree import Tree
 
 Array = NDArray[np.float64]
 

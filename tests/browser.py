@@ -1,6 +1,6 @@
 """Headless Chromium on the playground page (playwright): the browser test's driver and the README still.
 
-``python -m mjkin.play.browser OUT.png [MODEL]`` serves MODEL (default arm7) on a
+``python tests/browser.py OUT.png [MODEL]`` serves MODEL (default arm7) on a
 free loopback port, opens the page in headless Chromium, drags the target and
 saves a screenshot of the page. Needs Debian's ``chromium`` (or ``$MJKIN_CHROMIUM``)
 and ``pip install 'mjkin[browser]'``; playwright's own browser download is never used.
@@ -15,9 +15,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import MjkinError
-from ..files import atomic_path
-from ..tree import load
+from mjkin.errors import MjkinError
+from mjkin.files import atomic_path
+from mjkin.kinematics.tree import load
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -86,8 +86,8 @@ def screenshot(path: str | Path, model: str = "arm7") -> Path:
     """Serve ``model``, drag its first target in headless Chromium, save the page as PNG."""
     from playwright.sync_api import sync_playwright
 
-    from .server import start_server, stop_server
-    from .session import Playground
+    from mjkin.apps.play.server import start_server, stop_server
+    from mjkin.apps.play.session import Playground
 
     reason = missing()
     if reason:
@@ -109,10 +109,10 @@ def screenshot(path: str | Path, model: str = "arm7") -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m mjkin.play.browser OUT.png [MODEL]``."""
+    """``python tests/browser.py OUT.png [MODEL]``."""
     args = sys.argv[1:] if argv is None else argv
     if not 1 <= len(args) <= 2:
-        print("usage: python -m mjkin.play.browser OUT.png [MODEL]", file=sys.stderr)
+        print("usage: python tests/browser.py OUT.png [MODEL]", file=sys.stderr)
         return 2
     try:
         print(f"wrote {screenshot(args[0], *args[1:])}")

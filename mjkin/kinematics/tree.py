@@ -13,8 +13,9 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import qspace, spatial
-from .errors import InputError, MjkinIOError, ModelError, UnknownNameError
+from .. import spatial
+from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
+from . import qspace
 from .fk import Frames, Plan, fk_arrays, forward, frame_pose_one, kinematic_arrays, moved
 from .jacobian import check_offset, frame_jacobian_one
 

@@ -29,8 +29,8 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import motion
-from ..errors import InputError, MjkinIOError
+from ... import motion
+from ...errors import InputError, MjkinIOError
 
 try:
     import fcntl

@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from ..tree import load
-from .server import PART, start_server, stop_server
-from .session import Playground, encode_jpeg, live_painter
+from ...kinematics.tree import load
+from ..play.server import PART, start_server, stop_server
+from ..play.session import Playground, encode_jpeg, live_painter
 
 Row = dict[str, object]
 MOUSE_HZ = 60.0  # drags per second in the frame-rate run, as a mouse moves

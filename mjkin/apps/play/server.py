@@ -14,13 +14,13 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
   (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
-- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.play.journal`); ``POST /stop`` ``{}`` writes
+- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` writes
   the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
 A bad request is a 400 with ``{"error": "one line"}``; a change while another client
-holds control is a 409 (see :mod:`mjkin.play.session`); a recording that cannot be written is a 500
+holds control is a 409 (see :mod:`mjkin.apps.play.session`); a recording that cannot be written is a 500
 (it is kept: ``POST /stop`` again writes it). Every reply is strict JSON: a number that is not finite
 (an image point of a target level with the camera, say) is sent as ``null``.
 
@@ -68,9 +68,9 @@ from starlette.routing import Route
 from starlette.types import ASGIApp, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from ..errors import InputError, MjkinError, MjkinIOError
-from ..files import strict_json
-from ..tree import Tree, load
+from ...errors import InputError, MjkinError, MjkinIOError
+from ...files import strict_json
+from ...kinematics.tree import Tree, load
 from . import core, journal
 from .session import Busy, Playground, recordings_folder
 
@@ -349,7 +349,7 @@ class Routes:
 
     async def page(self, request: Request) -> Response:
         """The page."""
-        body = files("mjkin.play").joinpath("static", "index.html").read_bytes()
+        body = files("mjkin.apps.play").joinpath("static", "index.html").read_bytes()
         return Response(body, headers={**NO_STORE, "Referrer-Policy": "no-referrer"},
                         media_type="text/html; charset=utf-8")
 

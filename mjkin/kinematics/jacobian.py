@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError
+from ..errors import InputError
+from ..jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
-from .jit import njit, njit_inline
 
 if TYPE_CHECKING:
     from .fk import Frames

@@ -18,16 +18,15 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from . import bench_peers
-from . import goals as G
-from .bench import GC_NOTE, Report, Row, gc_paused, shared_models_dir
-from .errors import InputError
-from .ik import solve
-from .ik.solve import AUTO_RESTARTS, TIMED_RESTARTS
-from .progress import track
-from .qspace import HINGE, SLIDE
-from .spatial import mat_to_rotvec
-from .tree import Tree, load
+from ... import goals as G
+from ...errors import InputError
+from ...ik import solve
+from ...ik.solve import AUTO_RESTARTS, TIMED_RESTARTS
+from ...kinematics.qspace import HINGE, SLIDE
+from ...kinematics.tree import Tree, load
+from ...progress import track
+from ...spatial import mat_to_rotvec
+from . import GC_NOTE, Report, Row, gc_paused, peers, shared_models_dir
 
 Array = NDArray[np.float64]
 Kind = Literal["site", "body"]
@@ -252,9 +251,9 @@ def mink_ik(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, max
 
     FrameTask + ConfigurationLimit, ``solve_ik`` (daqp), integrate, and convergence by
     ``FrameTask.compute_error`` (translation and rotation norms) after each step.
-    Raises :class:`mjkin.bench_peers.Unavailable` when mink is not installed.
+    Raises :class:`mjkin.peers.Unavailable` when mink is not installed.
     """
-    mink = bench_peers.require("mink", "mink")
+    mink = peers.require("mink", "mink")
 
     config = mink.Configuration(arm.tree.model)
     task = mink.FrameTask(arm.frame, arm.kind, position_cost=1.0, orientation_cost=1.0, lm_damping=1.0)
@@ -287,13 +286,13 @@ RTB_ILIMIT = 50  # iterations per search: as many as each of mjkin's lm runs
 def rtb_ik_lm(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, slimit: int) -> tuple[Run, Array]:
     """Robotics Toolbox's C++ ``ik_LM`` (Chan's damping), one call per target; also its own success flags ``(N,)``.
 
-    Built once: a ``DHRobot`` from the model's modified-DH table (:func:`mjkin.bench_peers.rtb_ets`)
+    Built once: a ``DHRobot`` from the model's modified-DH table (:func:`mjkin.peers.rtb_ets`)
     and its ``ets()``, whose ``ik_LM`` is the C++ call (``Robot.ik_LM`` builds the ETS again on
     every call). Its one tolerance bounds ``E = ½ |e|²`` over the 6-D error: ``E < ½ min(tol,
     rot_tol)²`` is the loosest bound that keeps both errors within theirs. ``slimit`` searches of
     :data:`RTB_ILIMIT` iterations, the first from ``q0``, the others from random in-limit starts.
     """
-    ets = bench_peers.rtb_ets(arm.tree, arm.frame, arm.kind)
+    ets = peers.rtb_ets(arm.tree, arm.frame, arm.kind)
     budget = {"q0": q0, "ilimit": RTB_ILIMIT, "slimit": slimit, "tol": 0.5 * min(tol, rot_tol) ** 2}
     ets.ik_LM(targets[0], **budget)  # untimed first call
     N = len(targets)
@@ -311,13 +310,13 @@ def rtb_ik_lm(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, s
 def trac_ik(arm: Arm, targets: Array, q0: Array, eps: float, time_limit: float) -> tuple[Run, Array]:
     """TRAC-IK (Speed mode, pytracik) one call per target, as its README calls it; also its own success flags.
 
-    Built once from the chain's URDF (:func:`mjkin.bench_peers.trac_ik_solver`); each call is
+    Built once from the chain's URDF (:func:`mjkin.peers.trac_ik_solver`); each call is
     ``TracIK.ik(position, rotation, seed)`` (its matrix-to-quaternion step included) with
     TRAC-IK's own time limit and ``eps``. A call that finds nothing returns ``None``: its
     answer is counted as the seed. TRAC-IK reports no iteration counts, and its CPU time is not
     measured: Speed mode solves in two threads of its own, not in the calling one.
     """
-    solver = bench_peers.trac_ik_solver(arm.tree, arm.frame, arm.kind, time_limit, eps)
+    solver = peers.trac_ik_solver(arm.tree, arm.frame, arm.kind, time_limit, eps)
     pos, rot = targets[:, :3, 3].copy(), targets[:, :3, :3].copy()
     solver.ik(pos[0], rot[0], q0)  # untimed first call
     N = len(targets)
@@ -419,7 +418,7 @@ PEER_NOTES = {
 
 def peer(name: str, arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, time_limit: float,
          iters: int | None) -> Row:
-    """The row of one peer, or :class:`mjkin.bench_peers.Unavailable` with the reason it has none.
+    """The row of one peer, or :class:`mjkin.peers.Unavailable` with the reason it has none.
 
     ``iters`` is ``bench ik``'s single-start budget (mink's; ``ik_LM`` gets mjkin's 1 + 24 starts);
     ``None`` is TRAC-IK's protocol: ``ik_LM`` searches up to 1 + 1000 times, and as it has no
@@ -451,7 +450,7 @@ def peers_beside(mine: list[Row], arm: Arm, names: Sequence[str], skipped: list[
     for name in names:
         try:
             rows.append(peer(name, arm, *args))
-        except bench_peers.Unavailable as e:
+        except peers.Unavailable as e:
             skipped.append({"model": arm.name, "solver": name, "reason": str(e)})
     for r in rows:  # > 1: mjkin faster
         for stat in ("median", "mean"):

@@ -23,10 +23,10 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .files import write_text
-from .qspace import HINGE
-from .spatial import make_transform, quat_to_euler, quat_to_mat
-from .tree import Tree
+from ...files import write_text
+from ...kinematics.qspace import HINGE
+from ...kinematics.tree import Tree
+from ...spatial import make_transform, quat_to_euler, quat_to_mat
 
 Array = NDArray[np.float64]
 Kind = Literal["site", "body"]

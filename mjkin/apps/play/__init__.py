@@ -1,9 +1,9 @@
 """``mjkin play``: the playground in a browser — drag a target, watch each IK method work.
 
-:mod:`mjkin.play.core` is the pure part (camera rays, drags, the warm-started
-solve), :mod:`mjkin.play.session` the live state and its render thread,
-:mod:`mjkin.play.journal` a recording's journal on disk (what survives a crash),
-:mod:`mjkin.play.server` the HTTP server and its JSON API, :mod:`mjkin.play.bench`
+:mod:`mjkin.apps.play.core` is the pure part (camera rays, drags, the warm-started
+solve), :mod:`mjkin.apps.play.session` the live state and its render thread,
+:mod:`mjkin.apps.play.journal` a recording's journal on disk (what survives a crash),
+:mod:`mjkin.apps.play.server` the HTTP server and its JSON API, :mod:`mjkin.apps.bench.play`
 the frame-rate and latency measurement (``mjkin bench play``).
 """
 

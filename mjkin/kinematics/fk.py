@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import spatial
-from .jit import axis_angle, njit, njit_inline, quat_to_mat
+from .. import spatial
+from ..jit import axis_angle, njit, njit_inline, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE
 
 if TYPE_CHECKING:
@@ -261,7 +261,7 @@ def to_poses(R: Array, x: Array) -> Array:
 class Kinematics(NamedTuple):
     """The tree's arrays for the compiled code (``nbody`` bodies, ``njnt`` joints, ``nv`` dofs).
 
-    The first fields are :class:`mjkin.fk.Plan`'s (see there); the rest locate
+    The first fields are :class:`mjkin.kinematics.fk.Plan`'s (see there); the rest locate
     each dof (``dof_*``, ``(nv, ...)``) and each body's ancestor dofs
     (``body_dof_idx[body_dof_ptr[b]:body_dof_ptr[b + 1]]``), and give the joint
     limits ``jnt_lo``/``jnt_hi`` (``(njnt,)``, ±inf when unlimited).

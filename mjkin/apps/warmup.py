@@ -16,10 +16,10 @@ from collections.abc import Callable
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
-from . import goals as G
-from . import progress
-from .ik import solve
-from .tree import Tree, load
+from .. import goals as G
+from .. import progress
+from ..ik import solve
+from ..kinematics.tree import Tree, load
 
 
 def _steps(chain: Tree, figure: Tree) -> list[tuple[str, Callable[[], object]]]:

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import spatial
-from .errors import InputError
+from .. import spatial
+from ..errors import InputError
 
 Array = NDArray[np.float64]
 Vec3 = tuple[float, float, float]

@@ -19,11 +19,12 @@ from collections.abc import Callable, Iterator
 import numpy as np
 from numpy.typing import NDArray
 
-from . import motion, render, seeds
-from .errors import InputError
-from .goals import Rest
-from .scene import Scene
-from .tree import Tree, bundled_models, load
+from ... import motion, render
+from ...errors import InputError
+from ...goals import Rest
+from ...kinematics.tree import Tree, bundled_models, load
+from ...scene import Scene
+from . import seeds
 
 Array = NDArray[np.float64]
 Images = Iterator[NDArray[np.uint8]]  # frames (height, width, 3), one at a time

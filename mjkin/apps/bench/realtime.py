@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from . import goals as G
-from .bench import GC_NOTE, Report, Row, gc_paused
-from .build import Link, links_mjcf
-from .errors import InputError
-from .ik import solve
-from .parallel import threads_set
-from .progress import track
-from .qspace import FREE
-from .tree import Tree, load
+from ... import goals as G
+from ...errors import InputError
+from ...ik import solve
+from ...kinematics.build import Link, links_mjcf
+from ...kinematics.qspace import FREE
+from ...kinematics.tree import Tree, load
+from ...parallel import threads_set
+from ...progress import track
+from . import GC_NOTE, Report, Row, gc_paused
 
 Array = NDArray[np.float64]
 RATES = {"60 Hz": 1 / 60, "1 kHz": 1e-3}
@@ -174,7 +174,7 @@ def draw(rows: list[Row], path: str) -> Path:
         import matplotlib.pyplot as plt
     except ImportError:
         raise InputError("--plot needs matplotlib: pip install 'mjkin[plot]'") from None
-    from .files import write_with
+    from ...files import write_with
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for mode, colour in (("warm", "tab:blue"), ("cold", "tab:orange")):

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from . import build
-from . import goals as G
-from .ik import Result, solve
-from .ik.analytic import solutions
-from .tree import Tree, load
+from ... import goals as G
+from ...ik import Result, solve
+from ...ik.analytic import solutions
+from ...kinematics import build
+from ...kinematics.tree import Tree, load
 
 Array = NDArray[np.float64]
 
@@ -129,7 +129,7 @@ def figures(out: Path) -> list[Path]:
         import matplotlib  # noqa: F401
     except ImportError:
         return []
-    from .files import atomic_path
+    from ...files import atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     tree = load("planar_3link")

@@ -21,11 +21,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .argtypes import nonnegative_int, positive_float, positive_int
-from .errors import InputError
-from .files import check_writable, write_text
-from .progress import track
-from .tree import Tree, load
+from ...errors import InputError
+from ...files import check_writable, write_text
+from ...kinematics.tree import Tree, load
+from ...progress import track
+from ..argtypes import nonnegative_int, positive_float, positive_int
 
 Row = dict[str, object]
 Tables = dict[str, list[Row]]
@@ -200,14 +200,14 @@ def mujoco_site_pose(model: mujoco.MjModel, q: np.ndarray, site: int) -> Callabl
 def pinocchio_frame_pose(tree: Tree, frame: str, q: np.ndarray) -> Callable[[], object]:
     """Pinocchio's one pose, as its users call it: ``forwardKinematics`` then ``updateFramePlacement``.
 
-    The model comes from the URDF of the chain to the site (:func:`mjkin.bench_peers.pinocchio_model`,
+    The model comes from the URDF of the chain to the site (:func:`mjkin.peers.pinocchio_model`,
     checked equal to ``tree.pose``); the call returns pinocchio's own ``SE3`` of the frame.
-    Raises :class:`mjkin.bench_peers.Unavailable` when pinocchio is missing or cannot take the chain.
+    Raises :class:`mjkin.peers.Unavailable` when pinocchio is missing or cannot take the chain.
     """
-    from . import bench_peers
+    from . import peers
 
-    pin = bench_peers.require("pinocchio", "pin")
-    model, data, fid = bench_peers.pinocchio_model(tree, frame, "site")
+    pin = peers.require("pinocchio", "pin")
+    model, data, fid = peers.pinocchio_model(tree, frame, "site")
 
     def run() -> object:
         pin.forwardKinematics(model, data, q)
@@ -222,7 +222,7 @@ def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skip
     ``ratio``: the library's time over mjkin's (> 1: mjkin faster). A peer that cannot run adds
     its reason to ``skipped``.
     """
-    from .bench_peers import Unavailable
+    from .peers import Unavailable
 
     site = tree.model.nsite - 1
     frame = tree.names("site")[site]
@@ -279,7 +279,7 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
 
 def bench_seeds(out: Path | None = None) -> Report:
     """The seeds' examples (SEEDS.md §4): tables, and PNG figures in ``out`` when matplotlib is there."""
-    from . import seeds
+    from ..demo import seeds
 
     one = []
     for label, goal in (("(-20, 5)", seeds.REACHABLE), ("(-35, 5)", seeds.UNREACHABLE)):
@@ -326,7 +326,7 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
     Both make a renderer, set each q, run ``mj_kinematics`` + ``mj_comPos`` + ``mj_camlight``
     (what drawing needs), update the scene with the same camera and keep every frame.
     """
-    from .render import Overlay, default_camera, frames
+    from ...render import Overlay, default_camera, frames
 
     if frames_n < 1 or width < 1 or height < 1:
         raise InputError(f"--frames, --width and --height must be positive, got {frames_n}, {width}, {height}")
@@ -443,7 +443,7 @@ def bench_env(steps: int = 2000, num_envs: int = 256, seed: int = 0) -> Report:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.cli.build_parser`)."""
+    """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
@@ -528,7 +528,7 @@ def run(args: argparse.Namespace) -> Report:
     if args.which == "fk":
         return bench_fk(args.models, args.batch, args.seed)
     if args.which == "ik":
-        from .bench_ik import bench_ik, bench_trac_ik
+        from .ik import bench_ik, bench_trac_ik
 
         if args.protocol == "trac-ik":
             return bench_trac_ik(args.models, args.targets or 10_000, args.tol or 1e-5, args.rot_tol or 1e-5,
@@ -536,7 +536,7 @@ def run(args: argparse.Namespace) -> Report:
         return bench_ik(args.models, args.targets or 1000, args.tol or 1e-4, args.rot_tol or 1e-3, args.iters,
                         args.seed, time_limit=args.time_limit)
     if args.which == "realtime":
-        from .bench_realtime import bench_realtime
+        from .realtime import bench_realtime
 
         return bench_realtime(args.dofs, args.frames, args.seed, args.plot)
     if args.which == "render":
@@ -544,7 +544,7 @@ def run(args: argparse.Namespace) -> Report:
     if args.which == "env":
         return bench_env(args.steps, args.num_envs, args.seed)
     if args.which == "play":
-        from .play.bench import measure
+        from .play import measure
 
         return Report(measure())
     return bench_seeds(Path(args.out))

@@ -19,19 +19,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import bench, motion, progress, spatial
+from .. import motion, progress, spatial
+from ..errors import InputError, MjkinError, MjkinIOError
+from ..files import check_writable, strict_json
+from ..goals import Goal, Orientation, Position
+from ..ik.solve import METHODS, solve
+from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
+from ..kinematics.tree import Tree, bundled_models, load
+from . import bench
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
-from .errors import InputError, MjkinError, MjkinIOError
-from .files import check_writable, strict_json
-from .goals import Goal, Orientation, Position
-from .ik.solve import METHODS, solve
-from .qspace import BALL, FREE, HINGE, JOINT_NAMES
-from .tree import Tree, bundled_models, load
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from .render import Overlay
+    from ..render import Overlay
 
 Command = Callable[[argparse.Namespace], int]
 
@@ -279,7 +280,7 @@ def check_output(args: argparse.Namespace, count: int | None) -> int | None:
 
     Returns the frame index to write for an image output, None for a video (or while ``count`` is None).
     """
-    from .render import VIDEO_SUFFIXES, check_video_size
+    from ..render import VIDEO_SUFFIXES, check_video_size
 
     path = check_writable(args.output, VIDEO_SUFFIXES + IMAGE_SUFFIXES)
     for side in ("width", "height"):
@@ -307,7 +308,7 @@ def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: 
 
     The camera frames every pose either way, so a still matches the same frame of the video.
     """
-    from . import render
+    from .. import render
 
     if frame is None:
         render.write_video(render.frames(tree, qs, args.width, args.height, overlay=overlay), args.output, args.fps)
@@ -323,7 +324,7 @@ def write_output(args: argparse.Namespace, tree: Tree, qs: np.ndarray, overlay: 
 
 def write_images(args: argparse.Namespace, images: Iterable[NDArray[np.uint8]], count: int, frame: int | None) -> None:
     """Write ``count`` rendered frames ``(H, W, 3)`` to ``args.output`` as they come: a video, or ``frame`` only."""
-    from . import render
+    from .. import render
 
     if frame is None:
         render.write_video(images, args.output, args.fps)
@@ -341,7 +342,7 @@ def wrote(args: argparse.Namespace, count: int, frame: int | None) -> None:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Render the showcase: the seeds' arm under three solvers, the 7-DoF arm's path, the primate's walk."""
-    from .showcase import scene_frames, showcase
+    from .demo.showcase import scene_frames, showcase
 
     count = int(args.seconds * args.fps)
     if count < 2:
@@ -357,7 +358,7 @@ WALK_FRAMES_PER_STEP = 24
 
 def cmd_walk(args: argparse.Namespace) -> int:
     """Render the primate walking (heel to toe, arms swinging), seen from the side by a tracking camera."""
-    from . import render
+    from .. import render
 
     frame = check_output(args, args.steps * WALK_FRAMES_PER_STEP)  # a clear error before the work
     tree = load("primate")
@@ -408,7 +409,7 @@ def model_source(model: str) -> str:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """Render a configuration or a script to an image or a video."""
-    from . import render
+    from .. import render
 
     check_output(args, None)  # the path and sizes now; the frame index once the frame count is known
     tree = load(args.model)
@@ -423,7 +424,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def render_script(args: argparse.Namespace, tree: Tree, traj: motion.Trajectory) -> int:
     """Render a script ``traj`` of ``tree`` (markers at its targets, the trail of its site) to ``args.output``."""
-    from . import render
+    from .. import render
 
     qs = within_limits(args, tree, traj.q, "rendered as recorded")
     frame = check_output(args, len(qs))
@@ -451,7 +452,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_workspace(args: argparse.Namespace) -> int:
     """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
-    from .workspace import plot, workspace
+    from ..workspace import plot, workspace
 
     check_writable(args.output, IMAGE_SUFFIXES, "--output")
     tree = load(args.model)

@@ -1,0 +1,1 @@
+"""The kinematic core: the tree, FK, Jacobians, configuration space, building chains."""
