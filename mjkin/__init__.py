@@ -7,14 +7,10 @@ MuJoCo compiles models, renders and finds contacts. ``q`` is always MuJoCo's
 
 from __future__ import annotations
 
-import os
-
-if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and os.name == "posix":
-    os.environ["MUJOCO_GL"] = "egl"  # headless default for offscreen rendering; set before mujoco loads
-
 from . import goals, spatial
 from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError
-from .ik import Result, singular_values, solve
+from .ik import Problem, Result, singular_values, solve
+from .kinematics import build
 from .kinematics.tree import Tree, bundled_models, load
 from .parallel import set_threads, threads
 from .workspace import workspace
@@ -27,9 +23,11 @@ __all__ = [
     "MjkinError",
     "MjkinIOError",
     "ModelError",
+    "Problem",
     "Result",
     "Tree",
     "UnknownNameError",
+    "build",
     "bundled_models",
     "goals",
     "load",

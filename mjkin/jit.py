@@ -50,7 +50,8 @@ def drop_stale_caches(package: Path = PACKAGE) -> bool:
     ``fk.py`` alone, the IK kernel's cache would still hold the old FK. A digest
     of every source, kept beside the caches, catches that.
     """
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(package.rglob("*.py")))).hexdigest()
+    sources = sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)  # not the generated loops
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
     caches = cache_dir(package)
     stamp = caches / "__pycache__" / "mjkin-sources.sha256" if caches == package else caches / "mjkin-sources.sha256"
     if stamp.is_file() and stamp.read_text() == digest:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -342,6 +343,22 @@ def _check_size(width: int, height: int) -> None:
         raise InputError(f"frame size must be positive, got {width}x{height}")
 
 
+
+def headless_gl() -> None:
+    """Render through EGL when nothing chose a GL backend: ``MUJOCO_GL`` unset on Linux without a display.
+
+    ``import mjkin`` leaves ``MUJOCO_GL`` alone; this is called where a renderer is made.
+    """
+    if os.environ.get("MUJOCO_GL") or os.environ.get("DISPLAY") or sys.platform != "linux":
+        return
+    from mujoco.rendering.classic import gl_context
+
+    try:
+        from mujoco.egl import GLContext
+    except ImportError:  # no EGL (or PyOpenGL set to another platform): MuJoCo's own choice stands
+        return
+    gl_context.GLContext = GLContext
+
 class Painter:
     """A reusable offscreen renderer for one tree: draws a configuration with overlays.
 
@@ -363,6 +380,7 @@ class Painter:
         vis.offwidth, vis.offheight = width, height
         quality.shadowsize = min(kept[2], 2048 if max(width, height) > 512 else 1024)
         try:
+            headless_gl()
             self.renderer = mujoco.Renderer(model, height, width)
         except Exception as e:  # no GL context: say how to get one
             raise MjkinIOError(f"cannot start offscreen rendering ({' '.join(str(e).split())}); on a machine "

@@ -18,7 +18,8 @@ def test_dh_round_trip(convention, joints, rng):
     rows = rng.normal(size=(6, 4))
     ranges = [(-1.0, 1.0)] * 6
     tree = mjkin.load(build.dh_chain(rows, joints, convention, ranges=ranges))
-    assert [mjkin.kinematics.qspace.JOINT_NAMES[k] for k in tree.jnt_type] == ["hinge" if c == "R" else "slide" for c in joints]
+    names = mjkin.kinematics.qspace.JOINT_NAMES
+    assert [names[k] for k in tree.jnt_type] == ["hinge" if c == "R" else "slide" for c in joints]
     np.testing.assert_array_equal(tree.jnt_range, ranges)
     Q = tree.random_q(rng, 100)
     np.testing.assert_allclose(tree.pose(Q, "ee"), build.dh_fk(rows, Q, joints, convention), atol=1e-12)

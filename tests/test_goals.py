@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import tree_of
 from mjkin import goals as G
+from mjkin.ik import evaluate
 from mjkin.spatial import quat_distance, quat_to_mat
 
 TOL, ROT_TOL = 1e-6, 1e-5
@@ -35,12 +36,12 @@ def test_every_goal_jacobian_matches_finite_differences(rng):
     h = 1e-6
     for goal in goal_zoo(tree, rng):
         for q in tree.random_q(rng, 3):
-            g, J, _ = G.evaluate(tree, goal, q)
+            g, J, _ = evaluate(tree, goal, q)
             for i in range(tree.nv):
                 e = np.zeros(tree.nv)
                 e[i] = h
-                gp = G.evaluate(tree, goal, tree.integrate(q, e))[0]
-                gm = G.evaluate(tree, goal, tree.integrate(q, -e))[0]
+                gp = evaluate(tree, goal, tree.integrate(q, e))[0]
+                gm = evaluate(tree, goal, tree.integrate(q, -e))[0]
                 np.testing.assert_allclose(J[0, :, i], (gp - gm)[0] / (2 * h), atol=2e-6, err_msg=type(goal).__name__)
 
 
@@ -51,11 +52,11 @@ def test_ball_and_free_joint_goal_jacobians(rng):
              G.Aim("head", axis=[1, 0, 0], point=[1, 0, 1]), G.Rest(q_rest=tree.qpos0)]
     for goal in goals:
         q = tree.random_q(rng)
-        _, J, _ = G.evaluate(tree, goal, q)
+        _, J, _ = evaluate(tree, goal, q)
         for i in range(tree.nv):
             e = np.zeros(tree.nv)
             e[i] = h
-            fd = (G.evaluate(tree, goal, tree.integrate(q, e))[0] - G.evaluate(tree, goal, tree.integrate(q, -e))[0])
+            fd = (evaluate(tree, goal, tree.integrate(q, e))[0] - evaluate(tree, goal, tree.integrate(q, -e))[0])
             np.testing.assert_allclose(J[0, :, i], fd[0] / (2 * h), atol=2e-5, err_msg=type(goal).__name__)
 
 

@@ -39,8 +39,8 @@ def test_numba_cache_dir_is_honoured(tmp_path, monkeypatch):
 
 def test_warmup_compiles_every_kernel_mjkin_runs():
     from mjkin.apps.warmup import warmup
-    from mjkin.ik import kernel
+    from mjkin.ik.compiled import kernels
     from mjkin.kinematics.fk import fk_kernel
 
     assert warmup() > 0
-    assert kernel.solve_batch.signatures and fk_kernel.signatures
+    assert kernels().solve_batch.signatures and fk_kernel.signatures

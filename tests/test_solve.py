@@ -15,7 +15,8 @@ import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin import goals as G
 from mjkin.ik import kernel
-from mjkin.ik.solve import AUTO_RESTARTS
+from mjkin.ik.compiled import kernels
+from mjkin.ik.lm import AUTO_RESTARTS
 
 
 def pose_targets(tree, site, rng, n):
@@ -102,7 +103,7 @@ PRIMATE_WALLS = [G.HalfSpace("right_hand", point=[-0.223, -0.339, 1.47], normal=
 
 @pytest.mark.parametrize("timeout", [0.5, None])
 def test_optimize_stops_on_time_with_the_best_so_far(timeout, monkeypatch):
-    front = importlib.import_module("mjkin.ik.solve")  # the module (mjkin.ik.solve is also the function's name)
+    front = importlib.import_module("mjkin.ik.optimize")
     assert 0 < front.OPTIMIZE_TIMEOUT <= 10  # a default bound of a few seconds per target
     monkeypatch.setattr(front, "OPTIMIZE_TIMEOUT", 0.5)  # the default's path, without waiting for it
     tree = tree_of("primate")
@@ -374,22 +375,25 @@ def test_batch_sizes_share_one_compiled_kernel(rng):
     tree = tree_of("arm7")
     T = pose_targets(tree, "ee", rng, 70)
     mjkin.solve(tree, G.Pose("ee", T=T))
-    before = len(kernel.solve_batch.signatures)
+    before = len(kernels().solve_batch.signatures)
     for goal in (G.Pose("ee", T=T[0]), G.Pose("ee", T=T[:1]), G.Pose("ee", T=T[:5])):
         mjkin.solve(tree, goal)
     mjkin.solve(tree, G.Pose("ee", T=T[0]), restarts=0)
-    assert len(kernel.solve_batch.signatures) == before
+    assert len(kernels().solve_batch.signatures) == before
 
 
-def test_repeated_calls_reuse_the_goal_structure(rng):
+def test_a_problem_solves_new_targets_of_its_structure_as_solve_does(rng):
     tree = tree_of("arm7")
-    T = pose_targets(tree, "ee", rng, 2)
-    a = G.compile_goals(tree, G.Pose("ee", T=T[0]))
-    b = G.compile_goals(tree, G.Pose("ee", T=T[1]))
-    assert a.kind is b.kind and a.lrot is b.lrot  # shared, only the targets re-encoded
-    assert not np.array_equal(a.data, b.data)
-    c = G.compile_goals(tree, G.Pose("ee", T=T[1], weight=2.0))
-    assert c.sqrt_w is not b.sqrt_w and c.sqrt_w[0] == np.sqrt(2.0)
+    T = pose_targets(tree, "ee", rng, 3)
+    problem = mjkin.Problem(tree, G.Pose("ee", T=T[0]), restarts=2)
+    for t in T:
+        got, want = problem.solve(goals=[G.Pose("ee", T=t)]), mjkin.solve(tree, G.Pose("ee", T=t), restarts=2)
+        for field in ("q", "success", "error", "iterations", "status", "goal_errors", "restarts"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
+    with pytest.raises(mjkin.GoalError, match="differ from the problem's"):
+        problem.solve(goals=[G.Pose("ee", T=T[1], weight=2.0)])
+    with pytest.raises(mjkin.GoalError, match="differ from the problem's"):
+        problem.solve(goals=[G.Position("ee", T[1, :3, 3])])
 
 
 def test_spread_restart_starts_stratify_every_joint():

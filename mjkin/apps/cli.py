@@ -23,7 +23,7 @@ from .. import motion, progress, spatial
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..files import check_writable, strict_json
 from ..goals import Goal, Orientation, Position
-from ..ik.solve import METHODS, solve
+from ..ik import METHODS, solve
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load
 from . import bench

@@ -19,6 +19,7 @@ from numba.core.dispatcher import Dispatcher
 from .. import goals as G
 from .. import progress
 from ..ik import solve
+from ..ik.compiled import PREFIX
 from ..kinematics.tree import Tree, load
 
 
@@ -41,7 +42,8 @@ def _steps(chain: Tree, figure: Tree) -> list[tuple[str, Callable[[], object]]]:
 def compilations() -> int:
     """Kernel versions compiled so far in this process, over mjkin's modules (numba's cache misses)."""
     return sum(sum(kernel.stats.cache_misses.values())
-               for name, module in list(sys.modules.items()) if name == "mjkin" or name.startswith("mjkin.")
+               for name, module in list(sys.modules.items())
+               if name == "mjkin" or name.startswith(("mjkin.", PREFIX))
                for kernel in vars(module).values() if isinstance(kernel, Dispatcher))
 
 

@@ -1,9 +1,22 @@
-"""Inverse kinematics: the front door :func:`solve` and one module per method.
+"""Inverse kinematics: :class:`Problem` (goals compiled once, solved again and again), one module per method.
 
-``kernel`` holds the compiled Jacobian-based solvers (``lm``/``auto``, ``dls``,
-``pinv``, ``transpose``); ``ccd``, ``analytic`` and ``optimize`` the others.
+``lm`` holds the Jacobian methods (:class:`LM`, :class:`Auto`, :class:`DLS`,
+:class:`PInv`, :class:`Transpose`) run by one compiled loop (``loop``, built by
+``compiled`` from the goal kinds); ``ccd``, ``reach``, ``analytic`` and
+``optimize`` the others; ``result`` what a solve returns.
 """
 
-from .solve import METHODS, History, Result, singular_values, solve
+from .analytic import Analytic2
+from .ccd import CCD
+from .evaluate import evaluate, singular_values
+from .lm import DLS, LM, Auto, Jacobian, PInv, Transpose
+from .method import Method
+from .methods import METHODS
+from .optimize import Optimize
+from .problem import Problem
+from .reach import Reach
+from .result import History, Result
+from .solve import solve
 
-__all__ = ["METHODS", "History", "Result", "singular_values", "solve"]
+__all__ = ["CCD", "DLS", "LM", "METHODS", "Analytic2", "Auto", "History", "Jacobian", "Method", "Optimize", "PInv",
+           "Problem", "Reach", "Result", "Transpose", "evaluate", "singular_values", "solve"]

@@ -9,17 +9,24 @@ images about the line from the base to the goal. (The seeds write θ1 with an
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import GoalError
-from ..goals import POSITION, Program
+from ..errors import GoalError, InputError
+from ..goals import Position, Program
 from ..kinematics.qspace import HINGE
 from ..kinematics.tree import Tree
-from .kernel import CONVERGED, UNREACHABLE, evaluate_program
-from .solve import Result, package
+from .evaluate import evaluate_program
+from .kernel import CONVERGED, UNREACHABLE
+from .method import Method
+from .result import Result, package
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 Array = NDArray[np.float64]
 
@@ -62,7 +69,7 @@ class Planar2:
     @classmethod
     def of(cls, tree: Tree, prog: Program, q_ref: Array) -> Planar2:
         """Read the chain moving the goal's body; raises GoalError unless it is a planar two-hinge chain."""
-        if len(prog.goals) != 1 or prog.kind[0] != POSITION:
+        if len(prog.goals) != 1 or prog.kind[0] != Position.code:
             raise GoalError("method 'analytic2' solves one Position goal on a two-link planar chain")
         body = int(prog.body[0])
         joints = np.unique(tree.plan.dof_jnt[tree.body_dofs[body]])
@@ -127,8 +134,38 @@ def solve_analytic2(tree: Tree, prog: Program, q0: Array, tol: float) -> Result:
 
 def solutions(tree: Tree, goal: ArrayLike, name: str) -> tuple[Array, NDArray[np.bool_]]:
     """Both elbow configurations ``(..., 2, nq)`` putting frame ``name`` at ``goal (..., 3)``, and reachability."""
-    from ..goals import Position, compile_goals
+    from ..goals import compile_goals
 
     prog = compile_goals(tree, Position(name, goal))
     q, ok = Planar2.of(tree, prog, tree.qpos0.copy()).configurations(tree, prog.data[:, 0, :3])
     return (q, ok) if prog.batch else (q[0], ok[0])
+
+
+@dataclass(frozen=True)
+class Analytic2(Method):
+    """The closed form of a two-link planar arm; of the two elbows, the one inside the limits nearest the start."""
+
+    name: ClassVar[str] = "analytic2"
+
+    @classmethod
+    def with_options(cls, options: dict[str, Any]) -> Method:  # noqa: D102
+        if options:
+            raise _closed_form(list(options))
+        return cls()
+
+    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
+        """Refuse what a closed form cannot honour (a subset of joints, a planted root, a history)."""
+        bad = ["restarts"] if self.restarts else []
+        bad += [k for k in ("base", "joints", "root") if getattr(problem, k) is not None]
+        bad += [k for k in ("history", "avoid_collisions") if getattr(problem, k)]
+        if bad:
+            raise _closed_form(bad)
+        return super().prepare(problem)
+
+    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+        return replace(solve_analytic2(problem.tree, prog, q, problem.tol), tree=problem.tree)
+
+
+def _closed_form(options: list[str]) -> InputError:
+    return InputError(f"method 'analytic2' is closed-form and cannot honour {', '.join(options)}; "
+                      "use an iterative method (auto, dls, ...) for those")

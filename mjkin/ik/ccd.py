@@ -14,19 +14,29 @@ a limit cut a joint's move in the last sweep (the limit blocks the way), else
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
 import numpy as np
 from numpy.typing import NDArray
 
+from ..checks import check_count
 from ..errors import GoalError
-from ..goals import POSITION, Program
+from ..goals import Position, Program
 from ..jit import matvec3, monotonic_ns, njit
 from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
 from ..parallel import parallel_chunks
 from . import kernel
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk, kinematic_arrays
-from .solve import History, Result, package
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk
+from .method import Method
+from .result import History, Result, package
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -169,21 +179,19 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
               active: NDArray[np.bool_], history: bool, starts: Array, restart_q: NDArray[np.bool_],
               patience: int = 10, timeout: float | None = None) -> Result:
     """CCD on one position goal (see :func:`mjkin.solve`); ``timeout`` in seconds per target (None: none)."""
-    if len(prog.goals) != 1 or prog.kind[0] != POSITION:
+    if len(prog.goals) != 1 or prog.kind[0] != Position.code:
         raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
-    if sweep not in ("forward", "backward"):
-        raise GoalError(f"sweep must be 'forward' (base to tip) or 'backward' (tip to base), not {sweep!r}")
     body = int(prog.body[0])
     dof_jnt = tree.plan.dof_jnt
     chain = [int(j) for j in np.unique(dof_jnt[tree.body_dofs[body]])
              if active[tree.jnt_dofadr[j]] and tree.jnt_type[j] in (HINGE, SLIDE, BALL)]
-    order = np.array(chain if sweep == "forward" else chain[::-1], dtype=np.int64)
+    order = np.array(chain if sweep == "base_to_tip" else chain[::-1], dtype=np.int64)
     B = prog.B
     H = sweeps + 1 if history else 0
     hist_q, hist_err = np.full((B, H, tree.nq), np.nan), np.full((B, H, 2), np.nan)
     hist_err[..., 1] = 0.0
     iters, status, err, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B), np.zeros(B, np.int64)
-    kin = kinematic_arrays(tree)
+    kin = tree.kin
     goals = np.ascontiguousarray(prog.data[:, 0, :3])
 
     def run(lo: int, hi: int) -> None:
@@ -196,3 +204,42 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
     errors[:, 0, 0] = err
     return package(prog, q, errors, iters, status, used, tol, rot_tol, "ccd",
                    History(hist_q, hist_err) if history else None, tree)
+
+
+SWEEPS = {"tip_to_base": "tip_to_base", "base_to_tip": "base_to_tip", "backward": "tip_to_base",
+          "forward": "base_to_tip"}  # the last two: the names before 0.2, deprecated
+
+
+@dataclass(frozen=True)
+class CCD(Method):
+    """Cyclic coordinate descent on one position goal: each joint in turn turns (or slides) the tool at the target.
+
+    ``sweep``: the joint order of a sweep, ``"tip_to_base"`` or ``"base_to_tip"``;
+    ``max_iters`` sweeps per run; ``patience`` sweeps without progress end a run.
+    """
+
+    name: ClassVar[str] = "ccd"
+    max_iters: int = 200
+    sweep: str = "tip_to_base"
+    patience: int = 10
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
+        check_count(self.patience, "patience", whole_floats=True)
+        if self.sweep not in SWEEPS:
+            raise GoalError(f"sweep must be 'tip_to_base' or 'base_to_tip', not {self.sweep!r}")
+        if SWEEPS[self.sweep] != self.sweep:
+            warnings.warn(f"sweep={self.sweep!r} is now sweep={SWEEPS[self.sweep]!r}", DeprecationWarning,
+                          stacklevel=3)
+
+    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:  # noqa: D102
+        prog = problem.structure
+        if len(prog.kind) != 1 or prog.kind[0] != Position.code:
+            raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
+        return super().prepare(problem)
+
+    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+        return solve_ccd(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters),
+                         SWEEPS[self.sweep], problem.active, problem.history, problem.starts, problem.restart_q,
+                         int(self.patience), problem.time_limit)

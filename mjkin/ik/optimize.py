@@ -20,18 +20,25 @@ stands.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
 from .. import spatial
-from ..goals import COUPLING, HALFSPACE, Program
+from ..checks import check_count
+from ..goals import Coupling, HalfSpace, Program
 from ..kinematics.qspace import HINGE, SLIDE
 from ..kinematics.tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, evaluate_program
-from .solve import Result, package
+from .evaluate import evaluate_program
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
+from .method import Method
+from .result import Result, package
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 Array = NDArray[np.float64]
 
@@ -53,10 +60,6 @@ def _cone_gradient(q: Array, v: Array) -> Array:
     return (np.eye(3) - a * K + b * K @ K).T @ (phi / angle)
 
 
-def _target(prog: Program, b: int) -> Program:
-    return replace(prog, data=prog.data[b:b + 1], rest_q=prog.rest_q[:, b:b + 1], batch=())
-
-
 class _OutOfTime(Exception):
     """Raised inside an evaluation SciPy asked for once the time limit has passed; it ends the SLSQP run."""
 
@@ -71,7 +74,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
     """
     rows = prog.row
     free = np.flatnonzero(active)
-    constraint_goal = np.isin(prog.kind, (COUPLING, HALFSPACE))
+    constraint_goal = np.isin(prog.kind, (Coupling.code, HalfSpace.code))
     scalar = np.isin(tree.jnt_type[tree.plan.dof_jnt], (HINGE, SLIDE))
     q_start = q0.copy()
     hit_limit = False
@@ -116,7 +119,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
         for i in np.flatnonzero(constraint_goal & (prog.sqrt_w > 0)):
             r = rows[i]
             sign = 1.0  # coupling: g = 0; half-space: g = min(0, s) >= 0 holds exactly on the allowed side
-            cons.append({"type": "eq" if prog.kind[i] == COUPLING else "ineq",
+            cons.append({"type": "eq" if prog.kind[i] == Coupling.code else "ineq",
                          "fun": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[0][0, r],
                          "jac": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
         lay = tree.layout
@@ -170,7 +173,7 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     used = np.zeros(B, np.int64)
     iters = np.zeros(B, np.int64)
     for b in range(B):
-        one = _target(prog, b)
+        one = prog.target(b)
         g, _, e = evaluate_program(tree, one, q[b][None])  # the start stands until a run ends with a finite cost
         best, best_cost, err[b], status[b] = q[b], np.inf, e[0], UNREACHABLE
         start_cost = float(g[0] @ g[0])  # a run cut short by the clock must also beat the start
@@ -195,3 +198,32 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
                 break
         out[b] = best
     return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize", tree=tree)
+
+
+# optimize's time limit per target when none is given: SciPy's SLSQP has no other bound on its wall time (on the
+# primate with a half-space and a plane goal and a planted root it ran for minutes), while its usual solves take
+# milliseconds (the test suite's slowest target, on ball_chain's cones, 500 SLSQP iterations in about 1 s)
+OPTIMIZE_TIMEOUT = 5.0
+
+
+@dataclass(frozen=True)
+class Optimize(Method):
+    """SciPy's SLSQP on the weighted cost, with joint limits as bounds and couplings and half-spaces as constraints.
+
+    ``max_iters``: SLSQP iterations per start. Without a ``timeout`` a target may
+    take :data:`OPTIMIZE_TIMEOUT` seconds.
+    """
+
+    name: ClassVar[str] = "optimize"
+    max_iters: int = 500
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
+
+    def default_timeout(self) -> float | None:  # noqa: D102
+        return OPTIMIZE_TIMEOUT
+
+    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+        return solve_optimize(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters),
+                              problem.active, problem.starts, problem.restart_q, problem.time_limit)

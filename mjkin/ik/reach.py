@@ -27,19 +27,25 @@ and on 3-, 6- and 12-hinge chains), so they are refused.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..checks import check_count
 from ..errors import GoalError
-from ..goals import POSITION, Program
+from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk, kinematic_arrays
-from .solve import History, Result, package
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk
+from .method import Method
+from .result import History, Result, package
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 Array = NDArray[np.float64]
 ROOT_WOULD_MOVE = "root_would_move"
@@ -126,7 +132,7 @@ class _Chain:
     """The joints between the root and the tool, grouped by anchor, with FK scratch space."""
 
     def __init__(self, tree: Tree, body: int, lpos: Array, joints: list[int]) -> None:
-        self.kin = kinematic_arrays(tree)
+        self.kin = tree.kin
         self.scratch = fk_scratch(self.kin.parent, self.kin.jnt_inner)
         self.body, self.lpos, self.joints = body, lpos, joints
         self.tree = tree
@@ -263,7 +269,7 @@ def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float,
     taken where ``restart_q`` is True and from its own start elsewhere; the best run is kept.
     ``timeout``: seconds per target, restarts included (None: none).
     """
-    if len(prog.goals) != 1 or prog.kind[0] != POSITION:
+    if len(prog.goals) != 1 or prog.kind[0] != Position.code:
         raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
     body = int(prog.body[0])
     dof_jnt = tree.plan.dof_jnt
@@ -313,3 +319,29 @@ def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float,
         labels: NDArray[Any] = np.where(root_moves, ROOT_WOULD_MOVE, np.asarray(res.status).reshape(-1))
         res = replace(res, status=labels.reshape(np.shape(res.status)) if np.ndim(res.status) else labels[0])
     return res
+
+
+@dataclass(frozen=True)
+class Reach(Method):
+    """Recursive reach on one position goal, for planar chains and chains of ball joints.
+
+    ``max_iters`` passes per run. Status ``"root_would_move"`` when the goal is
+    outside the ring the chain can reach without moving its root.
+    """
+
+    name: ClassVar[str] = "reach"
+    max_iters: int = 100
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
+
+    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:  # noqa: D102
+        prog = problem.structure
+        if len(prog.kind) != 1 or prog.kind[0] != Position.code:
+            raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
+        return super().prepare(problem)
+
+    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+        return solve_reach(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters), problem.active,
+                           problem.history, problem.starts, problem.restart_q, problem.time_limit)

@@ -168,8 +168,8 @@ def forward(tree: Tree, q: Array) -> Frames:
     batch = q.shape[:-1]
     qf = np.ascontiguousarray(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]))  # also for nq = 0
     B = qf.shape[0]
-    arrays = fk_arrays(tree)
-    nbody, n_inner = len(arrays[0]), tree.__dict__["_fk_n_inner"]
+    arrays = tree.fk_args
+    nbody, n_inner = len(arrays[0]), tree.n_inner
     rot = np.empty((B, nbody, 3, 3))
     pos = np.empty((B, nbody, 3))
     inner_rot = np.empty((B, n_inner, 3, 3))
@@ -298,34 +298,18 @@ class Kinematics(NamedTuple):
 
 
 def kinematic_arrays(tree: Tree) -> Kinematics:
-    """The tree's :class:`Kinematics` (built once per tree)."""
-    cached = tree.__dict__.get("_kin_arrays")
-    if cached is None:
-        p = tree.plan
-        dofs = tree.body_dofs
-        ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
-        idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
-        lo, hi = tree.layout.jnt_lo, tree.layout.jnt_hi
-        cached = Kinematics(
-            p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
-            p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
-            tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt], p.dof_axis, p.dof_world,
-            p.dof_rot, p.dof_anchor, lo, hi, np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt,
-            tree.jnt_body)
-        object.__setattr__(tree, "_kin_arrays", cached)
-    return cached
-
-
-def fk_arrays(tree: Tree) -> tuple:
-    """The arrays :func:`fk_kernel` takes after ``q``, in its order (kept on the tree)."""
-    cached = tree.__dict__.get("_fk_arrays")
-    if cached is None:
-        k = kinematic_arrays(tree)
-        cached = (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
-                  k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0)
-        object.__setattr__(tree, "_fk_n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
-        object.__setattr__(tree, "_fk_arrays", cached)
-    return cached
+    """The :class:`Kinematics` of a tree under construction (a :class:`Tree` keeps it as ``tree.kin``)."""
+    p = tree.plan
+    dofs = tree.body_dofs
+    ptr = np.concatenate([[0], np.cumsum([len(d) for d in dofs])]).astype(np.int64)
+    idx = np.concatenate(dofs).astype(np.int64) if ptr[-1] else np.zeros(0, np.int64)
+    lo, hi = tree.layout.jnt_lo, tree.layout.jnt_hi
+    return Kinematics(
+        p.parent, p.fixed_rot, p.fixed_pos, p.jnt_start, p.jnt_count, p.jnt_inner, p.fixed_plain,
+        p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
+        tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt], p.dof_axis, p.dof_world,
+        p.dof_rot, p.dof_anchor, lo, hi, np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt,
+        tree.jnt_body)
 
 
 @njit

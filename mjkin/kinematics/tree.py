@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -16,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .fk import Frames, Plan, fk_arrays, forward, frame_pose_one, kinematic_arrays, moved
+from .fk import Frames, Kinematics, Plan, forward, frame_pose_one, kinematic_arrays, moved
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
@@ -55,6 +54,40 @@ class Tree:
     site_body: NDArray[np.int64]
     site_pos: Array
     site_rot: Array
+    # derived once at construction, never written afterwards
+    layout: qspace.Layout = field(init=False, repr=False)  # joints grouped by kind, for vectorised q arithmetic
+    plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
+    body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
+    kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
+    fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
+    n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
+    ids: dict[str, dict[str, int]] = field(init=False, repr=False)  # name -> id, per element kind
+    frames: dict[tuple[str, int], tuple[int, Array]] = field(init=False, repr=False)  # (kind, id) -> body, pose
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: object) -> None:
+            object.__setattr__(self, name, value)
+
+        put("ids", {k: {n: i for i, n in enumerate(self._names(k)) if n} for k in ("body", "joint", "site")})
+        put("layout", qspace.Layout.of(self))
+        put("plan", Plan.of(self))
+        m = self.model
+        own = [list(range(m.body_dofadr[b], m.body_dofadr[b] + m.body_dofnum[b])) if m.body_dofnum[b] else []
+               for b in range(m.nbody)]
+        dofs: list[list[int]] = [[] for _ in range(m.nbody)]
+        for b in range(1, m.nbody):
+            dofs[b] = sorted(dofs[int(self.body_parent[b])] + own[b])
+        put("body_dofs", tuple(_ro(d, np.int64) for d in dofs))
+        k = kinematic_arrays(self)
+        put("kin", k)
+        put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
+                        k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
+        put("n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
+        frames: dict[tuple[str, int], tuple[int, Array]] = {("body", b): (b, _ro(np.eye(4))) for b in range(m.nbody)}
+        for i in range(m.nsite):
+            T = spatial.make_transform(self.site_rot[i], self.site_pos[i])
+            frames["site", i] = (int(self.site_body[i]), _ro(T))
+        put("frames", frames)
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
@@ -124,15 +157,11 @@ class Tree:
         m = self.model
         return {"body": m.name_bodyadr, "joint": m.name_jntadr, "site": m.name_siteadr}[kind]
 
-    @cached_property
-    def _ids(self) -> dict[str, dict[str, int]]:
-        return {k: {n: i for i, n in enumerate(self._names(k)) if n} for k in ("body", "joint", "site")}
-
     def id(self, name: str, kind: Kind) -> int:
         """MuJoCo id of a named body, joint or site; :class:`UnknownNameError` lists the names."""
-        if kind not in self._ids:
+        if kind not in self.ids:
             raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
-        ids = self._ids[kind]
+        ids = self.ids[kind]
         if name not in ids:
             raise UnknownNameError(kind, name, list(ids))
         return ids[name]
@@ -143,43 +172,16 @@ class Tree:
             raise InputError(f"frame kind must be 'site', 'body' or None, not {kind!r}")
         if kind is None:
             for k in ("site", "body"):
-                if name in self._ids[k]:
-                    return k, self._ids[k][name]  # type: ignore[return-value]
-            raise UnknownNameError("site or body", name, {"sites": self._ids["site"], "bodies": self._ids["body"]})
+                if name in self.ids[k]:
+                    return k, self.ids[k][name]  # type: ignore[return-value]
+            raise UnknownNameError("site or body", name, {"sites": self.ids["site"], "bodies": self.ids["body"]})
         return kind, self.id(name, kind)
 
     def frame_body(self, name: str, kind: Kind | None = None) -> tuple[int, Array]:
         """The body a frame is fixed to and the frame's pose in that body ``(4, 4)`` (read-only)."""
-        cache = self.__dict__.setdefault("_frame_body", {})
-        if (name, kind) not in cache:
-            k, i = self.frame(name, kind)
-            T = np.eye(4) if k == "body" else spatial.make_transform(self.site_rot[i], self.site_pos[i])
-            T.setflags(write=False)
-            cache[name, kind] = (i if k == "body" else int(self.site_body[i]), T)
-        return cache[name, kind]
+        return self.frames[self.frame(name, kind)]
 
     # ------------------------------------------------------------------ joints
-    @cached_property
-    def layout(self) -> qspace.Layout:
-        """Joints grouped by kind, for vectorised q arithmetic."""
-        return qspace.Layout.of(self)
-
-    @cached_property
-    def plan(self) -> Plan:
-        """Index arrays that drive the vectorised FK."""
-        return Plan.of(self)
-
-    @cached_property
-    def body_dofs(self) -> tuple[NDArray[np.int64], ...]:
-        """For each body, the dof indices that move it (its own and its ancestors'), ascending."""
-        m = self.model
-        own = [list(range(m.body_dofadr[b], m.body_dofadr[b] + m.body_dofnum[b])) if m.body_dofnum[b] else []
-               for b in range(m.nbody)]
-        out: list[list[int]] = [[] for _ in range(m.nbody)]
-        for b in range(1, m.nbody):
-            out[b] = sorted(out[int(self.body_parent[b])] + own[b])
-        return tuple(_ro(d, np.int64) for d in out)
-
     def check_q(self, q: ArrayLike, name: str = "q") -> Array:
         """``q`` as float64 ``(..., nq)``; raises :class:`InputError` for a wrong shape or NaN/inf."""
         return qspace.check(self, q, name)
@@ -220,7 +222,7 @@ class Tree:
             return self.kinematics(q).pose(*self.frame(name, kind))
         body, local = self.frame_body(name, kind)
         T = np.empty((4, 4))
-        frame_pose_one(np.ascontiguousarray(q).reshape(1, -1), body, local, T, *fk_arrays(self))
+        frame_pose_one(np.ascontiguousarray(q).reshape(1, -1), body, local, T, *self.fk_args)
         return T
 
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
@@ -235,7 +237,7 @@ class Tree:
             return self.kinematics(q).jacobian(*self.frame(name, kind), offset=offset)
         body, local = self.frame_body(name, kind)
         J = np.empty((6, self.nv))
-        frame_jacobian_one(kinematic_arrays(self), np.ascontiguousarray(q).reshape(1, -1), body,
+        frame_jacobian_one(self.kin, np.ascontiguousarray(q).reshape(1, -1), body,
                            local if offset is None else moved(local, check_offset(offset)), J)
         return J
 

@@ -326,7 +326,7 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
     Both make a renderer, set each q, run ``mj_kinematics`` + ``mj_comPos`` + ``mj_camlight``
     (what drawing needs), update the scene with the same camera and keep every frame.
     """
-    from ...render import Overlay, default_camera, frames
+    from ...render import Overlay, default_camera, frames, headless_gl
 
     if frames_n < 1 or width < 1 or height < 1:
         raise InputError(f"--frames, --width and --height must be positive, got {frames_n}, {width}, {height}")
@@ -346,6 +346,7 @@ def bench_render(frames_n: int = 60, width: int = 640, height: int = 480, seed: 
             model, data = tree.model, mujoco.MjData(tree.model)  # noqa: B023
             model.vis.global_.offwidth = max(width, model.vis.global_.offwidth)
             model.vis.global_.offheight = max(height, model.vis.global_.offheight)
+            headless_gl()
             start = time.perf_counter()
             out = np.empty((len(qs), height, width, 3), dtype=np.uint8)
             with mujoco.Renderer(model, height, width) as r:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from ... import goals as G
 from ...errors import InputError
 from ...ik import solve
-from ...ik.solve import AUTO_RESTARTS, TIMED_RESTARTS
+from ...ik.lm import AUTO_RESTARTS, TIMED_RESTARTS
 from ...kinematics.qspace import HINGE, SLIDE
 from ...kinematics.tree import Tree, load
 from ...progress import track

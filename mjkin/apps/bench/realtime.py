@@ -106,7 +106,7 @@ def _met(case: Case, q: Array, goals: Sequence[G.Goal]) -> bool:
     """Every pose goal within 1e-4 m / 1e-3 rad, re-checked by FK (not the solver's word)."""
     for g in goals:
         assert isinstance(g, G.Pose) and g.T is not None
-        T = case.tree.pose(q, g.name)
+        T = case.tree.pose(q, g.frame)
         d = T[:3, :3].T @ np.asarray(g.T)[:3, :3]
         angle = np.arccos(np.clip(0.5 * (np.trace(d) - 1.0), -1.0, 1.0))
         if np.linalg.norm(T[:3, 3] - np.asarray(g.T)[:3, 3]) > 1e-4 or angle > 1e-3:

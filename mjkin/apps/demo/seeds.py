@@ -60,7 +60,7 @@ def ccd_convergence(n: int, sweeps: int = 7, seed: int = 1) -> Array:
     tree = load(build.planar_chain([1.0] * n))
     q0 = np.random.default_rng(seed).uniform(-np.pi, np.pi, n)
     res = solve(tree, G.Position("ee", [0.9, 0.75, 0.0]), q0=q0, method="ccd", max_iters=sweeps, tol=1e-300,
-                history=True, sweep="forward", patience=sweeps + 1)
+                history=True, sweep="base_to_tip", patience=sweeps + 1)
     assert res.history is not None
     err = res.history.error[1: sweeps + 1, 0]
     done = np.isnan(err)

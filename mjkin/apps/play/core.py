@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from ... import goals as G
 from ... import spatial
 from ...errors import InputError
-from ...ik.solve import METHODS, solve
+from ...ik import METHODS, solve
 from ...kinematics.qspace import FREE, HINGE, SLIDE
 from ...kinematics.tree import Tree
 

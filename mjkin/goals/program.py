@@ -1,0 +1,151 @@
+"""Goals encoded as arrays for the compiled evaluator: the structure once, the targets at each solve."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import GoalError
+from .base import DATA, Array, Goal, broadcast
+from .compiled import GoalArrays
+
+if TYPE_CHECKING:
+    from ..kinematics.tree import Tree
+
+
+@dataclass(frozen=True, eq=False)
+class Structure:
+    """What a set of goals compiles to besides its targets, sorted by priority level.
+
+    ``order[k]`` is the index, among the goals as given, of the ``k``-th goal as solved.
+    ``key`` tells goals of the same structure (same kinds, frames, weights, priorities).
+    """
+
+    key: tuple
+    order: tuple[int, ...]
+    kind: NDArray[np.int64]
+    body: NDArray[np.int64]
+    lrot: Array
+    lpos: Array
+    aux: NDArray[np.int64]
+    column: NDArray[np.int64]
+    sqrt_w: Array
+    row: NDArray[np.int64]
+    joint_row: Array
+    level_rows: NDArray[np.int64]
+    counted: NDArray[np.bool_]
+    joint_targets: bool  # some goal has a joint-space target (a rest pose)
+
+
+@dataclass(frozen=True, eq=False)
+class Program:
+    """A :class:`Structure` with targets: ``G`` goals, ``B`` targets, ``m`` residual rows."""
+
+    structure: Structure
+    goals: tuple[Goal, ...]  # sorted by priority, as solved
+    batch: tuple[int, ...]  # () or (B,)
+    arrays: GoalArrays
+
+    @property
+    def B(self) -> int:
+        """Number of targets (1 when unbatched)."""
+        return int(self.arrays.data.shape[0])
+
+    def target(self, b: int) -> Program:
+        """The program of target ``b`` alone (unbatched)."""
+        a = self.arrays
+        rest = a.rest_q[:, b:b + 1] if self.structure.joint_targets else a.rest_q
+        return Program(self.structure, self.goals, (), a._replace(data=a.data[b:b + 1], rest_q=rest))
+
+    def __getattr__(self, name: str) -> Any:
+        """The goal arrays by name (``prog.body``, ``prog.level_rows``...)."""
+        if name in GoalArrays._fields:
+            return getattr(self.arrays, name)
+        raise AttributeError(name)
+
+
+def as_goals(goals: Goal | Sequence[Goal]) -> tuple[Goal, ...]:
+    """One goal or several as a tuple, checked to be goals."""
+    out = (goals,) if isinstance(goals, Goal) else tuple(goals) if isinstance(goals, (list, tuple)) else None
+    if out is None:
+        raise GoalError(f"goals must be a mjkin.goals goal or a list of them, got {type(goals).__name__}")
+    if not out:
+        raise GoalError("give at least one goal")
+    for g in out:
+        if not isinstance(g, Goal):
+            raise GoalError(f"goals must be mjkin.goals objects, got {type(g).__name__}")
+        if g.code < 0:
+            raise GoalError(f"goal kind {type(g).__name__} is not registered (mjkin.goals.register)")
+    return out
+
+
+def key_of(goals: tuple[Goal, ...]) -> tuple:
+    """The structure key of ``goals`` (in the order given)."""
+    return tuple(g.key() for g in goals)
+
+
+def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
+    """Validate the goals' frames, weights and priorities against ``tree`` and encode them.
+
+    Raises:
+        GoalError: a goal is malformed.
+        UnknownNameError: a frame or joint name the model does not have.
+    """
+    given = as_goals(goals)
+    order = tuple(sorted(range(len(given)), key=lambda i: given[i].priority))  # stable within a level
+    gs = [given[i] for i in order]
+    G = len(gs)
+    body = np.full(G, -1, dtype=np.int64)
+    lrot = np.tile(np.eye(3), (G, 1, 1))
+    lpos = np.zeros((G, 3))
+    aux = np.zeros(G, dtype=np.int64)
+    joint_row = np.zeros((G, tree.nv))
+    for i, g in enumerate(gs):
+        body[i], lrot[i], lpos[i], aux[i], jr = g.static(tree)
+        if jr is not None:
+            joint_row[i] = jr
+    row = np.concatenate([[0], np.cumsum([g.nrows(tree) for g in gs])]).astype(np.int64)
+    priorities = [g.priority for g in gs]  # sorted: each level's rows are contiguous
+    level_rows = np.array([row[i] for i in range(G) if i == 0 or priorities[i] != priorities[i - 1]] + [row[-1]],
+                          dtype=np.int64)
+    return Structure(
+        key=key_of(given), order=order, kind=np.array([g.code for g in gs], dtype=np.int64), body=body, lrot=lrot,
+        lpos=lpos, aux=aux, column=np.array([g.column(tree) for g in gs], dtype=np.int64),
+        sqrt_w=np.sqrt([float(g.weight) for g in gs]), row=row, joint_row=joint_row, level_rows=level_rows,
+        counted=np.array([g.weight > 0 and g.counted for g in gs]),
+        joint_targets=any(g.joint_target for g in gs))
+
+
+def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
+    """The targets of ``goals`` (of structure ``st``, in the order given) on top of ``st``.
+
+    Raises:
+        GoalError: malformed targets, batches that disagree, or goals of another structure.
+    """
+    given = as_goals(goals)
+    if len(given) != len(st.order):
+        raise GoalError(f"expected {len(st.order)} goals of the problem's structure, got {len(given)}")
+    gs = tuple(given[i] for i in st.order)
+    try:
+        batch = broadcast([g.batch() for g in gs])
+    except ValueError:
+        raise GoalError(f"goal targets have different batch sizes: {[g.batch() for g in gs]}") from None
+    if len(batch) > 1:
+        raise GoalError(f"targets may have one leading batch axis, got batch shape {batch}")
+    B = batch[0] if batch else 1
+    data = np.zeros((B, len(gs), DATA))
+    rest = np.zeros((len(gs), B if st.joint_targets else 1, tree.nq))
+    for i, g in enumerate(gs):
+        g.encode(tree, data[:, i], rest[i])
+    arrays = GoalArrays(st.kind, st.body, st.lrot, st.lpos, data, st.aux, st.column, st.sqrt_w, st.row, rest,
+                        st.joint_row, st.level_rows, st.counted)
+    return Program(st, gs, batch, arrays)
+
+
+def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
+    """Validate and encode goals at once (a :class:`~mjkin.Problem` keeps the structure between solves)."""
+    return encode(tree, structure(tree, goals), goals)

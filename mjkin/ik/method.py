@@ -1,0 +1,72 @@
+"""The base of the IK methods: a method is an object holding its own options, run by a :class:`~mjkin.Problem`.
+
+``method="lm"`` (a name) and ``method=mjkin.ik.LM(restarts=8)`` (an object) select
+the same thing; a name takes the method's options as keywords (``max_iters=...``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from functools import partial
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..checks import check_count
+from ..errors import InputError
+
+if TYPE_CHECKING:
+    from ..goals import Program
+    from .problem import Problem
+    from .result import Result
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Method:
+    """An IK method and its options; subclasses are frozen dataclasses with a ``name``.
+
+    ``restarts``: random restarts (within the limits, only of the joints that move a
+    goal frame) when a run stalls; ``None`` lets the method choose.
+    """
+
+    name: ClassVar[str]
+    restarts: int | None = 0
+
+    def __post_init__(self) -> None:
+        if self.restarts is not None:
+            check_count(self.restarts, "restarts", 0, whole_floats=True)
+
+    def restart_count(self, timed: bool) -> int:
+        """How many restart starts a problem prepares (``timed``: a time limit is set)."""
+        return 0 if self.restarts is None else int(self.restarts)
+
+    def default_timeout(self) -> float | None:
+        """The time limit per target when none is given (seconds; None: none)."""
+        return None
+
+    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
+        """Check the problem suits this method and return its runner (once, at the problem's construction).
+
+        The runner solves every target of a program from the starts ``q (B, nq)``
+        (overwritten). Raises GoalError or InputError for goals or options this
+        method cannot take.
+        """
+        return partial(self.run, problem)
+
+    def run(self, problem: Problem, prog: Program, q: Array) -> Result:
+        """Solve every target of ``prog`` from the starts ``q (B, nq)`` (overwritten) and package the result."""
+        raise NotImplementedError(f"{type(self).__name__} must define run")
+
+    @classmethod
+    def with_options(cls, options: dict[str, Any]) -> Method:
+        """The method made from keyword options, one line naming any it does not take."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise InputError(f"method {cls.name!r} takes no option {', '.join(map(repr, unknown))}; its options: "
+                             f"{', '.join(sorted(known)) or 'none'}")
+        return cls(**options)

@@ -1,0 +1,128 @@
+"""What a solve returns: :class:`Result`, its per-iteration :class:`History`, and :func:`package`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from ..goals import Goal
+from ..kinematics.tree import Tree, fingerprint
+from .kernel import STATUS_NAMES, summarise
+
+if TYPE_CHECKING:
+    from ..goals import Program
+
+Array = NDArray[np.float64]
+STATUS = np.array(STATUS_NAMES)
+
+
+@dataclass(frozen=True)
+class History:
+    """Per-iteration record of a solve (iteration 0 is the start).
+
+    ``q (..., H, nq)`` and ``error (..., H, 2)`` (worst position and rotation
+    error over the counted goals); rows after a solve's last iteration repeat nothing
+    and are NaN.
+    """
+
+    q: Array
+    error: Array
+
+
+@dataclass(frozen=True)
+class Result:
+    """What :func:`solve` found. Shapes carry the batch shape ``...`` of the targets (none if unbatched).
+
+    Attributes:
+        q: ``(..., nq)`` best configuration found, inside the joint limits, a valid ``qpos``.
+        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians).
+        error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
+        iterations: ``(...)`` steps taken (CCD: sweeps).
+        status: ``"converged"``, ``"unreachable"`` (stalled away from the goal, or nothing may
+            move), ``"limits"`` (stalled with a joint limit blocking the way), ``"max_iterations"``,
+            ``"timeout"`` (the ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``:
+            every pose found was in contact).
+        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
+        goals: the goals as solved.
+        method: the method that ran.
+        restarts: ``(...)`` random restarts used.
+        history: per-iteration record when asked for (``history=True``).
+        tree: the tree solved on; not pickled (a result sent to another process travels
+            without its ``MjModel``): re-attach it with :meth:`with_tree`.
+    """
+
+    q: Array
+    success: Array
+    error: Array
+    iterations: Array
+    status: Array
+    goal_errors: Array
+    goals: tuple[Goal, ...]
+    method: str
+    restarts: Array
+    history: History | None = None
+    tree: Tree | None = field(default=None, repr=False, compare=False)
+
+    def __getstate__(self) -> dict:
+        """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it).
+
+        The tree's :func:`~mjkin.kinematics.tree.fingerprint` travels instead, for :meth:`with_tree` to check.
+        """
+        made_on = fingerprint(self.tree) if self.tree is not None else self.__dict__.get("_fingerprint")
+        return {**self.__dict__, "tree": None, "_fingerprint": made_on}
+
+    def with_tree(self, tree: Tree) -> Result:
+        """This result with its tree attached again (after unpickling).
+
+        Raises:
+            InputError: ``tree`` is not the model the result was solved on.
+        """
+        made_on = fingerprint(self.tree) if self.tree is not None else self.__dict__.get("_fingerprint")
+        if made_on is not None and fingerprint(tree) != made_on:
+            raise InputError(f"this result was solved on another model (fingerprint {made_on}), not on "
+                             f"{tree.name!r} ({fingerprint(tree)})")
+        return replace(self, tree=tree)
+
+    def singular_values(self) -> NDArray:
+        """Singular values ``(..., k)`` of the top-priority goals' Jacobian at :attr:`q`.
+
+        The smallest tends to zero at a singularity (a stretched arm); their
+        product is Yoshikawa's manipulability.
+        """
+        if self.tree is None:
+            raise InputError("this result has no tree (results are pickled without it); "
+                             "use result.with_tree(tree) or mjkin.singular_values(tree, goals, q)")
+        from .evaluate import singular_values
+
+        return singular_values(self.tree, self.goals, self.q)
+
+    @property
+    def position_error(self) -> Array:
+        """Worst position error (m), ``(...)``."""
+        return self.error[..., 0]
+
+    @property
+    def rotation_error(self) -> Array:
+        """Worst rotation error (rad), ``(...)``."""
+        return self.error[..., 1]
+
+
+def _shaped(batch: tuple[int, ...], a: Array) -> Array:
+    return a.reshape(batch + a.shape[1:]) if batch else a[0]
+
+
+def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
+            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
+    """Build a :class:`Result` from flat per-target arrays."""
+    worst, success = np.empty((len(q), 2)), np.empty(len(q), dtype=bool)
+    summarise(err, prog.counted, float(tol), float(rot_tol), worst, success)
+    names = STATUS[status]
+    b = prog.batch
+    hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
+    return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
+                  iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)
