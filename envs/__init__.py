@@ -15,9 +15,9 @@ from .vector import ReachVectorEnv
 
 __all__ = ["ReachEnv", "ReachVectorEnv", "ik_expert"]
 
-IDS = {"mjkin/Reach-v0": {"model": "arm7", "site": "ee"},
-       "mjkin/PlanarReach-v0": {"model": "planar_3link", "site": "tip"},
-       "mjkin/PandaReach-v0": {"model": "panda", "site": "flange"}}
+IDS = {"mjkin/Reach-v0": {"model": "arm7", "frame": "ee"},
+       "mjkin/PlanarReach-v0": {"model": "planar_3link", "frame": "tip"},
+       "mjkin/PandaReach-v0": {"model": "panda", "frame": "flange"}}
 
 for _id, _kwargs in IDS.items():
     if _id not in registry:

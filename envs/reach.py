@@ -95,7 +95,7 @@ class ReachEnv(gym.Env):
     | argument | default | meaning |
     |---|---|---|
     | ``model`` | per id | bundled model name, MJCF path or XML string |
-    | ``site`` | per id | the effector frame (site, else body) |
+    | ``frame`` | per id | the effector frame (site, else body; ``site=`` before 0.2) |
     | ``action_type`` | ``"joint"`` | ``"joint"`` or ``"cartesian"`` |
     | ``goal_type`` | ``"position"`` | ``"position"`` or ``"pose"`` |
     | ``goal_conditioned`` | ``False`` | Dict observations and the goal-env methods' contract |
@@ -126,20 +126,23 @@ class ReachEnv(gym.Env):
     # listed mode
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
-    def __init__(self, model: str = "arm7", site: str = "ee", action_type: str = "joint",
+    def __init__(self, model: str = "arm7", frame: str = "ee", action_type: str = "joint",
                  goal_type: str = "position", goal_conditioned: bool = False, step_size: float | None = None,
                  rot_step: float = 0.1, success_tol: float | None = None, rot_tol: float = 0.1,
                  success_bonus: float = 1.0, sparse: bool = False, collision_penalty: float = 0.0,
                  obstacles: Sequence[tuple[ArrayLike, float]] | None = None, table: float | None = None,
                  target_region: tuple[ArrayLike, ArrayLike] | None = None, start_noise: float = 0.1,
-                 render_mode: str | None = None, width: int = 480, height: int = 360) -> None:
+                 render_mode: str | None = None, width: int = 480, height: int = 360, site: str | None = None) -> None:
+        if site is not None:  # the name before 0.2
+            warnings.warn("ReachEnv(site=...) is now frame=...", DeprecationWarning, stacklevel=2)
+            frame = site
         check_choice(render_mode, "render_mode", (None, "rgb_array", "human"))
         width, height = check_count(width, "width"), check_count(height, "height")
-        self.task = ReachTask(model, site, action_type, goal_type, step_size, rot_step, success_tol, rot_tol,
+        self.task = ReachTask(model, frame, action_type, goal_type, step_size, rot_step, success_tol, rot_tol,
                               success_bonus, sparse, collision_penalty, obstacles, table, target_region, start_noise,
                               goal_conditioned)
         t = self.task
-        self.tree, self.site, self.scene, self.home = t.tree, site, t.scene, t.home
+        self.tree, self.frame, self.scene, self.home = t.tree, frame, t.scene, t.home
         self.action_type, self.goal_type, self.goal_conditioned = t.action_type, t.goal_type, t.goal_conditioned
         self.step_size, self.success_tol, self.rot_tol, self.extent = t.step_size, t.success_tol, t.rot_tol, t.extent
         self.action_space, self.observation_space = t.action_space, t.observation_space
@@ -156,6 +159,12 @@ class ReachEnv(gym.Env):
         self._camera: Any = None
 
     # ------------------------------------------------------------------ state
+    @property
+    def site(self) -> str:
+        """The effector frame (deprecated: use ``frame``)."""
+        warnings.warn("env.site is now env.frame", DeprecationWarning, stacklevel=2)
+        return self.frame
+
     def effector(self, q: Array | None = None) -> Array:
         """World position ``(3,)`` of the effector site at ``q`` (default: now)."""
         if q is None:
@@ -268,9 +277,9 @@ def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
         return np.clip(step, -1, 1).astype(np.float32)
     if env.goal_type == "pose":
         T = spatial.make_transform(spatial.quat_to_mat(target[3:]), target[:3])
-        goal: G.Goal = G.Pose(env.site, T)
+        goal: G.Goal = G.Pose(env.frame, T)
     else:
-        goal = G.Position(env.site, target)
-    res = mjkin.solve(env.tree, goal, q0=env.tree.qpos0, tol=0.1 * env.success_tol, rot_tol=0.1 * env.rot_tol)
+        goal = G.Position(env.frame, target)
+    res = env.task.expert_problem(goal).solve(env.tree.qpos0, [goal])
     step = env.tree.difference(res.q, env.q, periodic=True)  # unlimited hinges the short way round
     return np.clip(step / env.step_size, -1, 1).astype(np.float32)

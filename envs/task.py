@@ -107,7 +107,7 @@ def info_column(info: Any, key: str) -> Array:
 class ReachTask:
     """The reach task's constants and its batched math (see :class:`mjkin.envs.ReachEnv` for the meaning)."""
 
-    def __init__(self, model: str, site: str, action_type: str, goal_type: str, step_size: float | None,
+    def __init__(self, model: str, frame: str, action_type: str, goal_type: str, step_size: float | None,
                  rot_step: float, success_tol: float | None, rot_tol: float, success_bonus: float, sparse: bool,
                  collision_penalty: float, obstacles: Sequence[tuple[ArrayLike, float]] | None,
                  table: float | None, target_region: tuple[ArrayLike, ArrayLike] | None, start_noise: float,
@@ -135,12 +135,14 @@ class ReachTask:
         extent = float(base.model.stat.extent) or 1.0
         self.tree = mjkin.load(model_spec(model, self.obstacles, table, extent)) \
             if self.obstacles or table is not None else base
-        if not isinstance(site, str):
-            raise mjkin.InputError(f"site must be a site or body name (a string), not {shown(site)}")
-        self.site = site
-        self.site_kind, self.site_id = self.tree.frame(site)  # unknown names fail here, with the list of names
+        if not isinstance(frame, str):
+            raise mjkin.InputError(f"frame must be a site or body name (a string), not {shown(frame)}")
+        self.frame = frame
+        self.site_kind, self.site_id = self.tree.frame(frame)  # unknown names fail here, with the list of names
         body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
         self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
+        self._move: mjkin.Problem | None = None  # the cartesian step's IK, made at the first step
+        self._expert: mjkin.Problem | None = None
         self.extent = extent
         self.step_size = float(step_size if step_size is not None else
                                (0.1 if action_type == "joint" else 0.05 * extent))
@@ -240,14 +242,22 @@ class ReachTask:
             return self.tidy(self.tree.integrate(q, a * self.step_size))
         p = achieved[:, :3] + a[:, :3] * self.step_size
         if self.goal_type == "position":
-            goal: G.Goal = G.Position(self.site, p)
+            goal: G.Goal = G.Position(self.frame, p)
         else:  # a twist: translation, then rotation vector in world axes
             assert R is not None
             T = np.zeros((len(q), 4, 4))
             T[:, :3, :3] = spatial.rotvec_to_mat(a[:, 3:] * self.rot_step) @ R
             T[:, :3, 3], T[:, 3, 3] = p, 1.0
-            goal = G.Pose(self.site, T)
-        return self.tidy(mjkin.solve(self.tree, goal, q0=q, max_iters=30, restarts=0).q.reshape(q.shape))
+            goal = G.Pose(self.frame, T)
+        if self._move is None:
+            self._move = mjkin.Problem(self.tree, goal, max_iters=30, restarts=0)
+        return self.tidy(self._move.solve(q, [goal]).q.reshape(q.shape))
+
+    def expert_problem(self, goal: G.Goal) -> mjkin.Problem:
+        """The IK problem of the expert's target pose (made once, for its goal kind)."""
+        if self._expert is None:
+            self._expert = mjkin.Problem(self.tree, goal, tol=0.1 * self.success_tol, rot_tol=0.1 * self.rot_tol)
+        return self._expert
 
     # -------------------------------------------------------------- measures
     def measure(self, achieved: Array, desired: Array, hit: Array) -> tuple[Array, Array, NDArray[np.bool_], Array]:

@@ -50,7 +50,7 @@ def teacher(env: ReachEnv, gain: float = 0.5) -> Policy:  # 0.5: for PlanarReach
     nq = env.tree.nq
 
     def act(obs: Array) -> Array:
-        J = env.tree.jacobian(obs[:nq], env.site)[:3]
+        J = env.tree.jacobian(obs[:nq], env.frame)[:3]
         return gain * J.T @ (obs[nq + 6:nq + 9] / env.extent)
 
     return act

@@ -95,12 +95,12 @@ def clips(n: int, frames: int, out: str) -> None:
     scripts = []
     for k in range(n):
         q = np.linspace(tree.qpos0, tree.random_q(np.random.default_rng(k), 1)[0], frames)
-        traj = motion.Trajectory(np.arange(frames) / 30.0, q, motion.fingerprint(tree), model="arm7", site="ee")
+        traj = motion.Trajectory(np.arange(frames) / 30.0, q, motion.fingerprint(tree), model="arm7", frame="ee")
         scripts.append(traj.save(f"{out}/clip{k}.json"))
     start = time.perf_counter()
     for k, script in enumerate(scripts):
         traj = motion.Trajectory.load(script, tree)
-        images = render.frames(tree, traj.q, 640, 480, overlay=render.Overlay(trail=traj.site))
+        images = render.frames(tree, traj.q, 640, 480, overlay=render.Overlay(trail=traj.frame))
         render.write_video(images, f"{out}/loop{k}.mp4")
     loop = time.perf_counter() - start
     ray.init(num_cpus=len(os.sched_getaffinity(0)), include_dashboard=False, log_to_driver=False)

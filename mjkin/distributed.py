@@ -54,7 +54,8 @@ from numpy.typing import ArrayLike, NDArray
 from . import goals as G
 from . import motion
 from .errors import InputError, MjkinError
-from .ik import History, Result, solve
+from .goals.program import key_of
+from .ik import History, Problem, Result
 from .kinematics.tree import Tree, load
 from .parallel import set_threads, threads
 from .spatial import mat_to_quat, quat_to_mat
@@ -86,16 +87,20 @@ class Worker:
     def __init__(self, model: mujoco.MjModel, threads: int) -> None:
         set_threads(threads)
         self.tree = Tree.from_model(model)
+        self.problems: dict[str, Problem] = {}  # by goal structure and options: a job's chunks share one
 
     def solve(self, goals: list[G.Goal], q0: NDArray | None, options: dict) -> Result:
         """:func:`mjkin.solve` on this worker's model (the result travels without its tree)."""
-        return solve(self.tree, goals, q0, **options)
+        key = repr((key_of(tuple(goals)), sorted(options.items())))
+        if key not in self.problems:
+            self.problems = {key: Problem(self.tree, goals, **options)}  # the last job's only
+        return self.problems[key].solve(q0, goals)
 
     def render(self, traj: motion.Trajectory, path: str, width: int, height: int, fps: float) -> str:
         """Render a script to the clip ``path`` (as ``mjkin replay`` does); returns the path."""
         from . import render
 
-        overlay = render.Overlay(points=np.zeros((0, 3)) if traj.targets is None else traj.targets, trail=traj.site)
+        overlay = render.Overlay(points=np.zeros((0, 3)) if traj.targets is None else traj.targets, trail=traj.frame)
         images = render.frames(self.tree, traj.q, width, height, overlay=overlay)
         return str(render.write_video(images, path, fps))
 
@@ -312,13 +317,15 @@ class PoseSolver:
 
     def __init__(self, model: Model, frame: str, threads: int = 1, **solve_options: Any) -> None:
         set_threads(threads)
-        self.tree, self.frame, self.options = _tree(model), frame, solve_options
+        self.tree, self.frame = _tree(model), frame
         self.tree.frame(frame)
+        self.q0 = solve_options.pop("q0", None)
+        self.problem = Problem(self.tree, G.Pose(frame), **solve_options)
 
     def __call__(self, batch: dict[str, NDArray]) -> dict[str, NDArray]:
         """The batch with its solutions added."""
         goal = G.Pose(self.frame, T=pose_matrices(batch["position"], batch["quaternion"]))
-        res = solve(self.tree, goal, **self.options)
+        res = self.problem.solve(self.q0, [goal])
         return {**batch, "q": res.q, "success": res.success, "error": res.error}
 
 

@@ -13,8 +13,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin.apps import bench, cli
+from mjkin.apps import cli
 from mjkin.apps.bench import peers
+from mjkin.apps.bench import suite as bench
 from mjkin.apps.bench.ik import (
     TRAC_IK_ARMS,
     TRAC_IK_SOURCE,

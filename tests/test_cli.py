@@ -72,7 +72,7 @@ def script(tmp_path):
     q = np.linspace([0.0, 0.0], [1.0, -1.0], 5)
     tips = tree.pose(q, "tip")[:, :3, 3]
     traj = motion.Trajectory(times=np.arange(5) / 30, q=q, fingerprint=motion.fingerprint(tree),
-                             model="planar_2link", site="tip", targets=tips[:, None, :])
+                             model="planar_2link", frame="tip", targets=tips[:, None, :])
     return traj.save(tmp_path / "five.json")
 
 
@@ -200,7 +200,8 @@ def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkey
     monkeypatch.setattr("mjkin.apps.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
     monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
                         lambda *a, **k: pytest.fail("sampling ran before the checks"))
-    monkeypatch.setattr("mjkin.apps.bench.bench_seeds", lambda *a, **k: pytest.fail("the seeds ran before the checks"))
+    monkeypatch.setattr("mjkin.apps.bench.suite.bench_seeds",
+                        lambda *a, **k: pytest.fail("the seeds ran before the checks"))
     argv = [a.format(script=script) for a in argv]
     one_line_exit_2(argv, text, capsys, tmp_path, keep=["five.json"])
 

@@ -129,7 +129,7 @@ def test_render_many_writes_playable_clips(arm, tmp_path):
     for name, frames in (("wave", 6), ("reach", 9)):
         q = np.linspace(arm.qpos0, arm.random_q(np.random.default_rng(frames), 1)[0], frames)
         traj = motion.Trajectory(times=np.arange(frames) / 30.0, q=q, fingerprint=motion.fingerprint(arm),
-                                 model="arm7", site="ee")
+                                 model="arm7", frame="ee")
         scripts.append(traj.save(tmp_path / f"{name}.json"))
     clips = render_many("arm7", scripts, tmp_path / "clips", width=96, height=64, progress=False)
     assert clips == [tmp_path / "clips" / "wave.mp4", tmp_path / "clips" / "reach.mp4"]

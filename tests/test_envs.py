@@ -218,7 +218,9 @@ def test_bad_options():
     with pytest.raises(mjkin.InputError, match="goal_type"):
         gym.make("mjkin/Reach-v0", goal_type="orientation")
     with pytest.raises(mjkin.UnknownNameError, match="hand"):
-        gym.make("mjkin/Reach-v0", site="hand")
+        gym.make("mjkin/Reach-v0", frame="hand")
+    with pytest.warns(DeprecationWarning, match="frame"), pytest.raises(mjkin.UnknownNameError, match="hand"):
+        gym.make("mjkin/Reach-v0", site="hand")  # the name before 0.2
     with pytest.raises(mjkin.InputError, match="radius"):
         gym.make("mjkin/Reach-v0", obstacles=[([0, 0, 1], -0.1)])
     with pytest.raises(mjkin.InputError, match="num_envs"):
@@ -420,7 +422,7 @@ def inverted_regions(draw: st.DrawFn) -> tuple:
 
 BAD_ARGS = {
     "model": st.sampled_from([3, None, 1.5, ["arm7"]]),
-    "site": st.sampled_from([3, None, ["ee"]]),
+    "frame": st.sampled_from([3, None, ["ee"]]),
     "action_type": choice_bad(("joint", "cartesian")),
     "goal_type": choice_bad(("position", "pose")),
     # plain strings only: gym.make itself fails on other types (and on '%' in its warning) before the env is

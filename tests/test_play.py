@@ -17,6 +17,7 @@ import time
 from functools import cache
 from pathlib import Path
 
+import browser
 import imageio.v3 as imageio
 import numpy as np
 import pytest
@@ -26,7 +27,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import tree_of
 from mjkin import motion, render
-from mjkin.apps.play import browser, core, journal
+from mjkin.apps.play import core, journal
 from mjkin.apps.play import server as server_module
 from mjkin.apps.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
 from mjkin.apps.play.session import Playground, recordings_folder, view_camera
@@ -1168,7 +1169,7 @@ def test_a_journal_is_read_as_a_script_even_cut_off_mid_line(tmp_path):
     traj = motion.Trajectory.load(take.path, tree)
     np.testing.assert_allclose(traj.q, qs)
     np.testing.assert_allclose(traj.times, 0.1 * np.arange(5), atol=1e-12)
-    assert traj.model == "arm7" and traj.site == "ee" and traj.targets.shape == (5, 1, 3)
+    assert traj.model == "arm7" and traj.frame == "ee" and traj.targets.shape == (5, 1, 3)
     assert traj.meta["play"]["method"] == "dls"
     lines = take.path.read_text().splitlines()
     take.path.write_text("\n".join([lines[0], "{oops", *lines[1:3]]) + "\n")

@@ -163,7 +163,7 @@ def test_replay_memory_does_not_grow_with_the_clip(tmp_path):
     for n in (300, 3000):
         q = np.stack([np.linspace(0.0, 6.0, n), np.sin(np.linspace(0.0, 20.0, n))], -1)
         script = motion.Trajectory(times=np.arange(n) / 30, q=q, fingerprint=motion.fingerprint(tree),
-                                   model="planar_2link", site="tip")  # the trail of the tip, no targets
+                                   model="planar_2link", frame="tip")  # the trail of the tip, no targets
         script.save(tmp_path / f"{n}.json")
         run = subprocess.run([sys.executable, "-c", PEAK_MEMORY, "replay", str(tmp_path / f"{n}.json"), "-o",
                               str(tmp_path / f"{n}.mp4"), "--width", "160", "--height", "120"],

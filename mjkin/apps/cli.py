@@ -375,10 +375,10 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
     """Solve a Cartesian path for a site frame by frame and save it as a script."""
     check_writable(args.output, (".json",), "--output")
     tree = load(args.model)
-    tree.frame(args.site)  # a clear error before any work
+    tree.frame(args.frame)  # a clear error before any work
     q0 = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
     q0 = parse_q(args.q0, tree, args.deg, args.seed, "--q0") if args.q0 else q0
-    here = tree.pose(q0, args.site)[:3, 3]
+    here = tree.pose(q0, args.frame)[:3, 3]
     if args.path == "circle":
         center = _vec(args.center, "--center") if args.center else here
         pts = motion.circle(center, args.radius, args.frames, _vec(args.normal, "--normal"))
@@ -391,7 +391,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
         if not args.points:
             raise InputError("--path waypoints needs --points 'x,y,z; x,y,z; ...'")
         pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
-    traj = motion.follow(tree, args.site, pts, q0=q0, fps=args.fps)
+    traj = motion.follow(tree, args.frame, pts, q0=q0, fps=args.fps)
     traj.source = model_source(args.model)
     traj.save(args.output)
     ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
@@ -428,7 +428,7 @@ def render_script(args: argparse.Namespace, tree: Tree, traj: motion.Trajectory)
 
     qs = within_limits(args, tree, traj.q, "rendered as recorded")
     frame = check_output(args, len(qs))
-    overlay = render.Overlay(points=np.zeros((0, 3)) if traj.targets is None else traj.targets, trail=traj.site)
+    overlay = render.Overlay(points=np.zeros((0, 3)) if traj.targets is None else traj.targets, trail=traj.frame)
     write_output(args, tree, qs, overlay, frame)
     return 0
 
@@ -469,7 +469,9 @@ def cmd_workspace(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run a benchmark, print its tables, and write them with ``--json``."""
-    return bench.main(args)
+    from .bench.suite import main as bench_main
+
+    return bench_main(args)
 
 
 def cmd_play(args: argparse.Namespace) -> int:
@@ -577,9 +579,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("trajectory", help="solve a Cartesian path for a site and save the script (JSON)")
     s.add_argument("model", help=model_help)
-    s.add_argument("--site", required=True, help="the site (or body) that follows the path")
+    s.add_argument("--frame", "--site", dest="frame", required=True,
+                   help="the site (or body) that follows the path (--site: its name before 0.2)")
     s.add_argument("--path", choices=["circle", "line", "waypoints"], required=True, help="the shape of the path")
-    s.add_argument("--center", help="circle centre x,y,z (default: the site at the start)")
+    s.add_argument("--center", help="circle centre x,y,z (default: the frame at the start)")
     s.add_argument("--radius", type=positive_float, default=0.1, help="circle radius in metres (default 0.1)")
     s.add_argument("--normal", default="0,0,1", help="circle plane normal x,y,z (default 0,0,1)")
     s.add_argument("--start", help="line start x,y,z (default: the site at the start)")

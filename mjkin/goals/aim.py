@@ -36,8 +36,8 @@ class Aim(FrameGoal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the frame axis minus the unit direction from the frame point to the target point."""
     J6, pt, R, v, f = ws[0], ws[1], ws[2], ws[5], ws[6]
     w = ga.sqrt_w[i]

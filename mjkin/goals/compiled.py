@@ -1,10 +1,12 @@
 """What the kinds' compiled residuals share: the goal arrays, the scratch, the goal frame and rotation maps.
 
-A kind's residual has one signature, ``residual(kin, ga, ws, i, b, q, g, J, r0, err)``:
-goal ``i`` of target ``b`` at ``q (1, nq)`` writes its weighted rows ``g[r0:]`` and
-``J[r0:, :nv]`` and its errors ``err[i] = [metres, radians]``. For a frame goal
-the evaluator has already put the goal frame's world rotation ``R``, point ``pt``
-and Jacobian ``J6`` there into the scratch ``ws`` (see :func:`scratch`). Arrays are
+A kind's residual has one signature,
+``residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)``: goal ``i``
+of target ``b`` at ``q (1, nq)`` writes its weighted rows ``g[r0:]`` and ``J[r0:, :nv]``
+and its errors ``err[i] = [metres, radians]``. ``rot``/``pos``/``irot``/``ipos`` are
+FK at ``q`` (:func:`mjkin.kinematics.fk.fk_kernel`'s outputs). For a frame goal the
+evaluator has already put the goal frame's world rotation ``R``, point ``pt`` and
+Jacobian ``J6`` there into the scratch ``ws`` (see :func:`scratch`). Arrays are
 indexed element by element (see :mod:`mjkin.jit`).
 """
 

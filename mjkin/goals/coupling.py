@@ -61,8 +61,8 @@ class Coupling(Goal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: ``w (Σ coef_j q_j - value)``; the error in the goal's column."""
     w = ga.sqrt_w[i]
     s = -ga.data[b, i, 0]

@@ -20,8 +20,8 @@ class HalfSpace(Plane):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: the signed distance where it is negative (behind the wall), else zero."""
     s = signed_distance(ga, ws, i, b)
     if s < 0.0:

@@ -31,8 +31,8 @@ class Line(FrameGoal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the frame point's offset from the line, perpendicular to it."""
     J6, pt = ws[0], ws[1]
     w = ga.sqrt_w[i]

@@ -58,8 +58,8 @@ class Orientation(FrameGoal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the rotation vector to the target, or (one axis) the frame axis minus the target's."""
     ax = ga.aux[i]
     if ax < 0:

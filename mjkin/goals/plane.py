@@ -50,7 +50,7 @@ def distance_row(ga: GoalArrays, ws: tuple, i: int, b: int, s: float, g: Array, 
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: the signed distance from the plane."""
     distance_row(ga, ws, i, b, signed_distance(ga, ws, i, b), g, J, r0, err)

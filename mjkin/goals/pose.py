@@ -39,8 +39,8 @@ class Pose(FrameGoal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Six rows: position, then the rotation vector to the target."""
     position_rows(ga, ws, i, b, g, J, r0, err)
     orientation_rows(ga, ws, i, b, g, J, r0 + 3, err)

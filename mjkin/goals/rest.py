@@ -61,8 +61,8 @@ class Rest(Goal):
 
 
 @njit_inline
-def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, i: int, b: int, q: Array, g: Array, J: Array, r0: int,
-             err: Array) -> None:
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row per dof: the weighted, stiffness-scaled difference ``q ⊖ q_rest`` (never an error)."""
     Li, v, dv = ws[4], ws[5], ws[7]
     nv = J.shape[1]

@@ -22,7 +22,8 @@ from ..jit import PACKAGE, cache_dir
 
 PREFIX = "mjkin_loop_"  # the generated modules' names
 _LOADED: dict[tuple, ModuleType] = {}
-_BRANCH = "        {kw} ga.kind[i] == {code}:\n            _k{code}(kin, ga, ws, i, b, q, g, J, ga.row[i], err)\n"
+_BRANCH = ("        {kw} ga.kind[i] == {code}:\n"
+           "            _k{code}(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, ga.row[i], err)\n")
 
 
 def source() -> str:

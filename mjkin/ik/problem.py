@@ -116,6 +116,14 @@ class Problem:
         self._run: Runner = self.method.prepare(self)
         self._retry: Problem | None = None
 
+    def __getstate__(self) -> dict:
+        """Pickle the problem without its compiled runner (made again on arrival)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_run", "_retry")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _retry=None)
+        self._run = self.method.prepare(self)
+
     # ------------------------------------------------------------------ solve
     def solve(self, q0: ArrayLike | None = None, goals: Goal | Sequence[Goal] | None = None) -> Result:
         """Solve from ``q0`` (default ``qpos0``; ``(nq,)`` or one per target ``(B, nq)``) for ``goals``.

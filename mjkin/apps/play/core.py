@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -22,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from ... import goals as G
 from ... import spatial
 from ...errors import InputError
-from ...ik import METHODS, solve
+from ...ik import METHODS, Problem
 from ...kinematics.qspace import FREE, HINGE, SLIDE
 from ...kinematics.tree import Tree
 
@@ -394,12 +395,28 @@ def movable_joints(tree: Tree) -> list[str] | None:
     return [n for n, f in zip(names, free, strict=True) if not f]
 
 
+_PROBLEMS: dict[tuple, Problem] = {}  # the playground's IK problems, by tree, goal structure, method and budget
+
+
+def problem_for(tree: Tree, goals: list[G.Goal], method: str, iters: int | None) -> Problem:
+    """The :class:`~mjkin.Problem` for these goals' structure (made at its first use, then kept; at most 64)."""
+    key = (id(tree), tuple(g.key() for g in goals), method, iters)
+    problem = _PROBLEMS.get(key)
+    if problem is None or problem.tree is not tree:
+        if len(_PROBLEMS) >= 64:
+            _PROBLEMS.clear()
+        options: dict[str, Any] = {} if iters is None else {"max_iters": iters}
+        problem = Problem(tree, goals, method=method, restarts=0, joints=movable_joints(tree), **options)
+        _PROBLEMS[key] = problem
+    return problem
+
+
 def solve_state(tree: Tree, state: State, max_iters: int | None = None) -> State:
     """Solve the targets from ``state.q`` (warm start, no restarts); ``max_iters=1`` is one step of step mode."""
     method = "lm" if state.method == "auto" and max_iters is not None else state.method
     iters = AUTO_ITERS if state.method == "auto" and max_iters is None else max_iters
-    res = solve(tree, goals_for(state), q0=state.q, method=method, max_iters=iters, restarts=0,
-                joints=movable_joints(tree))
+    goals = goals_for(state)
+    res = problem_for(tree, goals, method, iters).solve(state.q, goals)
     q = np.asarray(res.q, float)
     stepped = state.iterations + int(res.iterations) if max_iters is not None else int(res.iterations)
     stalled = max_iters is not None and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12

@@ -21,26 +21,22 @@ import json
 import os
 import queue
 import threading
-from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from ... import motion
-from ...errors import InputError, MjkinIOError
+from ...errors import MjkinIOError
+from ...motion.journal import FORMAT, SUFFIX, Sample, read
 
 try:
     import fcntl
 except ImportError:  # Windows: no flock; every journal found at the start counts as left over
     fcntl = None  # type: ignore[assignment]
 
-FORMAT = "mjkin-play-journal"
-SUFFIX = ".journal.jsonl"
 FLUSH_SECONDS = 0.5  # the writer's period: samples reach the disk at least this often
-Sample = tuple[float, NDArray[np.float64], NDArray[np.float64]]  # (seconds since the start, q (nq,), points (n, 3))
 
 
 def base_name(folder: Path, model: str) -> Path:
@@ -136,73 +132,6 @@ def live(path: Path) -> bool:
 def leftovers(folder: str | os.PathLike[str]) -> list[Path]:
     """Journals in ``folder`` that no running process writes: recordings cut short, oldest first."""
     return sorted(p for p in Path(folder).glob(f"mjkin-play-*{SUFFIX}") if p.is_file() and not live(p))
-
-
-def read(path: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """The header and the sample lines of a journal; a last line cut off mid-write is left out.
-
-    Raises:
-        MjkinIOError: the file is missing or unreadable, or not a journal.
-        InputError: a line other than the last is not a JSON object (the message gives its number).
-    """
-    name = repr(str(path))
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise MjkinIOError(f"recording journal not found: {name}") from None
-    except (OSError, ValueError) as e:
-        raise MjkinIOError(f"cannot read recording journal {name}: {e}") from None
-    docs: list[Any] = []
-    for k, line in enumerate(lines, 1):
-        try:
-            docs.append(json.loads(line))
-        except (ValueError, RecursionError):
-            if k == len(lines) and k > 1:
-                break  # the line being written when the process died
-            raise InputError(f"recording journal {name}: line {k} is not JSON") from None
-        if not isinstance(docs[-1], dict):
-            raise InputError(f"recording journal {name}: line {k} is not a JSON object")
-    if not docs or docs[0].get("format") != FORMAT:
-        raise MjkinIOError(f"{name} is not an mjkin play journal (its first line has no \"format\": \"{FORMAT}\")")
-    header, samples = docs[0], docs[1:]
-    for k, s in enumerate(samples, 2):
-        if not {"t", "q", "targets"} <= set(s):
-            raise InputError(f"recording journal {name}: line {k} needs \"t\", \"q\" and \"targets\"")
-    return header, samples
-
-
-def columns(samples: Sequence[Sample]) -> tuple[NDArray, NDArray, NDArray | None]:
-    """A take's samples as arrays: times from 0 ``(T,)``, ``q (T, nq)``, points ``(T, n, 3)``.
-
-    The points are None when the number of targets changed during the take.
-    """
-    times = np.array([s[0] for s in samples], float)
-    counts = {len(s[2]) for s in samples}
-    targets = np.array([s[2] for s in samples], float).reshape(len(samples), -1, 3) if len(counts) == 1 else None
-    return times - times[0], np.array([s[1] for s in samples], float), targets
-
-
-def script(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The trajectory script (the JSON document :meth:`mjkin.motion.Trajectory.save` writes) a journal holds.
-
-    Raises:
-        MjkinIOError: see :func:`read`.
-        InputError: a line is malformed, the journal holds no sample, or the samples' shapes disagree.
-    """
-    header, lines = read(path)
-    if not lines:
-        raise InputError(f"recording journal {str(path)!r} holds no sample (the take was cut short at once)")
-    try:
-        times, q, targets = columns([(line["t"], line["q"], line["targets"]) for line in lines])
-    except (TypeError, ValueError):
-        raise InputError(f"recording journal {str(path)!r}: each sample needs a time, q (nq numbers) and "
-                         "targets (x, y, z points), the same nq in every line") from None
-    frames = header.get("frames") or []
-    play = {k: header.get(k) for k in ("frames", "method", "goal")}
-    return {"format": motion.FORMAT, "version": 1, "model": header.get("model", ""), "source": header.get("source"),
-            "fingerprint": header.get("fingerprint"), "site": frames[0] if frames else None,
-            "times": times.tolist(), "qpos": q.tolist(), "targets": None if targets is None else targets.tolist(),
-            "success": None, "meta": {"play": play}}
 
 
 def recover(path: Path) -> Path | None:

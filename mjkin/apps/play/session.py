@@ -26,6 +26,7 @@ from ... import motion, render, spatial
 from ...errors import InputError, MjkinError, MjkinIOError
 from ...files import check_writable
 from ...kinematics.tree import Tree
+from ...motion.journal import columns
 from . import core, journal
 from .journal import Journal, Sample
 
@@ -315,11 +316,11 @@ class Playground:
         if len(samples) < 2:  # a still: the pose held for one frame (a script's times must increase)
             first = samples[0] if samples else (0.0, state.q, self._points(state))
             samples = [first, (first[0] + 1.0 / self.fps, *first[1:])]
-        times, qs, targets = journal.columns(samples)
+        times, qs, targets = columns(samples)
         base = take.recording.journal.base
         frames = list(state.targets)
         traj = motion.Trajectory(times=times, q=qs, fingerprint=motion.fingerprint(self.tree),
-                                 model=self.tree.name, site=frames[0], targets=targets, source=self.source,
+                                 model=self.tree.name, frame=frames[0], targets=targets, source=self.source,
                                  meta={"play": {"frames": frames, "method": state.method, "goal": state.goal}})
         video_fps = 30.0
         pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1

@@ -1,0 +1,58 @@
+"""IK-driven animation: a frame led along points, solved frame by frame from the previous pose."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .. import goals as G
+from ..errors import InputError
+from ..ik import Problem
+from ..kinematics.tree import Tree, fingerprint
+from ..progress import track
+from .trajectory import Trajectory
+
+
+def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,
+           extra: Sequence[G.Goal] = (), tol: float = 1e-4, smooth: float = 0.3,
+           **solve_options: Any) -> Trajectory:
+    """IK-driven animation: put ``frame`` on ``targets (T, 3)`` frame by frame, warm-starting from the last pose.
+
+    ``extra`` goals (e.g. an orientation, a rest pose at low priority) hold on every
+    frame. Warm starts, minimum-norm steps and, with ``smooth > 0``, a rest goal
+    of that weight at the previous frame's pose (priority 1: only in the freedom
+    the path leaves) keep consecutive poses close, so redundant joints do not
+    swing when another low-priority goal (a comfort pose) pulls them. A frame
+    that fails from the warm start is retried with random restarts; failures are
+    recorded in ``success``. Two :class:`~mjkin.Problem` objects (without and with
+    restarts) serve every frame; ``solve_options`` go to both.
+    """
+    pts = np.asarray(targets, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")
+    if not smooth >= 0:
+        raise InputError(f"smooth must be a weight >= 0, got {smooth!r}")
+    q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
+    out, ok = np.empty((len(pts), tree.nq)), np.empty(len(pts), bool)
+
+    def goals(k: int) -> list[G.Goal]:
+        return [G.Position(frame, pts[k]), *extra, *([G.Rest(q_rest=q, weight=smooth, priority=1)] if smooth else [])]
+
+    warm = Problem(tree, goals(0), tol=tol, **{**solve_options, "restarts": 0})
+    retry: Problem | None = None
+    for k in track(range(len(pts)), "solve path", total=len(pts)):
+        now = goals(k)
+        res = warm.solve(q, now)
+        if not res.success:
+            retry = retry or Problem(tree, now, tol=tol, **solve_options)
+            again = retry.solve(q, now)
+            res = again if again.success or again.error[0] < res.error[0] else res
+        q = res.q
+        out[k], ok[k] = q, bool(res.success)
+    return Trajectory(times=np.arange(len(pts)) / fps, q=out, fingerprint=fingerprint(tree), model=tree.name,
+                      frame=frame, targets=pts[:, None, :], success=ok)
+
+
