@@ -24,7 +24,7 @@ from mjkin import goals as G
 from mjkin import spatial
 from mjkin.checks import check_choice, check_flag, check_number, shown
 from mjkin.jit import njit
-from mjkin.kinematics.fk import Frames
+from mjkin.kinematics.frames import Frames
 from mjkin.kinematics.tree import bundled_models
 from mjkin.scene import Scene
 
@@ -331,12 +331,12 @@ class ReachTask:
         return self.scene.counts(q, frames if len(q) > 4 else None)
 
     def outcome(self, q: Array, achieved: Array, desired: Array,
-                frames: Frames | None = None) -> tuple[dict[str, Array], Array]:
+                frames: Frames | None = None) -> tuple[dict[str, NDArray], Array]:
         """Per-env ``info`` arrays ``(B,)`` (distance, is_success, contacts, in_collision[, angle]) and rewards."""
         contacts = self.contacts(q, frames)
         hit = contacts > 0
         distance, angle, ok, reward = self.measure(achieved, desired, hit.astype(np.float64))
-        out = {"distance": distance, "is_success": ok, "contacts": contacts, "in_collision": hit}
+        out: dict[str, NDArray] = {"distance": distance, "is_success": ok, "contacts": contacts, "in_collision": hit}
         if self.goal_dim == 7:
             out["angle"] = angle
         return out, reward

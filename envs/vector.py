@@ -98,7 +98,7 @@ class ReachVectorEnv(VectorEnv):
         mask = np.asarray(options.pop("reset_mask", np.ones(n, dtype=bool)), dtype=bool)
         if mask.shape != (n,) or not mask.any():
             raise mjkin.InputError(f"options['reset_mask'] must be {n} booleans with at least one True")
-        for i in np.flatnonzero(mask):
+        for i in np.flatnonzero(mask).tolist():
             self._start(i, seeds[i], options)
         self.autoreset[mask] = False
         obs, _, out = self._settle()
@@ -113,7 +113,7 @@ class ReachVectorEnv(VectorEnv):
             raise mjkin.InputError("actions contain NaN or inf")
         resetting = self.autoreset.copy()
         self.q = self.task.move(self.q, a, self.R, self.achieved)
-        for i in np.flatnonzero(resetting):
+        for i in np.flatnonzero(resetting).tolist():
             self._start(i, None, None)
         self.elapsed += ~resetting
         obs, reward, out = self._settle()

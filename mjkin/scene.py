@@ -26,7 +26,7 @@ from .jit import njit, njit_inline
 from .kinematics.tree import Tree
 
 if TYPE_CHECKING:
-    from .kinematics.fk import Frames
+    from .kinematics.frames import Frames
 
 _NO_GEOMS = np.empty((0, 2), np.int32)
 _NO_DISTANCES = np.empty(0)

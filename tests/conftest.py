@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 import mjkin
-from mjkin.apps.bench.suite import shared_models_dir
+from mjkin.apps.bench.report import shared_models_dir
 
 # Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
 # depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not

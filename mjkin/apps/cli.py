@@ -14,7 +14,6 @@ import re
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,7 +24,7 @@ from ..files import check_writable, strict_json
 from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
-from ..kinematics.tree import Tree, bundled_models, load
+from ..kinematics.tree import Tree, bundled_models, load, source_of
 from . import bench
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
 
@@ -392,19 +391,13 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
             raise InputError("--path waypoints needs --points 'x,y,z; x,y,z; ...'")
         pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
     traj = motion.follow(tree, args.frame, pts, q0=q0, fps=args.fps)
-    traj.source = model_source(args.model)
+    traj.source = source_of(args.model)
     traj.save(args.output)
     ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
     jumps = traj.discontinuities(tree)
     print(f"wrote {args.output}: {len(pts)} frames, {ok.mean():.0%} on target, largest joint step "
           f"{traj.jumps(tree).max():.3f}" + (f"; discontinuities at frames {jumps.tolist()}" if len(jumps) else ""))
     return 0
-
-
-def model_source(model: str) -> str:
-    """Where the model argument ``model`` loads from, as a script records it: a file's absolute path, else as given."""
-    path = Path(model)
-    return str(path.resolve()) if path.is_file() else model
 
 
 def cmd_render(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,11 +22,8 @@ from ..kinematics.qspace import HINGE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE
-from .method import Method
+from .method import Method, Problem
 from .result import Result, package
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 Array = NDArray[np.float64]
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,11 +32,8 @@ from ..kinematics.tree import Tree
 from ..parallel import parallel_chunks
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk
-from .method import Method
+from .method import Method, Problem
 from .result import History, Result, package
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

@@ -16,12 +16,11 @@ from ..checks import check_count, check_flag, check_number
 from ..parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
-from .method import Array, Method
+from .method import Array, Method, Problem
 from .result import History, Result, package
 
 if TYPE_CHECKING:
     from ..goals import Program
-    from .problem import Problem
 
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
 TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)

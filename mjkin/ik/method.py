@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from functools import partial
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,10 +19,30 @@ from ..errors import InputError
 
 if TYPE_CHECKING:
     from ..goals import Program
-    from .problem import Problem
+    from ..goals.program import Structure
+    from ..kinematics.tree import Tree
     from .result import Result
 
 Array = NDArray[np.float64]
+
+
+class Problem(Protocol):
+    """What a method reads of the :class:`mjkin.Problem` it runs for (set once, at the problem's construction)."""
+
+    tree: Tree
+    structure: Structure  # the goals' arrays, sorted by priority
+    method_name: str
+    tol: float  # metres
+    rot_tol: float  # radians
+    time_limit: float | None  # seconds per target
+    history: bool
+    avoid_collisions: bool
+    base: str | None
+    joints: list[str] | None
+    root: str | None
+    active: NDArray[np.bool_]  # (nv,) dofs that may move
+    restart_q: NDArray[np.bool_]  # (nq,) entries a restart randomises
+    starts: Array  # (K, nq) restart configurations
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,11 +34,8 @@ from ..kinematics.qspace import HINGE, SLIDE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
-from .method import Method
+from .method import Method, Problem
 from .result import Result, package
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 Array = NDArray[np.float64]
 

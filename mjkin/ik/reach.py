@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,11 +41,8 @@ from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk
-from .method import Method
+from .method import Method, Problem
 from .result import History, Result, package
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 Array = NDArray[np.float64]
 ROOT_WOULD_MOVE = "root_would_move"

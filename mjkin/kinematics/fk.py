@@ -17,20 +17,56 @@ sets the body's world pose directly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
+import mujoco
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from .. import spatial
 from ..jit import axis_angle, njit, njit_inline, quat_to_mat
-from .qspace import BALL, FREE, HINGE, SLIDE
-
-if TYPE_CHECKING:
-    from .tree import Tree
+from .qspace import BALL, FREE, HINGE, SLIDE, Joints
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
+
+
+class Bodies(Joints, Protocol):
+    """What the FK modules read of a tree (a :class:`mjkin.Tree` is one): its bodies, sites and derived arrays."""
+
+    @property
+    def model(self) -> mujoco.MjModel: ...  # noqa: D102
+    @property
+    def nbody(self) -> int: ...  # noqa: D102
+    @property
+    def njnt(self) -> int: ...  # noqa: D102
+    @property
+    def body_parent(self) -> Index: ...  # noqa: D102
+    @property
+    def body_pos(self) -> Array: ...  # noqa: D102
+    @property
+    def body_rot(self) -> Array: ...  # noqa: D102
+    @property
+    def jnt_body(self) -> Index: ...  # noqa: D102
+    @property
+    def jnt_pos(self) -> Array: ...  # noqa: D102
+    @property
+    def jnt_axis(self) -> Array: ...  # noqa: D102
+    @property
+    def site_body(self) -> Index: ...  # noqa: D102
+    @property
+    def site_pos(self) -> Array: ...  # noqa: D102
+    @property
+    def site_rot(self) -> Array: ...  # noqa: D102
+    @property
+    def plan(self) -> Plan: ...  # noqa: D102
+    @property
+    def body_dofs(self) -> tuple[Index, ...]: ...  # noqa: D102
+    @property
+    def kin(self) -> Kinematics: ...  # noqa: D102
+    @property
+    def fk_args(self) -> tuple: ...  # noqa: D102
+    @property
+    def n_inner(self) -> int: ...  # noqa: D102
 
 
 @dataclass(frozen=True)
@@ -53,7 +89,7 @@ class Plan:
     dof_anchor: Array  # (nv, 3) anchor in the joint's frame
 
     @classmethod
-    def of(cls, tree: Tree) -> Plan:
+    def of(cls, tree: Bodies) -> Plan:
         """Build the plan for ``tree``."""
         m = tree.model
         jt = tree.jnt_type
@@ -163,75 +199,6 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
                             inner_rot[b, s, i, k] = rot[b, body, i, k]
 
 
-def forward(tree: Tree, q: Array) -> Frames:
-    """World frames of all bodies for ``q (..., nq)`` (already validated)."""
-    batch = q.shape[:-1]
-    qf = np.ascontiguousarray(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]))  # also for nq = 0
-    B = qf.shape[0]
-    arrays = tree.fk_args
-    nbody, n_inner = len(arrays[0]), tree.n_inner
-    rot = np.empty((B, nbody, 3, 3))
-    pos = np.empty((B, nbody, 3))
-    inner_rot = np.empty((B, n_inner, 3, 3))
-    inner_pos = np.empty((B, n_inner, 3))
-    fk_kernel(qf, *arrays, rot, pos, inner_rot, inner_pos)  # type: ignore[call-arg]  # the 14 arrays of fk_arrays
-    return Frames(tree, batch, rot, pos, inner_rot, inner_pos)
-
-
-@dataclass(frozen=True, eq=False)
-class Frames:
-    """Result of :func:`forward`, flattened over the batch (``B = prod(batch)``).
-
-    ``rot (B, nbody, 3, 3)``, ``pos (B, nbody, 3)``: world rotation and origin
-    of every body; ``inner_rot``, ``inner_pos``: world frame right after each
-    inner joint (see :func:`fk_kernel`). A joint's anchor and axis are fixed in
-    the frame right after it (MuJoCo's ``xanchor``/``xaxis``).
-    """
-
-    tree: Tree
-    batch: tuple[int, ...]
-    rot: Array
-    pos: Array
-    inner_rot: Array
-    inner_pos: Array
-
-    def local_frame(self, kind: str, i: int) -> tuple[int, Array, Array]:
-        """Body id, rotation ``(3, 3)`` and origin ``(3,)`` of a site/body frame in its body."""
-        t = self.tree
-        if kind == "site":
-            return int(t.site_body[i]), t.site_rot[i], t.site_pos[i]
-        return i, np.eye(3), np.zeros(3)
-
-    def frame(self, kind: str, i: int, offset: Array | None = None) -> tuple[Array, Array]:
-        """World rotation ``(B, 3, 3)`` and origin ``(B, 3)`` of a site or body (or a point ``offset`` on it)."""
-        T = self.world(kind, i, offset)
-        return T[:, :3, :3], T[:, :3, 3]
-
-    def world(self, kind: str, i: int, offset: Array | None = None) -> Array:
-        """World poses ``(B, 4, 4)`` of a site or body frame, moved to a local point ``offset (3,)`` if given."""
-        b, r, o = self.local_frame(kind, i)
-        local = spatial.make_transform(r, o)
-        if offset is not None:
-            local = moved(local, offset)
-        T = np.empty((self.rot.shape[0], 4, 4))
-        frames_world(self.rot, self.pos, b, local, T)
-        return T
-
-    def pose(self, kind: str, i: int) -> Array:
-        """World pose ``(..., 4, 4)`` of a site or body."""
-        return self.world(kind, i).reshape(self.batch + (4, 4))
-
-    def poses(self) -> Array:
-        """World pose of every body ``(..., nbody, 4, 4)``."""
-        return to_poses(self.rot, self.pos).reshape(self.batch + (self.tree.nbody, 4, 4))
-
-    def jacobian(self, kind: str, i: int, offset: ArrayLike | None = None) -> Array:
-        """Jacobian ``(..., 6, nv)`` of a site/body origin (or a local ``offset``), world axes."""
-        from .jacobian import frame_jacobian
-
-        return frame_jacobian(self, kind, i, offset).reshape(self.batch + (6, self.tree.nv))
-
-
 def moved(local: Array, offset: Array) -> Array:
     """The frame ``local (4, 4)`` with its origin moved to the point ``offset (3,)`` given in it."""
     out = local.copy()
@@ -297,7 +264,7 @@ class Kinematics(NamedTuple):
     jnt_body: Index
 
 
-def kinematic_arrays(tree: Tree) -> Kinematics:
+def kinematic_arrays(tree: Bodies) -> Kinematics:
     """The :class:`Kinematics` of a tree under construction (a :class:`Tree` keeps it as ``tree.kin``)."""
     p = tree.plan
     dofs = tree.body_dofs

@@ -11,17 +11,12 @@ equals ``mj_jac`` stacked ``[jacp; jacr]``.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
 from ..jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
-
-if TYPE_CHECKING:
-    from .fk import Frames
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -65,23 +60,6 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
                 for i in range(3):
                     J[b, i, d] = u[i]
                     J[b, 3 + i, d] = 0.0
-
-
-def point_jacobian(frames: Frames, body: int, point: Array) -> Array:
-    """Jacobian ``(B, 6, nv)`` of world points ``point (B, 3)`` fixed to ``body``."""
-    t, p = frames.tree, frames.tree.plan
-    J = np.zeros((point.shape[0], 6, t.nv))
-    jacobian_kernel(frames.rot, frames.pos, frames.inner_rot, frames.inner_pos, t.body_dofs[body],
-                    t.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt], p.dof_axis, p.dof_world, p.dof_rot, p.dof_anchor,
-                    np.ascontiguousarray(point), J)
-    return J
-
-
-def frame_jacobian(frames: Frames, kind: str, i: int, offset: ArrayLike | None = None) -> Array:
-    """Jacobian ``(B, 6, nv)`` at a site/body origin, or at ``offset (3,)`` in its local frame."""
-    body, _, _ = frames.local_frame(kind, i)
-    _, x = frames.frame(kind, i, None if offset is None else check_offset(offset))
-    return point_jacobian(frames, body, x)
 
 
 def check_offset(offset: ArrayLike) -> Array:

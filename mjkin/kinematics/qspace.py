@@ -9,7 +9,7 @@ local frame (as ``mj_integratePos``). All functions take a leading batch shape.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,9 +17,6 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError
 from ..jit import njit, njit_inline
-
-if TYPE_CHECKING:
-    from .tree import Tree
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -32,6 +29,29 @@ NV = {FREE: 6, BALL: 3, SLIDE: 1, HINGE: 1}
 
 UNLIMITED_SLIDE = 1.0  # random_q samples unlimited slides within ±1 m of qpos0
 UNLIMITED_FREE = 1.0  # and free-joint positions within ±1 m of qpos0 per axis
+
+
+class Joints(Protocol):
+    """What the configuration-space functions read of a tree (a :class:`mjkin.Tree` is one)."""
+
+    @property
+    def nq(self) -> int: ...  # noqa: D102
+    @property
+    def nv(self) -> int: ...  # noqa: D102
+    @property
+    def qpos0(self) -> Array: ...  # noqa: D102
+    @property
+    def jnt_type(self) -> Index: ...  # noqa: D102
+    @property
+    def jnt_qadr(self) -> Index: ...  # noqa: D102
+    @property
+    def jnt_dofadr(self) -> Index: ...  # noqa: D102
+    @property
+    def jnt_limited(self) -> NDArray[np.bool_]: ...  # noqa: D102
+    @property
+    def jnt_range(self) -> Array: ...  # noqa: D102
+    @property
+    def layout(self) -> Layout: ...  # noqa: D102
 
 
 @dataclass(frozen=True)
@@ -53,7 +73,7 @@ class Layout:
     unlimited_hinge_v: Index  # (nu,) and its velocity (dof) index
 
     @classmethod
-    def of(cls, tree: Tree) -> Layout:
+    def of(cls, tree: Joints) -> Layout:
         """Group the joints of ``tree``."""
         t = tree.jnt_type
         s = np.flatnonzero((t == HINGE) | (t == SLIDE))
@@ -72,7 +92,7 @@ class Layout:
                    unlimited_hinge_v=tree.jnt_dofadr[unlimited])
 
 
-def check(tree: Tree, q: ArrayLike, name: str = "q") -> Array:
+def check(tree: Joints, q: ArrayLike, name: str = "q") -> Array:
     """``q`` as a float64 array ``(..., nq)``; :class:`InputError` for a bad shape or value."""
     try:
         a = q if type(q) is np.ndarray and q.dtype == np.float64 else np.asarray(q, dtype=np.float64)
@@ -120,7 +140,7 @@ def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
-def random(tree: Tree, rng: np.random.Generator | int | None = None, n: int | tuple[int, ...] | None = None,
+def random(tree: Joints, rng: np.random.Generator | int | None = None, n: int | tuple[int, ...] | None = None,
            spread: bool = False) -> Array:
     """Configurations inside the joint limits: ``(n, nq)`` (``n + (nq,)`` for a shape), or ``(nq,)`` when ``n`` is None.
 
@@ -278,7 +298,7 @@ def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
     return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(rows, n), dtype=np.float64)
 
 
-def wrap(tree: Tree, q: Array, index: Index | None = None) -> None:
+def wrap(tree: Joints, q: Array, index: Index | None = None) -> None:
     """Turn unlimited hinges of ``q (..., nq)`` into ``(-π, π]`` about ``qpos0``, in place (the same pose).
 
     MuJoCo turns a hinge by ``q - qpos0``, so that difference is what is wrapped; ``index``
@@ -296,14 +316,14 @@ def wrap(tree: Tree, q: Array, index: Index | None = None) -> None:
         q[..., a] = np.where(outside, tree.qpos0[a] + np.where(w == -np.pi, np.pi, w), q[..., a])
 
 
-def clip(tree: Tree, q: Array) -> Array:
+def clip(tree: Joints, q: Array) -> Array:
     """Project into the joint limits; ball joints past their cone are pulled back onto it."""
     out = _rows(q, tree.nq, q.shape[:-1]).copy()
     clip_kernel(out, tree.jnt_type, tree.jnt_qadr, tree.layout.jnt_lo, tree.layout.jnt_hi)
     return out.reshape(q.shape)
 
 
-def integrate(tree: Tree, q: Array, v: Array) -> Array:
+def integrate(tree: Joints, q: Array, v: Array) -> Array:
     """``q ⊕ v``: add hinge/slide velocities, rotate quaternions by ``exp(w)`` in the local frame."""
     if v.ndim == 0 or v.shape[-1] != tree.nv:
         raise InputError(f"velocity has shape {v.shape}; this model needs (..., {tree.nv})")
@@ -313,7 +333,7 @@ def integrate(tree: Tree, q: Array, v: Array) -> Array:
     return out.reshape(shape + (tree.nq,))
 
 
-def difference(tree: Tree, q1: Array, q0: Array, periodic: bool = False) -> Array:
+def difference(tree: Joints, q1: Array, q0: Array, periodic: bool = False) -> Array:
     """``q1 ⊖ q0``: the velocity ``(..., nv)`` with ``integrate(q0, v) == q1``.
 
     ``periodic``: unlimited hinges take the short way round, in ``(-π, π]`` (their values are angles

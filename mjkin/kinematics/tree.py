@@ -15,7 +15,8 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .fk import Frames, Kinematics, Plan, forward, frame_pose_one, kinematic_arrays, moved
+from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
+from .frames import Frames, forward
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
@@ -283,6 +284,12 @@ def bundled_models() -> dict[str, Path]:
 
     root = Path(str(files("mjkin.models")))
     return {p.stem: p for p in sorted(root.glob("*.xml"))}
+
+
+def source_of(model: str) -> str:
+    """Where the model argument ``model`` loads from, as a script records it: a file's absolute path, else as given."""
+    path = Path(model)
+    return str(path.resolve()) if path.is_file() else model
 
 
 def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:

@@ -27,7 +27,7 @@ from ...kinematics.tree import Tree, load
 from ...progress import track
 from ...spatial import mat_to_rotvec
 from . import peers
-from .suite import GC_NOTE, Report, Row, gc_paused, shared_models_dir
+from .report import GC_NOTE, Report, Row, gc_paused, shared_models_dir
 
 Array = NDArray[np.float64]
 Kind = Literal["site", "body"]

@@ -24,7 +24,7 @@ from ...kinematics.qspace import FREE
 from ...kinematics.tree import Tree, load
 from ...parallel import threads_set
 from ...progress import track
-from .suite import GC_NOTE, Report, Row, gc_paused
+from .report import GC_NOTE, Report, Row, gc_paused
 
 Array = NDArray[np.float64]
 RATES = {"60 Hz": 1 / 60, "1 kHz": 1e-3}

@@ -70,7 +70,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from ...errors import InputError, MjkinError, MjkinIOError
 from ...files import strict_json
-from ...kinematics.tree import Tree, load
+from ...kinematics.tree import Tree, load, source_of
 from . import core, journal
 from .session import Busy, Playground, recordings_folder
 
@@ -591,9 +591,8 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
         say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
             "can control the playground")
     say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.progress)
-    from ..cli import model_source  # not at the top: the CLI imports this module
 
-    playground = Playground(tree, out_dir=out_dir, source="" if isinstance(model, Tree) else model_source(str(model)))
+    playground = Playground(tree, out_dir=out_dir, source="" if isinstance(model, Tree) else source_of(str(model)))
     try:
         server = bind(playground, host, port)
     except BaseException:
