@@ -1,4 +1,4 @@
-"""Workspaces (seed 000): where a frame can go, and where it can go in many orientations.
+"""Workspaces (as the Polish lecture notes define them): where a frame can go, and where it can go in many orientations.
 
 The reachable workspace is sampled by batched FK of random configurations
 inside the joint limits: a point cloud, its bounding box and the distances from

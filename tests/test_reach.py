@@ -1,4 +1,4 @@
-"""Recursive reach (seed 002 §4.3): planar and 3-D chains, the root that would have to move, bad input."""
+"""Recursive reach (the Finnish thesis's method): planar and 3-D chains, the root that would have to move, bad input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The seeds' reproducible examples (SEEDS.md §4): their qualitative shape, not hard-coded numbers."""
+"""The seeds' reproducible examples (worked examples of the sources): their shape, not hard-coded numbers."""
 
 from __future__ import annotations
 

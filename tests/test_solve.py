@@ -255,7 +255,7 @@ def test_threaded_batch_equals_loop_of_single_solves(rng):
 
 
 def test_halving_reaches_goals_the_plain_step_overshoots():
-    """Seed 002 §4.6.3: a full pinv step from a near-singular start overshoots; halving retracts and lands."""
+    """Goal halving (the Finnish thesis): a full pinv step from near-singular overshoots; halving lands."""
     tree = tree_of("planar_3link")
     q0 = np.array([0.0, 1e-3, 1e-3])
     goal = G.Position("tip", (20.0, 12.0, 0.0))

@@ -1,4 +1,4 @@
-"""Workspaces by batched FK against the closed forms of planar two- and three-link arms (seed 000)."""
+"""Workspaces by batched FK against the closed forms of planar two- and three-link arms (Polish lecture notes)."""
 
 from __future__ import annotations
 

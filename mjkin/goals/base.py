@@ -4,7 +4,7 @@ Every goal defines a residual ``g(q)`` that is zero when the goal is met and its
 Jacobian ``dg/dv`` (``v`` is MuJoCo's velocity, so ``(m, nv)``). Solvers minimise
 ``Σ weight · |g|²`` level by level: priority 0 first, and a larger priority only
 uses the freedom the smaller ones leave (weighted goal potentials, effector goals
-ordered by priority, as in Welman's thesis). ``weight=0`` switches a goal off.
+ordered by priority, as in the Finnish thesis on articulated figures). ``weight=0`` switches a goal off.
 
 A kind is one module of this package: its spec class (a frozen dataclass, below)
 and its compiled residual, registered in :mod:`mjkin.goals.registry`.

@@ -1,4 +1,4 @@
-"""Closed-form IK of a two-link planar arm (seeds 000, 004).
+"""Closed-form IK of a two-link planar arm (the Polish lecture notes, the Chinese course notes).
 
 Reachable iff ``|L1 - L2| <= r <= L1 + L2`` with ``r = sqrt(X² + Y²)``; then
 ``θ2 = ±acos((r² - L1² - L2²) / (2 L1 L2))`` and

@@ -1,4 +1,4 @@
-"""Cyclic coordinate descent (seeds 000, 001): one joint at a time, base to tip or tip to base.
+"""Cyclic coordinate descent (lecture notes; a Spanish answer on CCD): one joint at a time, either way along.
 
 Each joint turns (or slides) to bring the tool point as close to the goal as
 that joint alone can: a hinge by the angle between (tool - joint) and

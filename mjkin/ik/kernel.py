@@ -2,7 +2,7 @@
 
 The loop itself (:mod:`mjkin.ik.loop`) is compiled with the goal kinds of the
 registry (:mod:`mjkin.ik.compiled`). Each iteration (the damped least-squares and
-pseudoinverse updates of Buss's notes, with the priorities of Welman's thesis):
+pseudoinverse updates of the lecture notes, with the Finnish thesis's priorities):
 
 1. forward kinematics at ``q`` and every goal's weighted residual ``g`` and
    Jacobian ``J`` (rows grouped by priority level);
@@ -19,7 +19,7 @@ pseudoinverse updates of Buss's notes, with the priorities of Welman's thesis):
    ball/free joints) and clamped into the limits;
 4. ``lm`` accepts a step only if it lowers the cost (level by level), else it
    raises λ (Levenberg–Marquardt, ``λ² = λ_min² + μ·cost``); ``halving`` instead retracts and halves the way to the goal
-   (Welman's thesis, iterative goal halving).
+   (the Finnish thesis's iterative goal halving).
 
 A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
 stalled (no progress — an unmet counted goal's error falling by the fraction

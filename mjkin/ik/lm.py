@@ -45,7 +45,7 @@ class Jacobian(Method):
         damping: λ of ``dls`` (default 5 % of the model's size, ``MjModel.stat.extent``),
             the floor of ``lm``'s λ (default 1e-5 of it).
         max_step: largest joint change per iteration (rad or m).
-        halving: iterative goal halving (Welman): when a step does not lower the error,
+        halving: iterative goal halving (the Finnish thesis): when a step does not lower the error,
             retract and aim halfway, repeatedly.
         goal_step: the most residual (m, or rad for orientation rows) a step aims to
             remove, so the effector walks toward a far goal (Buss's error clamping).
@@ -93,7 +93,7 @@ class Jacobian(Method):
 
 @dataclass(frozen=True)
 class DLS(Jacobian):
-    """Damped least squares with a fixed λ (Buss's notes)."""
+    """Damped least squares with a fixed λ."""
 
     name: ClassVar[str] = "dls"
     code: ClassVar[int] = kernel.DLS

@@ -1,4 +1,4 @@
-"""IK as constrained optimisation (seed 002, after Zhao & Badler: the Jack system).
+"""IK as constrained optimisation (the Finnish thesis, after Zhao & Badler's Jack system).
 
 Minimise the goal potentials ``Σ w |g|²`` level by level (lexicographic
 priorities: a level may not raise the cost of the levels above it), subject

@@ -1,4 +1,4 @@
-"""Recursive reach (seed 002 §4.3): the thesis author's own greedy method, on points.
+"""Recursive reach (the Finnish thesis): its author's own greedy method, on points.
 
 The chain is seen as points — the joint anchors from the root to the tool — a
 fixed distance apart. One pass puts the tool on the goal and walks back toward

@@ -1,6 +1,6 @@
 """Forward kinematics: world frames of every body for a batch of configurations.
 
-This is the textbook traversal of a hierarchical model (seed 000, Algorithm 1):
+This is the textbook traversal of a hierarchical model (Algorithm 1 of the Polish lecture notes):
 a body's world pose is its parent's world pose composed with the body's fixed
 placement ``L`` (MJCF ``pos``/``quat``) and then each of its joints'
 articulation ``A(q)`` in order, ``T_body = T_parent · L · A_1(q) · A_2(q) ...``.

@@ -1,7 +1,7 @@
 """Geometric Jacobians built column by column from the joint frames.
 
 For a point ``p`` on a body, each dof that moves the body contributes one
-column (seed 000/002): a rotation about the unit axis ``u`` through the anchor
+column (the Polish lecture notes, the Finnish thesis): a rotation about the unit axis ``u`` through the anchor
 ``a`` gives ``[u × (p - a); u]``, a translation along ``u`` gives ``[u; 0]``.
 Ball and free joints contribute three rotational columns about the axes of
 the frame after the joint (their angular velocity is local, as in MuJoCo), and

@@ -1,8 +1,8 @@
 """Keyframes and Cartesian paths: joint values interpolated over time, points along lines, circles and waypoints.
 
 Keyframes of pose vectors are interpolated (joint values linearly or smoothly,
-orientations by quaternion slerp), as in Welman's thesis and Watt and Watt's
-animation text; paths are timed with minimum-jerk profiles.
+orientations by quaternion slerp), as in the Finnish thesis and the Chinese
+animation course notes; paths are timed with minimum-jerk profiles.
 """
 
 from __future__ import annotations

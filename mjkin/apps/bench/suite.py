@@ -156,7 +156,7 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
 
 
 def bench_seeds(out: Path | None = None) -> Report:
-    """The seeds' examples (SEEDS.md §4): tables, and PNG figures in ``out`` when matplotlib is there."""
+    """The seeds' examples (three-link arm, CCD, two-link closed form): tables; PNG figures in ``out``."""
     from ..demo import seeds
 
     one = []

@@ -1,4 +1,4 @@
-"""The seeds' reproducible examples (SEEDS.md §4), as data, tables and figures.
+"""The seeds' reproducible examples (the source documents' worked examples), as data, tables and figures.
 
 1. The three-link planar arm (lengths 15, 10, 5, start ``[π/8, π/4, π/4]``):
    pseudoinverse, transpose, CCD and recursive reach bring the tip to ``(-20, 5)``; toward the

@@ -1,6 +1,6 @@
 """``mjkin demo``: a short showcase in three scenes, each with captions.
 
-1. ``seeds`` — the seeds' three-link arm (SEEDS.md §4.1) side by side under
+1. ``seeds`` — the lecture notes' three-link arm (links 15, 10, 5, from [π/8, π/4, π/4]) side by side under
    pinv, DLS and CCD: every solver step is shown (eased between steps) while the
    tip walks onto (−20, 5), then toward the unreachable (−35, 5) from the start.
 2. ``arm`` — the 7-DoF arm's effector follows a Cartesian path with rounded
