@@ -162,13 +162,18 @@ def test_trac_ik_success_criterion_on_the_real_arms(name):
 def test_trac_ik_passes_the_time_limit_to_solve(monkeypatch):
     from mjkin.apps.bench import ik as bench_ik
     seen = []
-    real = bench_ik.solve
+    real_solve, real_problem = bench_ik.solve, bench_ik.Problem
 
     def bounded(*args, timeout=None, **kwargs):
         seen.append(timeout)
-        return real(*args, **kwargs)
+        return real_solve(*args, timeout=timeout, **kwargs)
+
+    def problem(*args, timeout=None, **kwargs):
+        seen.append(timeout)
+        return real_problem(*args, timeout=timeout, **kwargs)
 
     monkeypatch.setattr(bench_ik, "solve", bounded)
+    monkeypatch.setattr(bench_ik, "Problem", problem)
     report = bench_trac_ik(["arm7"], targets=2, time_limit=0.004, peers=())
     assert seen and set(seen) == {0.004}
     assert report.settings["time limit"] == "mjkin.solve(timeout=...)"

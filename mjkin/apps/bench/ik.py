@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from ... import goals as G
 from ...errors import InputError
-from ...ik import solve
+from ...ik import Problem, solve
 from ...ik.lm import AUTO_RESTARTS, TIMED_RESTARTS
 from ...kinematics.qspace import HINGE, SLIDE
 from ...kinematics.tree import Tree, load
@@ -174,16 +174,20 @@ def past_limits(tree: Tree, qs: Array) -> Array:
 
 
 def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, **options: Any) -> Run:
-    """One :func:`mjkin.solve` call per target, each timed on its own (goal built inside the call, as a user does)."""
+    """One ``problem.solve`` per target, each timed on its own (the goal built inside the timed call, as a user does).
+
+    The :class:`mjkin.Problem` is made once beforehand, as a peer's solver object is (TRAC-IK's, rtb's robot).
+    """
     tree, frame, kind = arm.tree, arm.frame, arm.kind
-    solve(tree, G.Pose(frame, T=targets[0], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)  # compile
+    problem = Problem(tree, G.Pose(frame, T=targets[0], kind=kind), tol=tol, rot_tol=rot_tol, **options)
+    problem.solve(q0)  # compile
     N = len(targets)
     q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
     iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")
     with gc_paused():
         for k in range(N):
             start, start_cpu = time.perf_counter(), time.thread_time()
-            res = solve(tree, G.Pose(frame, T=targets[k], kind=kind), q0=q0, tol=tol, rot_tol=rot_tol, **options)
+            res = problem.solve(q0, [G.Pose(frame, T=targets[k], kind=kind)])
             seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
             q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
     return Run(q, seconds, iters, used, N / seconds.sum(), cpu, status)
