@@ -25,6 +25,7 @@ from .ik import solve
 from .kinematics.qspace import BALL, HINGE, SLIDE
 from .kinematics.tree import Tree, fingerprint
 from .progress import track
+from .retime import retime as retime  # mjkin.motion.retime (re-exported)
 
 Array = NDArray[np.float64]
 FORMAT = "mjkin-trajectory"
