@@ -82,6 +82,7 @@ FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its bod
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
+MAX_ITERS = 30  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -191,7 +192,8 @@ class Retarget:
     """What :func:`plan` works out: targets for every frame and the feet's contacts.
 
     ``points``: role -> ``(F, 3)`` target (world, m); ``rotations``: ``pelvis``, ``torso``,
-    ``left_ankle``, ``right_ankle`` -> ``(F, 3, 3)``; ``contact (2, F)`` left/right planted, ``heel (2, F)`` its heel down too;
+    ``left_ankle``, ``right_ankle`` -> ``(F, 3, 3)``; ``contact (2, F)`` left/right planted,
+    ``heel (2, F)`` its heel down too;
     ``feet (2, F, 4, 4)`` the foot bodies' target poses; ``source (F, J, 3)`` the source
     points in the figure's world (scaled), for drawing; ``scale`` figure/source.
     """
@@ -211,8 +213,8 @@ class Retarget:
 
 def _contacts(height: Array, speed: Array) -> NDArray[np.bool_]:
     """Contact ``(F,)`` of one foot from its points' heights and speeds ``(F, P)`` (m, m/s), with hysteresis."""
-    on = ((height < CONTACT_ON[0]) & (speed < CONTACT_ON[1])).any(axis=1)
-    off = ((height > CONTACT_OFF[0]) | (speed > CONTACT_OFF[1])).all(axis=1)
+    on = np.any((height < CONTACT_ON[0]) & (speed < CONTACT_ON[1]), axis=1).tolist()
+    off = np.all((height > CONTACT_OFF[0]) | (speed > CONTACT_OFF[1]), axis=1).tolist()
     out = np.zeros(len(height), dtype=np.bool_)
     state = False
     for k in range(len(height)):
@@ -374,9 +376,9 @@ def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
     return out
 
 
-def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree, mapping: dict | str | os.PathLike[str] | None = None,
-             *, scale: float | None = None, max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4,
-             model_source: str = "") -> Trajectory:
+def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
+             mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, model_source: str = "") -> Trajectory:
     """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
 
     Args:
@@ -390,8 +392,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree, mapping: dic
         model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
 
     Returns:
-        The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, the scale, the
-        solve's frames per second, and ``targets (F, n, 3)`` the key-point targets.
+        The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, the scale and the
+        frames per second (planning and solving, the first frame left out: it may compile the
+        solver); ``targets (F, 6, 3)`` are the key-point targets (:data:`KEYS`).
 
     Raises:
         BvhError, InputError: unreadable clip, roles that cannot be mapped, bad options.
@@ -406,14 +409,15 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree, mapping: dic
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale)
-    q = solve_frames(tree, plan_, tol)
+    q, t_first = solve_frames(tree, plan_, tol)
     q = limit_speed(tree, q, speed * clip.frame_time)
-    elapsed = time.perf_counter() - t0
+    elapsed = time.perf_counter() - t0 - t_first
     targets = np.stack([plan_.points[r] for r in KEYS], axis=1)
     meta = {"retarget": {"clip": str(clip.source), "scale": plan_.scale, "unit": plan_.unit,
-                         "contact": plan_.contact.tolist(), "frames_per_second": clip.frames / elapsed,
+                         "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
+                         "frames_per_second": max(clip.frames - 1, 1) / elapsed,
                          "max_speed": speed.tolist(), "bodies": plan_.bodies}}
-    return Trajectory(times=np.arange(clip.frames) * clip.frame_time, q=q, fingerprint=fingerprint(tree),
+    return Trajectory(times=np.arange(clip.frames, dtype=np.float64) * clip.frame_time, q=q, fingerprint=fingerprint(tree),
                       model=tree.name, targets=targets, meta=meta, source=model_source)
 
 
@@ -437,20 +441,32 @@ def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Go
     return goals
 
 
-def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> Array:
-    """Joint values ``(F, nq)``, frame by frame, each warm-started from (and resting toward) the previous one."""
+def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> tuple[Array, float]:
+    """Joint values ``(F, nq)``, frame by frame, each warm-started from (and resting toward) the previous one.
+
+    Also returns the seconds the first frame took (it may include compiling the solver).
+    """
     F = len(plan_.points["pelvis"])
     q = tree.qpos0.copy()
     free = tree.layout.free_q[0]
     q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
     out = np.empty((F, tree.nq))
+    t_first = 0.0
     for f in range(F):
-        q = solve(tree, frame_goals(tree, plan_, f, q), q0=q, tol=tol, restarts=0).q
+        t = time.perf_counter()
+        q = solve(tree, frame_goals(tree, plan_, f, q), q0=q, tol=tol, restarts=0, max_iters=MAX_ITERS).q
         out[f] = q
-    return out
+        t_first = time.perf_counter() - t if f == 0 else t_first
+    return out, t_first
 
 
 # ------------------------------------------------------------------- report
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``(start, end)`` of each run of True in ``mask (F,)``, end exclusive."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
+
+
 def _point(tree: Tree, q: Array, body: str, role: str) -> Array:
     """World point ``(F, 3)`` of a role on its body (the body origin, or :data:`FIGURE_OFFSETS`)."""
     T = tree.pose(q, body, "body")
@@ -475,21 +491,18 @@ def report(tree: Tree, traj: Trajectory) -> dict:
         got = np.stack([_point(tree, q, bodies[r], r) for r in KEYS], 1)
         err = np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)
         out["keypoint_error_median"], out["keypoint_error_max"] = float(np.median(err)), float(err.max())
+    heel = np.array(info["heel"], dtype=np.bool_)
     slide, drift, lowest = [], [], np.inf
     for i, s in enumerate(SIDES):
         T = tree.pose(q, bodies[f"{s}_ankle"], "body")
-        soles = np.array(sole_points(tree, bodies[f"{s}_ankle"]))
-        lowest = min(lowest, float((np.einsum("fij,pj->fpi", T[:, :3, :3], soles) + T[:, None, :3, 3])[..., 2].min()))
-        xy = T[:, :2, 3]
-        c = contact[i]
-        both = c[1:] & c[:-1]
-        slide.extend(np.linalg.norm(np.diff(xy, axis=0), axis=-1)[both].tolist())
-        starts = np.flatnonzero(c & ~np.concatenate([[False], c[:-1]]))
-        for a in starts:
-            e = a
-            while e + 1 < F and c[e + 1]:
-                e += 1
-            drift.append(float(np.linalg.norm(xy[a:e + 1] - xy[a], axis=-1).max()))
+        soles = np.array(sole_points(tree, bodies[f"{s}_ankle"]))  # toe, heel
+        pts = np.einsum("fij,pj->fpi", T[:, :3, :3], soles) + T[:, None, :3, 3]  # (F, 2, 3)
+        lowest = min(lowest, float(pts[..., 2].min()))
+        for k, held in ((0, contact[i]), (1, heel[i])):  # the toe is held through a contact, the heel while down
+            xy = pts[:, k, :2]
+            slide.extend(np.linalg.norm(np.diff(xy, axis=0), axis=-1)[held[1:] & held[:-1]].tolist())
+            for a, e in _runs(held):
+                drift.append(float(np.linalg.norm(xy[a:e] - xy[a], axis=-1).max()))
     out["contact_frames"] = int(contact.sum())
     out["skate_per_frame_mean"] = float(np.mean(slide)) if slide else 0.0
     out["skate_per_contact_max"] = max(drift) if drift else 0.0
