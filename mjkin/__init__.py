@@ -17,6 +17,7 @@ from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError,
 from .ik import Result, singular_values, solve
 from .kinematics.tree import Tree, bundled_models, load
 from .parallel import set_threads, threads
+from .retarget import retarget
 from .workspace import workspace
 
 __version__ = "0.1.0"
@@ -34,6 +35,7 @@ __all__ = [
     "goals",
     "load",
     "singular_values",
+    "retarget",
     "set_threads",
     "solve",
     "spatial",

@@ -21,7 +21,7 @@ from . import goals as G
 from . import spatial
 from .errors import InputError, MjkinIOError
 from .files import write_text
-from .ik import solve
+from .ik.solve import solve
 from .kinematics.qspace import BALL, HINGE, SLIDE
 from .kinematics.tree import Tree, fingerprint
 from .progress import track

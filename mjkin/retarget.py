@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import bvh, spatial
 from . import goals as G
 from .errors import InputError, MjkinIOError
-from .ik import solve
+from .ik.solve import solve
 from .kinematics.tree import Tree, fingerprint
 from .motion import Trajectory, outside_limits, sole_points
 from .scene import Scene
@@ -417,8 +417,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
                          "max_speed": speed.tolist(), "bodies": plan_.bodies}}
-    return Trajectory(times=np.arange(clip.frames, dtype=np.float64) * clip.frame_time, q=q, fingerprint=fingerprint(tree),
-                      model=tree.name, targets=targets, meta=meta, source=model_source)
+    times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
+    return Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
+                      source=model_source)
 
 
 def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Goal]:

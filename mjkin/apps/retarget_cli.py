@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import bvh
-from .. import retarget as rt
 from ..files import check_writable
 from ..kinematics.tree import load
 from ..motion import retime
+from ..retarget import MAX_SPEED, plan, read_mapping, report, retarget
 from .argtypes import positive_float, positive_int
 
 OUTPUTS = (".json", ".mp4", ".gif")
@@ -26,8 +26,8 @@ def arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("-o", "--output", help="script (.json, replay with 'mjkin replay') or video (.mp4, .gif)")
     s.add_argument("--mapping", help='JSON {"source": {role: joint}, "figure": {role: body}} for other rigs')
     s.add_argument("--scale", type=positive_float, help="metres per BVH unit (default: from the skeleton's height)")
-    s.add_argument("--max-speed", type=positive_float, default=rt.MAX_SPEED,
-                   help=f"joint speed limit, rad/s (default {rt.MAX_SPEED:g})")
+    s.add_argument("--max-speed", type=positive_float, default=MAX_SPEED,
+                   help=f"joint speed limit, rad/s (default {MAX_SPEED:g})")
     s.add_argument("--retime", action="store_true", help="time-optimal times under --max-speed and --max-acceleration")
     s.add_argument("--max-acceleration", type=positive_float, default=100.0,
                    help="joint acceleration limit for --retime, rad/s^2 (default 100)")
@@ -49,15 +49,15 @@ def run(args: argparse.Namespace) -> int:
         render.check_video_size(args.output, args.width, args.height)
     tree = load(args.model)
     clip = bvh.read(args.clip)
-    traj = rt.retarget(clip, tree, args.mapping, scale=args.scale, max_speed=args.max_speed,
+    traj = retarget(clip, tree, args.mapping, scale=args.scale, max_speed=args.max_speed,
                        model_source=model_source(args.model))
-    measured = rt.report(tree, traj)
+    measured = report(tree, traj)
     if args.retime:
         traj = retime(traj, args.max_speed, args.max_acceleration, tree=tree)
     if args.output and Path(args.output).suffix.lower() == ".json":
         traj.save(args.output)
     elif args.output:
-        skeleton = rt.plan(clip, tree, rt.read_mapping(args.mapping) if args.mapping else None, args.scale).source
+        skeleton = plan(clip, tree, read_mapping(args.mapping) if args.mapping else None, args.scale).source
         skeleton = skeleton[:, ~clip.ends] + (BESIDE if args.side_by_side else 0.0)
         overlay = render.Overlay(points=skeleton, point_size=0.015, point_rgba=(0.1, 0.45, 0.95, 0.9))
         fps = clip.fps if not args.retime else len(traj.q) / max(traj.times[-1] - traj.times[0], 1e-9)
