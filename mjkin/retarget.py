@@ -17,8 +17,9 @@ The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
    hysteresis). A planted foot's target is frozen flat on the floor for the whole
    contact and eased back to the source's over :data:`EASE` frames after it lifts.
    Swinging feet are lifted so no sole point is below the floor.
-5. Goals: both feet's poses at the top priority, then pelvis, limb points, head and
-   torso/pelvis orientations, then a rest pose. Afterwards :func:`limit_speed`
+5. Goals: both feet's toe and heel points at the top priority, then (weighted) pelvis,
+   limb points, head, torso/pelvis orientations and the previous frame's pose; each frame
+   is warm-started from the previous one. Afterwards :func:`limit_speed`
    clamps each frame's change toward the previous one to the joint speed limit.
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
@@ -82,7 +83,7 @@ FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its bod
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
-MAX_ITERS = 30  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
+MAX_ITERS = 15  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -305,8 +306,8 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         """Constructed rotations of pelvis, torso and feet from source points ``(..., J, 3)``."""
         up = np.array([0.0, 0.0, 1.0])
         P = lambda r: pts[..., roles[r], :]  # noqa: E731
-        pelvis = _frame(P("left_hip") - P("right_hip"), up)
         mid_sh = 0.5 * (P("left_shoulder") + P("right_shoulder"))
+        pelvis = _frame(P("left_hip") - P("right_hip"), _unit(mid_sh - P("pelvis")) + up)  # half the lean
         torso = _frame(P("left_shoulder") - P("right_shoulder"), mid_sh - P("pelvis"))
         out = {"pelvis": pelvis, "torso": torso}
         for s in SIDES:
@@ -394,7 +395,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     Returns:
         The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, the scale and the
         frames per second (planning and solving, the first frame left out: it may compile the
-        solver); ``targets (F, 6, 3)`` are the key-point targets (:data:`KEYS`).
+        solver); ``targets (F, 6, 3)`` are the key-point targets (:data:`KEYS`; the feet's as held).
 
     Raises:
         BvhError, InputError: unreadable clip, roles that cannot be mapped, bad options.
@@ -412,7 +413,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     q, t_first = solve_frames(tree, plan_, tol)
     q = limit_speed(tree, q, speed * clip.frame_time)
     elapsed = time.perf_counter() - t0 - t_first
-    targets = np.stack([plan_.points[r] for r in KEYS], axis=1)
+    feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
+            for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
+    targets = np.stack([feet.get(r, plan_.points.get(r)) for r in KEYS], axis=1)
     meta = {"retarget": {"clip": str(clip.source), "scale": plan_.scale, "unit": plan_.unit,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
@@ -423,7 +426,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
 
 
 def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Goal]:
-    """The goals of frame ``f``: the feet's toe and heel points at priority 0, the body at 1, ``q_prev`` at 2."""
+    """Goals of frame ``f``: the feet's toe and heel points at priority 0; the body and ``q_prev`` (weighted) at 1."""
     b = plan_.bodies
     goals: list[G.Goal] = []
     for i, s in enumerate(SIDES):
@@ -438,7 +441,7 @@ def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Go
         off = plan_.offsets[r]
         goals.append(G.Position(b[r], plan_.points[r][f], kind="body", priority=1,
                                 offset=tuple(off) if np.any(off) else None, weight=1.0 if "wrist" in r else 0.5))
-    goals.append(G.Rest(q_rest=q_prev, weight=0.05, priority=2))
+    goals.append(G.Rest(q_rest=q_prev, weight=0.05, priority=1))  # one level for the body: each costs a projection
     return goals
 
 
