@@ -415,7 +415,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
             for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
-    targets = np.stack([feet.get(r, plan_.points.get(r)) for r in KEYS], axis=1)
+    targets = np.stack([feet[r] if r in feet else plan_.points[r] for r in KEYS], axis=1)
     meta = {"retarget": {"clip": str(clip.source), "scale": plan_.scale, "unit": plan_.unit,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
