@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from .. import bvh
+from ..errors import InputError
 from ..files import check_writable
 from ..kinematics.tree import load
 from ..motion import retime
-from ..retarget import MAX_SPEED, plan, read_mapping, report, retarget
+from ..retarget import MAX_SPEED, plan, read_mapping, report, retarget, source_mapping
 from .argtypes import positive_float, positive_int
 
-OUTPUTS = (".json", ".mp4", ".gif")
+OUTPUTS = (".json", ".mp4", ".gif", ".png")
 BESIDE = np.array([0.0, 1.0, 0.0])  # the source skeleton's shift with --side-by-side (m): to the figure's left
 
 
@@ -23,7 +24,9 @@ def arguments(s: argparse.ArgumentParser) -> None:
     """The command's options."""
     s.add_argument("clip", help="BVH file")
     s.add_argument("--model", required=True, help="bundled model name (primate) or an MJCF/URDF path (e.g. the G1)")
-    s.add_argument("-o", "--output", help="script (.json, replay with 'mjkin replay') or video (.mp4, .gif)")
+    s.add_argument("-o", "--output", help="script (.json, replay with 'mjkin replay'), video (.mp4, .gif) or a "
+                   "still (.png, frame --frame)")
+    s.add_argument("--frame", type=int, help="the frame of a .png still, from 0 (default: the middle one)")
     s.add_argument("--mapping", help='JSON {"source": {role: joint}, "figure": {role: body}} for other rigs')
     s.add_argument("--scale", type=positive_float, help="metres per BVH unit (default: from the skeleton's height)")
     s.add_argument("--max-speed", type=positive_float, default=MAX_SPEED,
@@ -57,11 +60,21 @@ def run(args: argparse.Namespace) -> int:
     if args.output and Path(args.output).suffix.lower() == ".json":
         traj.save(args.output)
     elif args.output:
-        skeleton = plan(clip, tree, read_mapping(args.mapping) if args.mapping else None, args.scale).source
-        skeleton = skeleton[:, ~clip.ends] + (BESIDE if args.side_by_side else 0.0)
-        overlay = render.Overlay(points=skeleton, point_size=0.015, point_rgba=(0.1, 0.45, 0.95, 0.9))
-        fps = clip.fps if not args.retime else len(traj.q) / max(traj.times[-1] - traj.times[0], 1e-9)
-        render.write_video(render.frames(tree, traj.q, args.width, args.height, overlay=overlay), args.output, fps)
+        mapping = read_mapping(args.mapping) if args.mapping else None
+        joints = sorted(source_mapping(clip, (mapping or {}).get("source")).values())  # the mapped joints only
+        skeleton = plan(clip, tree, mapping, args.scale).source[:, joints] + (BESIDE if args.side_by_side else 0.0)
+        overlay = render.Overlay(points=skeleton, point_size=0.025, point_rgba=(0.1, 0.45, 0.95, 0.9))
+        if Path(args.output).suffix.lower() == ".png":
+            k = len(traj.q) // 2 if args.frame is None else args.frame
+            if not -len(traj.q) <= k < len(traj.q):
+                raise InputError(f"--frame {k} is outside the clip's {len(traj.q)} frames")
+            overlay.points = skeleton[[k]]
+            render.write_image(next(iter(render.frames(tree, traj.q[[k]], args.width, args.height, overlay=overlay))),
+                               args.output)
+        else:
+            fps = clip.fps if not args.retime else len(traj.q) / max(traj.times[-1] - traj.times[0], 1e-9)
+            render.write_video(render.frames(tree, traj.q, args.width, args.height, overlay=overlay), args.output,
+                               fps)
     where = f"wrote {args.output}: " if args.output else ""
     print(f"{where}{measured['frames']} frames of {args.clip} on {tree.name} at "
           f"{measured['frames_per_second']:.0f} frames/s; key points {100 * measured['keypoint_error_median']:.1f} cm "

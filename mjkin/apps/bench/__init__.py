@@ -444,7 +444,8 @@ def bench_env(steps: int = 2000, num_envs: int = 256, seed: int = 0) -> Report:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
-    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
+    sub = parser.add_subparsers(dest="which", required=True,
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -502,6 +503,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(default mjkin-seeds)")
     common(s)
 
+    s = sub.add_parser("retarget", help="the shared BVH clips onto the primate and the G1: skate, floor, speed")
+    s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
+    common(s)
+
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
     common(s)
 
@@ -539,6 +544,10 @@ def run(args: argparse.Namespace) -> Report:
         from .realtime import bench_realtime
 
         return bench_realtime(args.dofs, args.frames, args.seed, args.plot)
+    if args.which == "retarget":
+        from .retarget import bench_retarget
+
+        return bench_retarget(args.repeat)
     if args.which == "render":
         return bench_render(args.frames, args.width, args.height, args.seed)
     if args.which == "env":
