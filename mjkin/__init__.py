@@ -13,6 +13,7 @@ from .ik import Problem, Result, singular_values, solve
 from .kinematics import build
 from .kinematics.tree import Tree, bundled_models, load
 from .parallel import set_threads, threads
+from .retarget import retarget
 from .workspace import workspace
 
 __version__ = "0.1.0"
@@ -32,6 +33,7 @@ __all__ = [
     "goals",
     "load",
     "singular_values",
+    "retarget",
     "set_threads",
     "solve",
     "spatial",

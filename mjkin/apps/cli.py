@@ -25,7 +25,7 @@ from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load, source_of
-from . import bench
+from . import bench, retarget_cli
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
 
 if TYPE_CHECKING:
@@ -392,6 +392,9 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
         pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
     traj = motion.follow(tree, args.frame, pts, q0=q0, fps=args.fps)
     traj.source = source_of(args.model)
+    if args.retime:
+        vmax, amax = _numbers(args.retime, 2, "--retime", "VMAX,AMAX")
+        traj = motion.retime(traj, vmax, amax, tree=tree)
     traj.save(args.output)
     ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
     jumps = traj.discontinuities(tree)
@@ -585,7 +588,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fps", type=positive_float, default=30.0, help="frames per second of the script (default 30)")
     q_options(s, "--q0", "the first keyframe, else qpos0", s)
     s.add_argument("-o", "--output", required=True, help="script file (.json)")
+    s.add_argument("--retime", metavar="VMAX,AMAX", help="time-optimal times under joint limits rad/s, rad/s^2")
     s.set_defaults(run=cmd_trajectory)
+
+    s = sub.add_parser("retarget", help="retarget a BVH motion-capture clip onto a figure (script or video)")
+    retarget_cli.arguments(s)
+    s.set_defaults(run=retarget_cli.run)
 
     s = sub.add_parser("render", help="render a configuration or a script to .png/.mp4/.gif")
     s.add_argument("model", help=model_help)

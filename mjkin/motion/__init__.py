@@ -9,9 +9,10 @@ script of joint values per frame and replayed without IK (:mod:`~mjkin.motion.tr
 from ..kinematics.tree import fingerprint
 from .follow import follow
 from .keyframes import circle, interpolate, line, min_jerk, waypoints
+from .retime import retime
 from .trajectory import FORMAT, LIMIT_TOL, Trajectory, outside_limits
 from .walk import HEEL_STRIKE, TOE_OFF, sole_points, swing_foot, walk_cycle
 
 __all__ = ["FORMAT", "HEEL_STRIKE", "LIMIT_TOL", "TOE_OFF", "Trajectory", "circle", "fingerprint", "follow",
-           "interpolate", "line", "min_jerk", "outside_limits", "sole_points", "swing_foot", "walk_cycle",
+           "interpolate", "line", "min_jerk", "outside_limits", "retime", "sole_points", "swing_foot", "walk_cycle",
            "waypoints"]

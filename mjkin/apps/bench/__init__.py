@@ -20,7 +20,8 @@ ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
-    sub = parser.add_subparsers(dest="which", required=True, metavar="{fk,ik,realtime,render,env,play,seeds,all}",
+    sub = parser.add_subparsers(dest="which", required=True,
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -76,6 +77,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--out", default="mjkin-seeds",
                    help="folder for the figures: an existing one, or a new one inside an existing folder "
                         "(default mjkin-seeds)")
+    common(s)
+
+    s = sub.add_parser("retarget", help="the shared BVH clips onto the primate and the G1: skate, floor, speed")
+    s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")

@@ -348,6 +348,10 @@ def run(args: argparse.Namespace) -> Report:
         from .realtime import bench_realtime
 
         return bench_realtime(args.dofs, args.frames, args.seed, args.plot)
+    if args.which == "retarget":
+        from .retarget import bench_retarget
+
+        return bench_retarget(args.repeat)
     if args.which == "render":
         return bench_render(args.frames, args.width, args.height, args.seed)
     if args.which == "env":

@@ -1,0 +1,296 @@
+"""Reading BVH motion capture: the skeleton, its channels and frames, and forward kinematics of every frame.
+
+A BVH file (Biovision Hierarchy) holds a tree of joints, each with an ``OFFSET``
+from its parent and ``CHANNELS`` (any of ``Xposition Yposition Zposition
+Xrotation Yrotation Zrotation`` in any order, usually 3 or 6), ``End Site``
+leaves with an offset only, then ``Frames:``, ``Frame Time:`` and one line of
+channel values per frame. A joint's local transform is ``Trans(t) @ R``: ``t`` is
+its offset, with each axis that has a position channel taken from that channel
+(so 6-channel joints whose channels repeat the offset read the same as 3-channel
+ones); ``R`` is the product of the rotation channels in the order listed
+(``Zrotation Xrotation Yrotation`` is ``Rz @ Rx @ Ry``, degrees), acting on column
+vectors. World poses are ``T_parent @ T_local``; positions stay in the file's
+units and axes (usually y up).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import spatial
+from .errors import InputError, MjkinIOError
+
+Array = NDArray[np.float64]
+CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")
+END = "_End"  # an End Site is named after its joint with this suffix
+
+
+class BvhError(MjkinIOError):
+    """A BVH file cannot be read or is malformed (the message names the file and line)."""
+
+
+@dataclass(frozen=True)
+class Clip:
+    """A parsed BVH clip: ``J`` joints (End Sites included, parents before children) and ``F`` frames.
+
+    ``names (J,)``, ``parents (J,)`` (-1 for a root), ``offsets (J, 3)`` in file units,
+    ``channels`` per joint (lower-case channel names, End Sites none), ``ends (J,)`` true for End Sites,
+    ``columns (J,)`` each joint's first column in ``values (F, C)`` (degrees for
+    rotations), ``frame_time`` seconds per frame.
+    """
+
+    names: tuple[str, ...]
+    parents: NDArray[np.int64]
+    offsets: Array
+    channels: tuple[tuple[str, ...], ...]
+    columns: NDArray[np.int64]
+    values: Array
+    frame_time: float
+    ends: NDArray[np.bool_]
+    source: str = ""
+
+    @property
+    def frames(self) -> int:
+        """Number of frames ``F``."""
+        return int(self.values.shape[0])
+
+    @property
+    def fps(self) -> float:
+        """Frames per second."""
+        return 1.0 / self.frame_time
+
+    def index(self, name: str) -> int:
+        """Index of joint ``name``.
+
+        Raises:
+            InputError: no joint of that name (the message lists them).
+        """
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise InputError(f"BVH {self.source or 'clip'} has no joint {name!r}; it has: "
+                             f"{', '.join(self.names)}") from None
+
+    def local(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:
+        """Local transforms ``(F, J, 4, 4)`` of each joint in its parent; ``rest``: channels zero, ``(1, J, 4, 4)``."""
+        values = np.zeros((1, self.values.shape[1])) if rest else self.values[slice(None) if frames is None else frames]
+        F, J = len(values), len(self.names)
+        T = np.broadcast_to(np.eye(4), (F, J, 4, 4)).copy()
+        T[:, :, :3, 3] = self.offsets
+        for j, chans in enumerate(self.channels):
+            rot = [(c[0], k) for k, c in enumerate(chans) if c.endswith("rotation")]
+            for k, c in enumerate(chans):
+                if c.endswith("position"):
+                    T[:, j, "xyz".index(c[0]), 3] = values[:, self.columns[j] + k]
+            if rot:
+                angles = np.deg2rad(values[:, [self.columns[j] + k for _, k in rot]])
+                seq = "".join(a for a, _ in rot).upper()  # upper case: intrinsic, in the listed order
+                if len(seq) < 3:  # fewer than three rotation channels: pad with zero turns about unused axes
+                    pad = "".join(a for a in "XYZ" if a not in seq)[: 3 - len(seq)]
+                    angles = np.concatenate([angles, np.zeros((F, len(pad)))], axis=1)
+                    seq += pad
+                T[:, j, :3, :3] = spatial.euler_to_mat(angles, seq)
+        return T
+
+    def world(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:
+        """World transforms ``(F, J, 4, 4)`` of every joint (file units and axes); ``rest`` as in :meth:`local`."""
+        T = self.local(frames, rest)
+        for j, p in enumerate(self.parents):
+            if p >= 0:
+                T[:, j] = T[:, p] @ T[:, j]
+        return T
+
+    def positions(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:
+        """World positions ``(F, J, 3)`` of every joint and End Site (file units and axes)."""
+        return self.world(frames, rest)[..., :3, 3]
+
+
+def read(path: str | os.PathLike[str]) -> Clip:
+    """Parse the BVH file at ``path``.
+
+    Raises:
+        BvhError: missing or unreadable file, or malformed content (file and line named).
+    """
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise BvhError(f"BVH file not found: {str(path)!r}") from None
+    except OSError as e:
+        raise BvhError(f"cannot read BVH file {str(path)!r}: {e.strerror or e}") from None
+    return parse(text, str(path))
+
+
+class _Tokens:
+    """Whitespace tokens of the text, each with its line number."""
+
+    def __init__(self, text: str, source: str) -> None:
+        self.items = [(tok, n) for n, line in enumerate(text.splitlines(), 1) for tok in line.split()]
+        self.i = 0
+        self.source = source
+
+    def error(self, what: str) -> BvhError:
+        line = self.items[min(self.i, len(self.items) - 1)][1] if self.items else 1
+        return BvhError(f"BVH {self.source!r} line {line}: {what}")
+
+    def peek(self) -> str | None:
+        return self.items[self.i][0] if self.i < len(self.items) else None
+
+    def take(self, expected: str | None = None, what: str = "more") -> str:
+        """The next token; with ``expected``, it must be that word (any case)."""
+        tok = self.peek()
+        if tok is None:
+            raise self.error(f"file ends early; expected {expected or what}")
+        if expected is not None and tok.upper() != expected.upper():
+            raise self.error(f"expected {expected!r}, got {tok!r}")
+        self.i += 1
+        return tok
+
+    def rest_of_line(self, what: str) -> str:
+        """The tokens left on the current token's line, joined by spaces (a name may hold spaces), without ``{``."""
+        if self.i >= len(self.items):
+            raise self.error(f"file ends early; expected {what}")
+        line = self.items[self.i][1]
+        words = []
+        while self.i < len(self.items) and self.items[self.i][1] == line and self.items[self.i][0] != "{":
+            words.append(self.items[self.i][0])
+            self.i += 1
+        if not words:
+            raise self.error(f"expected {what}")
+        return " ".join(words)
+
+    def number(self, what: str) -> float:
+        if self.peek() is None:
+            raise self.error(f"file ends early; expected {what}")
+        tok = self.take()
+        try:
+            value = float(tok)
+        except ValueError:
+            self.i -= 1
+            raise self.error(f"expected a number ({what}), got {tok!r}") from None
+        if not np.isfinite(value):
+            self.i -= 1
+            raise self.error(f"{what} must be finite, got {tok!r}")
+        return value
+
+
+def parse(text: str, source: str = "<string>") -> Clip:
+    """Parse BVH ``text``; ``source`` names it in error messages.
+
+    Raises:
+        BvhError: malformed content: the message gives the line and what was expected.
+    """
+    tk = _Tokens(text, source)
+    tk.take("HIERARCHY")
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[tuple[str, ...]] = []
+    ends: list[bool] = []
+
+    def joint(parent: int, end: bool) -> None:
+        name = f"{names[parent]}{END}" if end else tk.rest_of_line("a joint name")
+        if name in names:
+            raise tk.error(f"joint name {name!r} appears twice")
+        me = len(names)
+        names.append(name)
+        parents.append(parent)
+        ends.append(end)
+        tk.take("{")
+        tk.take("OFFSET")
+        offsets.append([tk.number("OFFSET x"), tk.number("OFFSET y"), tk.number("OFFSET z")])
+        chans: tuple[str, ...] = ()
+        if not end and (tk.peek() or "").upper() == "CHANNELS":
+            tk.take("CHANNELS")
+            n = tk.number("the number of channels")
+            if n != int(n) or not 0 <= n <= 6:
+                raise tk.error(f"CHANNELS count must be a whole number 0..6, got {n:g}")
+            chans = tuple(tk.take(what="a channel name").lower() for _ in range(int(n)))
+            bad = [c for c in chans if c not in CHANNELS]
+            if bad:
+                raise tk.error(f"unknown channel {bad[0]!r} of joint {name!r}; channels are Xposition, Yposition, "
+                               "Zposition, Xrotation, Yrotation, Zrotation")
+            if len(set(chans)) != len(chans):
+                raise tk.error(f"joint {name!r} lists a channel twice: {' '.join(chans)}")
+        channels.append(chans)
+        while (tok := tk.peek()) is not None and tok != "}":
+            word = tk.take().upper()
+            if word == "JOINT" and not end:
+                joint(me, False)
+            elif word == "END" and not end:
+                tk.take("Site")
+                joint(me, True)
+            else:
+                tk.i -= 1
+                raise tk.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {tok!r}")
+        tk.take("}")
+
+    while (tk.peek() or "").upper() == "ROOT":
+        tk.take("ROOT")
+        joint(-1, False)
+    if not names:
+        raise tk.error("expected ROOT after HIERARCHY")
+    tk.take("MOTION")
+    tk.take("Frames:")
+    n_frames = tk.number("the number of frames")
+    if n_frames != int(n_frames) or n_frames < 1:
+        raise tk.error(f"Frames: must be a whole number >= 1, got {n_frames:g}")
+    tk.take("Frame")
+    tk.take("Time:")
+    frame_time = tk.number("the frame time in seconds")
+    if frame_time <= 0:
+        raise tk.error(f"Frame Time: must be > 0 seconds, got {frame_time:g}")
+    counts = np.array([len(c) for c in channels], dtype=np.int64)
+    n_cols = int(counts.sum())
+    data = [t for t, _ in tk.items[tk.i:]]
+    F = int(n_frames)
+    if len(data) < F * n_cols:
+        have = len(data) // n_cols if n_cols else 0
+        raise BvhError(f"BVH {source!r}: 'Frames: {F}' with {n_cols} channels needs {F * n_cols} numbers, "
+                       f"found {len(data)} (about {have} frames)")
+    try:
+        values = np.array(data[: F * n_cols], dtype=np.float64).reshape(F, n_cols)
+    except ValueError:
+        bad = next(t for t in data if not _is_number(t))
+        tk.i += data.index(bad)
+        raise tk.error(f"expected a channel value (a number), got {bad!r}") from None
+    if not np.isfinite(values).all():
+        raise BvhError(f"BVH {source!r}: channel values must be finite numbers (found nan or inf)")
+    columns = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    return Clip(names=tuple(names), parents=np.array(parents, dtype=np.int64), offsets=np.array(offsets),
+                channels=tuple(channels), columns=columns, values=values, frame_time=float(frame_time),
+                ends=np.array(ends, dtype=np.bool_), source=source)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+UNITS = ((0.5, 3.0, 1.0, "m"), (3.0, 40.0, 1.0 / 12.0, "ft"), (40.0, 110.0, 0.0254, "in"),
+         (110.0, 400.0, 0.01, "cm"), (400.0, 4000.0, 0.001, "mm"))  # skeleton height range -> metres per unit
+
+
+def unit_scale(clip: Clip, up: int = 1) -> tuple[float, str]:
+    """Metres per file unit, and the unit's name, guessed from the rest skeleton's height along axis ``up``.
+
+    A human-sized figure stands 0.5–3 m, 40–110 in, 110–400 cm or 400–4000 mm tall
+    (a child of 100 cm reads as inches: pass a scale then).
+
+    Raises:
+        InputError: the height fits none of those (say the scale instead).
+    """
+    p = clip.positions(rest=True)[0]
+    height = float(p[:, up].max() - p[:, up].min())
+    for lo, hi, scale, unit in UNITS:
+        if lo <= height < hi:
+            return scale, unit
+    raise InputError(f"cannot tell the units of BVH {clip.source or 'clip'} from its height {height:g}; "
+                     "give the scale in metres per unit (--scale, e.g. 0.01 for centimetres)")

@@ -1,0 +1,528 @@
+"""Retargeting motion capture (BVH) onto an MJCF figure, with the feet planted while they touch the floor.
+
+The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
+
+1. The source is read (:mod:`mjkin.bvh`), put in metres (units from its height, or
+   ``scale``), turned z-up and so that it first faces the figure's +x.
+2. Roles (pelvis, hips, knees, ankles, toes, shoulders, elbows, wrists, head) are
+   matched to source joints by name (Mixamo, CMU/MotionBuilder, the 19-joint
+   ``Hips/Chest/LeftHip`` rig: :data:`SOURCE_NAMES`) and to figure bodies
+   (:data:`FIGURES`, by model name), or given by a mapping.
+3. Targets keep the figure's proportions: the pelvis moves as the source's,
+   scaled by the ratio of leg lengths; each limb point is its parent's target plus
+   the figure's segment length along the source segment's direction; pelvis, torso
+   and feet turn as frames built from the source's points do (relative to its rest
+   pose).
+4. Foot contacts come from the source (toe or ankle near the floor and slow, with
+   hysteresis). A planted foot's target is frozen flat on the floor for the whole
+   contact and eased back to the source's over :data:`EASE` frames after it lifts.
+   Swinging feet are lifted so no sole point is below the floor.
+5. Goals: both feet's toe and heel points at the top priority, then (weighted) pelvis,
+   limb points, head, torso/pelvis orientations and the previous frame's pose; each frame
+   is warm-started from the previous one. Afterwards :func:`limit_speed`
+   clamps each frame's change toward the previous one to the joint speed limit.
+
+:func:`report` measures the result: key-point errors, foot skate, floor penetration,
+limits, speeds and self-penetration (MuJoCo contacts between non-adjacent bodies).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import bvh, spatial
+from . import goals as G
+from .errors import InputError, MjkinIOError
+from .ik import solve
+from .kinematics.tree import Tree, fingerprint
+from .motion import Trajectory, outside_limits, sole_points
+from .scene import Scene
+
+Array = NDArray[np.float64]
+SIDES = ("left", "right")
+LIMB = ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")
+REQUIRED = ("pelvis", "head", *(f"{s}_{p}" for s in SIDES for p in LIMB))
+ROLES = (*REQUIRED, "left_toe", "right_toe", "neck")
+
+# Source joint names per role, by preference, compared lower-case without a namespace ('mixamorig:') or '_ -.';
+# {s} is 'left'/'right', {c} 'l'/'r'. Mixamo's LeftShoulder is the collarbone, the 19-joint rig's the upper arm:
+# LeftArm comes first, so each rig gets its own.
+SOURCE_NAMES: dict[str, tuple[str, ...]] = {
+    "pelvis": ("hips", "pelvis", "hip", "root"),
+    "head": ("head",),
+    "neck": ("neck", "neck1"),
+    "hip": ("{s}upleg", "{s}hip", "{s}thigh", "{s}upperleg", "{c}thigh", "{c}hip", "{c}upleg"),
+    "knee": ("{s}leg", "{s}knee", "{s}shin", "{s}lowerleg", "{c}shin", "{c}knee", "{c}leg"),
+    "ankle": ("{s}foot", "{s}ankle", "{c}foot", "{c}ankle"),
+    "toe": ("{s}toebase", "{s}toe", "{s}toes", "{c}toe", "{c}toes", "{s}footend", "{s}ankleend", "{c}footend"),
+    "shoulder": ("{s}arm", "{s}upperarm", "{c}shldr", "{c}upperarm", "{c}humerus", "{s}shoulder", "{c}shoulder"),
+    "elbow": ("{s}forearm", "{s}elbow", "{s}lowerarm", "{c}forearm", "{c}elbow", "{c}radius"),
+    "wrist": ("{s}hand", "{s}wrist", "{c}hand", "{c}wrist"),
+}
+
+# Figure bodies per role for the figures mjkin knows by model name (body origins at the joint centres).
+FIGURES: dict[str, dict[str, str]] = {
+    "primate": {"pelvis": "lower_torso", "torso": "upper_torso", "head": "head",
+                **{f"{s}_{p}": f"{s}_{b}" for s in SIDES for p, b in
+                   (("hip", "thigh"), ("knee", "shin"), ("ankle", "foot"), ("shoulder", "upper_arm"),
+                    ("elbow", "forearm"), ("wrist", "hand"))}},
+    "g1": {"pelvis": "pelvis", "torso": "torso_link", "head": "torso_link",
+           **{f"{s}_{p}": f"{s}_{b}" for s in SIDES for p, b in
+              (("hip", "hip_roll_link"), ("knee", "knee_link"), ("ankle", "ankle_roll_link"),
+               ("shoulder", "shoulder_roll_link"), ("elbow", "elbow_pitch_link"), ("wrist", "zero_link"))}},
+}
+FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its body, where it is not the origin
+
+KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
+MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
+MAX_ITERS = 15  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
+EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
+CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
+CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
+
+
+def _norm(name: str) -> str:
+    return re.sub(r"[\s_.\-]", "", name.rsplit(":", 1)[-1]).lower()
+
+
+def source_mapping(clip: bvh.Clip, given: dict[str, str] | None = None) -> dict[str, int]:
+    """Role -> joint index in ``clip``: ``given`` names first, the rest found by :data:`SOURCE_NAMES`.
+
+    Raises:
+        InputError: a required role has no joint (the message lists those and the clip's joint names).
+    """
+    found: dict[str, int] = {}
+    by_norm: dict[str, int] = {}
+    for i, n in enumerate(clip.names):
+        by_norm.setdefault(_norm(n), i)
+    for role, name in (given or {}).items():
+        if role not in ROLES:
+            raise InputError(f"unknown role {role!r} in the mapping; roles are: {', '.join(ROLES)}")
+        found[role] = clip.index(name)
+    for role in ROLES:
+        if role in found:
+            continue
+        side, _, part = role.partition("_")
+        pats = SOURCE_NAMES[part] if part else SOURCE_NAMES[role]
+        for pat in pats:
+            cand = pat.format(s=side, c=side[:1]) if part else pat
+            if cand in by_norm and by_norm[cand] not in found.values():
+                found[role] = by_norm[cand]
+                break
+    missing = [r for r in REQUIRED if r not in found]
+    if missing:
+        raise InputError(f"cannot map {', '.join(missing)} of BVH {clip.source or 'clip'} by joint names; give a "
+                         f"mapping file with those roles (its joints: {', '.join(clip.names)})")
+    return found
+
+
+def figure_mapping(tree: Tree, given: dict[str, str] | None = None) -> dict[str, str]:
+    """Role -> body of ``tree`` (plus ``torso``): :data:`FIGURES` for known model names, overridden by ``given``.
+
+    Raises:
+        InputError: a required role (or ``torso``) has no body.
+    """
+    known = dict(FIGURES.get(tree.name, {}))
+    known.update(given or {})
+    missing = [r for r in (*REQUIRED, "torso") if r not in known]
+    if missing:
+        raise InputError(f"model {tree.name!r} has no retargeting roles for {', '.join(missing)}; give them in the "
+                         f"mapping file's \"figure\" object (role -> body; known figures: {', '.join(FIGURES)})")
+    for body in known.values():
+        tree.id(body, "body")  # UnknownNameError lists the bodies
+    return known
+
+
+def read_mapping(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
+    """A mapping file: ``{"source": {role: bvh joint}, "figure": {role: body}}``, either part optional.
+
+    Raises:
+        MjkinIOError: missing or not JSON.
+        InputError: not of that shape.
+    """
+    try:
+        doc = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise MjkinIOError(f"mapping file not found: {str(path)!r}") from None
+    except (OSError, ValueError) as e:
+        raise MjkinIOError(f"cannot read mapping {str(path)!r}: {e}") from None
+    if not isinstance(doc, dict) or set(doc) - {"source", "figure"} or not all(
+            isinstance(v, dict) and all(isinstance(a, str) and isinstance(b, str) for a, b in v.items())
+            for v in doc.values()):
+        raise InputError(f"mapping {str(path)!r} must be {{\"source\": {{role: joint}}, \"figure\": {{role: body}}}} "
+                         f"with string names; roles: {', '.join(ROLES)}")
+    return {k: dict(v) for k, v in doc.items()}
+
+
+# ------------------------------------------------------------------ geometry
+def _unit(v: Array) -> Array:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def _frame(y: Array, up: Array) -> Array:
+    """Rotations ``(..., 3, 3)`` with y along ``y`` and z as near ``up`` as orthogonality allows."""
+    y = _unit(y)
+    x = _unit(np.cross(y, up))
+    return np.stack([x, y, np.cross(x, y)], axis=-1)
+
+
+def _yaw(angle: float) -> Array:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # BVH (x, y up, z) -> (y, z up, x)
+
+
+def _facing(p: Array, roles: dict[str, int]) -> Array:
+    """``p (F, J, 3)`` z-up turned about z so that frame 0 faces +x (its left hip on +y)."""
+    left = p[0, roles["left_hip"]] - p[0, roles["right_hip"]]
+    return p @ _yaw(-np.arctan2(-left[0], left[1])).T  # the left vector to +y, so forward (= left x up) to +x
+
+
+@dataclass(frozen=True)
+class Retarget:
+    """What :func:`plan` works out: targets for every frame and the feet's contacts.
+
+    ``points``: role -> ``(F, 3)`` target (world, m); ``rotations``: ``pelvis``, ``torso``,
+    ``left_ankle``, ``right_ankle`` -> ``(F, 3, 3)``; ``contact (2, F)`` left/right planted,
+    ``heel (2, F)`` its heel down too;
+    ``feet (2, F, 4, 4)`` the foot bodies' target poses; ``source (F, J, 3)`` the source
+    points in the figure's world (scaled), for drawing; ``scale`` figure/source.
+    """
+
+    points: dict[str, Array]
+    rotations: dict[str, Array]
+    contact: NDArray[np.bool_]
+    heel: NDArray[np.bool_]
+    feet: Array
+    source: Array
+    scale: float
+    unit: float
+    bodies: dict[str, str]
+    offsets: dict[str, Array]
+    parents: NDArray[np.int64]
+
+
+def _contacts(height: Array, speed: Array) -> NDArray[np.bool_]:
+    """Contact ``(F,)`` of one foot from its points' heights and speeds ``(F, P)`` (m, m/s), with hysteresis."""
+    on = np.any((height < CONTACT_ON[0]) & (speed < CONTACT_ON[1]), axis=1).tolist()
+    off = np.all((height > CONTACT_OFF[0]) | (speed > CONTACT_OFF[1]), axis=1).tolist()
+    out = np.zeros(len(height), dtype=np.bool_)
+    state = False
+    for k in range(len(height)):
+        state = on[k] or (state and not off[k])
+        out[k] = state
+    return out
+
+
+def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, contact: NDArray[np.bool_],
+                  heel: NDArray[np.bool_], toe: Array) -> Array:
+    """Foot body poses ``(F, 4, 4)`` from the source-driven ``R (F, 3, 3)``, ``p (F, 3)`` and the contacts ``(F,)``.
+
+    Swinging: as driven, lifted so no sole point (``soles (P, 3)``, body frame) is below ``floor``.
+    At touch-down the pose is frozen flat (``rest``'s tilt and height, the driven yaw); while
+    ``heel`` is up in a contact the foot turns as driven about its frozen ``toe`` point.
+    After lift-off the target eases from the last held pose to the driven one over :data:`EASE` frames.
+    """
+    F = len(p)
+    T = np.broadcast_to(np.eye(4), (F, 4, 4)).copy()
+    T[:, :3, :3], T[:, :3, 3] = R, p
+    lowest = (np.einsum("fij,pj->fpi", R, soles) + p[:, None])[..., 2].min(axis=1)
+    T[:, 2, 3] += np.maximum(0.0, floor - lowest)
+    out = T.copy()
+    held: Array | None = None
+    last = T[0]
+    since = EASE
+    for f in range(F):
+        if contact[f]:
+            if held is None:
+                held = T[f].copy()
+                yaw = np.arctan2(T[f, 1, 0], T[f, 0, 0]) - np.arctan2(rest[1, 0], rest[0, 0])
+                held[:3, :3] = _yaw(yaw) @ rest[:3, :3]
+                held[2, 3] = rest[2, 3]
+            out[f] = held
+            if not heel[f]:  # toe pivot: driven turn about the frozen toe (never tipping the heel under the floor)
+                pivot = held[:3, :3] @ toe + held[:3, 3]
+                out[f, :3, :3] = T[f, :3, :3]
+                out[f, :3, 3] = pivot - T[f, :3, :3] @ toe
+                dip = floor - (np.einsum("ij,pj->pi", out[f, :3, :3], soles) + out[f, :3, 3])[:, 2].min()
+                if dip > 1e-9:
+                    out[f] = held
+            last, since = out[f].copy(), 0
+        else:
+            held = None
+            if since < EASE:
+                since += 1
+                u = since / EASE
+                out[f, :3, 3] = (1 - u) * last[:3, 3] + u * T[f, :3, 3]
+                out[f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
+                    spatial.mat_to_quat(last[:3, :3]), spatial.mat_to_quat(T[f, :3, :3]), u))
+    return out
+
+
+def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None = None,
+         scale: float | None = None) -> Retarget:
+    """Targets for every frame of ``clip`` on ``tree`` (see the module's steps 1–4); ``scale`` in metres per unit."""
+    mapping = mapping or {}
+    roles = source_mapping(clip, mapping.get("source"))
+    bodies = figure_mapping(tree, mapping.get("figure"))
+    unit = bvh.unit_scale(clip)[0] if scale is None else float(scale)
+    if not (np.isfinite(unit) and unit > 0):
+        raise InputError(f"scale must be a positive number of metres per BVH unit, got {scale!r}")
+    p = _facing(clip.positions() @ Z_UP.T * unit, roles)
+    rest = _facing(clip.positions(rest=True) @ Z_UP.T * unit, roles)[0]
+    F = clip.frames
+    feet_idx = [[j for j in (roles.get(f"{s}_ankle"), roles.get(f"{s}_toe")) if j is not None] for s in SIDES]
+    floor = float(np.percentile(p[:, sum(feet_idx, []), 2].min(axis=1), 2))  # feet's lowest points
+    rest_floor = float(rest[:, 2].min())
+
+    # the figure at qpos0: role points, segment lengths, orientations
+    q0 = tree.qpos0
+    offsets = {r: np.asarray(FIGURE_OFFSETS.get(tree.name, {}).get(r, (0.0, 0.0, 0.0)), float) for r in bodies}
+    fig_T = {r: tree.pose(q0, b, "body") for r, b in bodies.items()}
+    fig = {r: fig_T[r][:3, :3] @ offsets[r] + fig_T[r][:3, 3] for r in bodies}
+    fig_floor = min(float((fig_T[f"{s}_ankle"][:3, :3] @ pt + fig_T[f"{s}_ankle"][:3, 3])[2])
+                    for s in SIDES for pt in sole_points(tree, bodies[f"{s}_ankle"]))
+
+    def seg(a: str, b: str, pts: Array) -> Array:
+        return np.linalg.norm(pts[..., roles[b], :] - pts[..., roles[a], :], axis=-1)
+
+    src_leg = float(np.mean([seg(f"{s}_hip", f"{s}_knee", rest) + seg(f"{s}_knee", f"{s}_ankle", rest)
+                             for s in SIDES]))
+    fig_leg = float(np.mean([np.linalg.norm(fig[f"{s}_knee"] - fig[f"{s}_hip"])
+                             + np.linalg.norm(fig[f"{s}_ankle"] - fig[f"{s}_knee"]) for s in SIDES]))
+    k = fig_leg / src_leg
+
+    def frames_of(pts: Array) -> dict[str, Array]:
+        """Constructed rotations of pelvis, torso and feet from source points ``(..., J, 3)``."""
+        up = np.array([0.0, 0.0, 1.0])
+        P = lambda r: pts[..., roles[r], :]  # noqa: E731
+        mid_sh = 0.5 * (P("left_shoulder") + P("right_shoulder"))
+        pelvis = _frame(P("left_hip") - P("right_hip"), _unit(mid_sh - P("pelvis")) + up)  # half the lean
+        torso = _frame(P("left_shoulder") - P("right_shoulder"), mid_sh - P("pelvis"))
+        out = {"pelvis": pelvis, "torso": torso}
+        for s in SIDES:
+            ahead = P(f"{s}_toe") - P(f"{s}_ankle") if f"{s}_toe" in roles else pelvis[..., :, 0]
+            x = _unit(ahead)
+            y = _unit(np.cross(up, x))
+            out[f"{s}_ankle"] = np.stack([x, y, np.cross(x, y)], axis=-1)
+        return out
+
+    R_src, R_rest = frames_of(p), frames_of(rest)
+    rot = {r: R_src[r] @ np.swapaxes(R_rest[r], -1, -2) @ fig_T[r][:3, :3] for r in R_src}
+
+    # points: pelvis scaled from the source, the rest chained with the figure's own lengths
+    pts: dict[str, Array] = {}
+    pelvis_src = p[:, roles["pelvis"]]
+    pts["pelvis"] = np.empty((F, 3))
+    pts["pelvis"][:, :2] = fig["pelvis"][:2] + k * (pelvis_src[:, :2] - pelvis_src[0, :2])
+    pts["pelvis"][:, 2] = fig["pelvis"][2] + k * ((pelvis_src[:, 2] - floor) - (rest[roles["pelvis"], 2] - rest_floor))
+    R_pel0, R_tor0 = fig_T["pelvis"][:3, :3], fig_T["torso"][:3, :3]
+    torso_at = pts["pelvis"] + np.einsum("fij,j->fi", rot["pelvis"], R_pel0.T @ (fig_T["torso"][:3, 3] - fig["pelvis"]))
+    for r, base, R, R0 in (("head", torso_at, rot["torso"], R_tor0),):
+        pts[r] = base + np.einsum("fij,j->fi", R, R0.T @ (fig[r] - fig_T["torso"][:3, 3]))
+    for s in SIDES:
+        pts[f"{s}_hip"] = pts["pelvis"] + np.einsum("fij,j->fi", rot["pelvis"], R_pel0.T @ (fig[f"{s}_hip"]
+                                                                                         - fig["pelvis"]))
+        pts[f"{s}_shoulder"] = torso_at + np.einsum("fij,j->fi", rot["torso"],
+                                                    R_tor0.T @ (fig[f"{s}_shoulder"] - fig_T["torso"][:3, 3]))
+        for a, b in (("hip", "knee"), ("knee", "ankle"), ("shoulder", "elbow"), ("elbow", "wrist")):
+            length = np.linalg.norm(fig[f"{s}_{b}"] - fig[f"{s}_{a}"])
+            pts[f"{s}_{b}"] = pts[f"{s}_{a}"] + length * _unit(p[:, roles[f"{s}_{b}"]] - p[:, roles[f"{s}_{a}"]])
+
+    # feet: contacts from the source; a planted foot is frozen flat on the floor, then pivots on its frozen toe
+    # once its heel lifts; swinging feet follow the source above the floor, eased in after a lift-off
+    contact = np.zeros((2, F), dtype=np.bool_)
+    heel = np.zeros((2, F), dtype=np.bool_)
+    feet = np.empty((2, F, 4, 4))
+    for i, s in enumerate(SIDES):
+        idx = feet_idx[i]
+        h = p[:, idx, 2] - floor - (rest[idx, 2] - rest_floor)
+        v = np.zeros((F, len(idx)))
+        v[1:] = np.linalg.norm(np.diff(p[:, idx, :2], axis=0), axis=-1) / clip.frame_time
+        v[0] = v[1] if F > 1 else 0.0
+        contact[i] = _contacts(h, v)
+        heel[i] = contact[i] & _contacts(h[:, :1], v[:, :1])
+        body = fig_T[f"{s}_ankle"]
+        toe_local, _ = sole_points(tree, bodies[f"{s}_ankle"])
+        feet[i] = _foot_targets(rot[f"{s}_ankle"], pts[f"{s}_ankle"] - rot[f"{s}_ankle"] @ offsets[f"{s}_ankle"],
+                                np.array(sole_points(tree, bodies[f"{s}_ankle"])), fig_floor, body, contact[i],
+                                heel[i], toe_local)
+    src = fig["pelvis"] + k * (p - np.array([*pelvis_src[0, :2], floor + rest[roles["pelvis"], 2] - rest_floor]))
+    src[..., 2] += fig_floor
+    return Retarget(points=pts, rotations=rot, contact=contact, heel=heel, feet=feet, source=src, scale=k, unit=unit,
+                    bodies=bodies, offsets=offsets, parents=clip.parents)
+
+
+def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
+    """Frames ``q (T, nq)`` with each frame's change from the previous clamped to ``max_step`` (rad or m, or ``(nv,)``).
+
+    A stand-in for a hard per-joint step limit in the solve: it runs after it.
+    """
+    out = np.array(q)
+    step = np.broadcast_to(np.asarray(max_step, float), (tree.nv,))
+    for f in range(1, len(out)):
+        d = tree.difference(out[f], out[f - 1])
+        if np.any(np.abs(d) > step):
+            out[f] = tree.integrate(out[f - 1], np.clip(d, -step, step))
+    return out
+
+
+def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
+             mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, model_source: str = "") -> Trajectory:
+    """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
+
+    Args:
+        source: a BVH path or a parsed :class:`mjkin.bvh.Clip`.
+        tree: the figure; it needs a free root joint.
+        mapping: ``{"source": {role: joint}, "figure": {role: body}}`` (or a JSON file of it);
+            by default roles are found by name (:data:`SOURCE_NAMES`, :data:`FIGURES`).
+        scale: metres per BVH unit; default from the skeleton's height.
+        max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``.
+        tol: IK position tolerance (m).
+        model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
+
+    Returns:
+        The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, the scale and the
+        frames per second (planning and solving, the first frame left out: it may compile the
+        solver); ``targets (F, 6, 3)`` are the key-point targets (:data:`KEYS`; the feet's as held).
+
+    Raises:
+        BvhError, InputError: unreadable clip, roles that cannot be mapped, bad options.
+    """
+    clip = source if isinstance(source, bvh.Clip) else bvh.read(source)
+    if mapping is not None and not isinstance(mapping, dict):
+        mapping = read_mapping(mapping)
+    speed = np.broadcast_to(np.asarray(max_speed, float), (tree.nv,))
+    if not (np.isfinite(speed).all() and (speed > 0).all()):
+        raise InputError(f"max_speed must be positive rad/s, got {max_speed!r}")
+    if tree.nq < 7 or tree.layout.free_q.size == 0:
+        raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
+    t0 = time.perf_counter()
+    plan_ = plan(clip, tree, mapping, scale)
+    q, t_first = solve_frames(tree, plan_, tol)
+    q = limit_speed(tree, q, speed * clip.frame_time)
+    elapsed = time.perf_counter() - t0 - t_first
+    feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
+            for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
+    targets = np.stack([feet[r] if r in feet else plan_.points[r] for r in KEYS], axis=1)
+    meta = {"retarget": {"clip": str(clip.source), "scale": plan_.scale, "unit": plan_.unit,
+                         "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
+                         "frames_per_second": max(clip.frames - 1, 1) / elapsed,
+                         "max_speed": speed.tolist(), "bodies": plan_.bodies}}
+    times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
+    return Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
+                      source=model_source)
+
+
+def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Goal]:
+    """Goals of frame ``f``: the feet's toe and heel points at priority 0; the body and ``q_prev`` (weighted) at 1."""
+    b = plan_.bodies
+    goals: list[G.Goal] = []
+    for i, s in enumerate(SIDES):
+        T = plan_.feet[i, f]
+        for point in sole_points(tree, b[f"{s}_ankle"]):
+            goals.append(G.Position(b[f"{s}_ankle"], T[:3, :3] @ point + T[:3, 3], kind="body",
+                                    offset=tuple(point)))
+    goals.append(G.Position(b["pelvis"], plan_.points["pelvis"][f], kind="body", priority=1))
+    goals.append(G.Orientation(b["pelvis"], plan_.rotations["pelvis"][f], kind="body", priority=1, weight=0.3))
+    goals.append(G.Orientation(b["torso"], plan_.rotations["torso"][f], kind="body", priority=1, weight=0.3))
+    for r in ("head", *(f"{s}_{p}" for s in SIDES for p in ("knee", "shoulder", "elbow", "wrist"))):
+        off = plan_.offsets[r]
+        goals.append(G.Position(b[r], plan_.points[r][f], kind="body", priority=1,
+                                offset=tuple(off) if np.any(off) else None, weight=1.0 if "wrist" in r else 0.5))
+    goals.append(G.Rest(q_rest=q_prev, weight=0.05, priority=1))  # one level for the body: each costs a projection
+    return goals
+
+
+def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> tuple[Array, float]:
+    """Joint values ``(F, nq)``, frame by frame, each warm-started from (and resting toward) the previous one.
+
+    Also returns the seconds the first frame took (it may include compiling the solver).
+    """
+    F = len(plan_.points["pelvis"])
+    q = tree.qpos0.copy()
+    free = tree.layout.free_q[0]
+    q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
+    out = np.empty((F, tree.nq))
+    t_first = 0.0
+    for f in range(F):
+        t = time.perf_counter()
+        q = solve(tree, frame_goals(tree, plan_, f, q), q0=q, tol=tol, restarts=0, max_iters=MAX_ITERS).q
+        out[f] = q
+        t_first = time.perf_counter() - t if f == 0 else t_first
+    return out, t_first
+
+
+# ------------------------------------------------------------------- report
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``(start, end)`` of each run of True in ``mask (F,)``, end exclusive."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
+
+
+def _point(tree: Tree, q: Array, body: str, role: str) -> Array:
+    """World point ``(F, 3)`` of a role on its body (the body origin, or :data:`FIGURE_OFFSETS`)."""
+    T = tree.pose(q, body, "body")
+    return T[..., :3, :3] @ np.asarray(FIGURE_OFFSETS.get(tree.name, {}).get(role, (0.0, 0.0, 0.0))) + T[..., :3, 3]
+
+
+def report(tree: Tree, traj: Trajectory) -> dict:
+    """Measured figures of a retargeted clip (lengths in m, speeds per second); see the keys.
+
+    ``keypoint_error_median``/``_max``: hands, feet and head relative to the pelvis against
+    their targets; ``skate_per_frame_mean`` (mean horizontal slide of a planted foot per
+    frame), ``skate_per_contact_max`` (its largest drift over one contact); ``floor_min``
+    (lowest sole point, < 0 below the floor); ``limits`` (None or what is outside);
+    ``speed_max``/``speed_limit_ratio``; ``self_contact_frames``, ``self_contact_deepest``.
+    """
+    info = traj.meta["retarget"]
+    bodies = info["bodies"]
+    q, F = traj.q, len(traj.q)
+    contact = np.array(info["contact"], dtype=np.bool_)
+    out: dict = {"frames": F, "frames_per_second": info["frames_per_second"], "scale": info["scale"]}
+    if traj.targets is not None:
+        got = np.stack([_point(tree, q, bodies[r], r) for r in KEYS], 1)
+        err = np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)
+        out["keypoint_error_median"], out["keypoint_error_max"] = float(np.median(err)), float(err.max())
+    heel = np.array(info["heel"], dtype=np.bool_)
+    slide, drift, lowest = [], [], np.inf
+    for i, s in enumerate(SIDES):
+        T = tree.pose(q, bodies[f"{s}_ankle"], "body")
+        soles = np.array(sole_points(tree, bodies[f"{s}_ankle"]))  # toe, heel
+        pts = np.einsum("fij,pj->fpi", T[:, :3, :3], soles) + T[:, None, :3, 3]  # (F, 2, 3)
+        lowest = min(lowest, float(pts[..., 2].min()))
+        for k, held in ((0, contact[i]), (1, heel[i])):  # the toe is held through a contact, the heel while down
+            xy = pts[:, k, :2]
+            slide.extend(np.linalg.norm(np.diff(xy, axis=0), axis=-1)[held[1:] & held[:-1]].tolist())
+            for a, e in _runs(held):
+                drift.append(float(np.linalg.norm(xy[a:e] - xy[a], axis=-1).max()))
+    out["contact_frames"] = int(contact.sum())
+    out["skate_per_frame_mean"] = float(np.mean(slide)) if slide else 0.0
+    out["skate_per_contact_max"] = max(drift) if drift else 0.0
+    out["floor_min"] = lowest
+    out["limits"] = outside_limits(tree, q)
+    dt = np.diff(traj.times)
+    speed = np.abs(tree.difference(q[1:], q[:-1])) / dt[:, None] if F > 1 else np.zeros((0, tree.nv))
+    limit = np.asarray(info["max_speed"])
+    out["speed_max"] = float(speed.max()) if speed.size else 0.0
+    out["speed_limit_ratio"] = float((speed / limit).max()) if speed.size else 0.0
+    scene = Scene(tree)
+    deep, frames = 0.0, 0
+    for f in range(F):
+        mine = [c.distance for c in scene.contacts(q[f]) if "world" not in (c.body1, c.body2)]
+        if mine and min(mine) < 0:
+            frames += 1
+            deep = min(deep, min(mine))
+    out["self_contact_frames"], out["self_contact_deepest"] = frames, deep
+    return out

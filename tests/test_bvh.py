@@ -1,0 +1,129 @@
+"""BVH reading: FK of small files written here against hand-computed positions, channel orders, End Sites,
+units, one-line errors; the two shared clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mjkin import bvh
+from mjkin.errors import InputError, MjkinError
+
+MOCAP = Path(__file__).resolve().parents[2] / "shared" / "mocap"
+need_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"the shared clips are not here ({MOCAP})")
+
+# root at (1, 2, 3) turned 90 deg about z; child offset (0, 10, 0) turned 90 deg about x; an End Site (0, 0, 5)
+SMALL = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Left Knee
+  {
+    OFFSET 0 10 0
+    CHANNELS 3 {order}
+    End Site
+    {
+      OFFSET 0 0 5
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.0083333
+1 2 3 0 0 0 0 0 0
+1 2 3 90 0 0 {angles}
+"""
+
+
+def small(order: str = "Xrotation Yrotation Zrotation", angles: str = "90 0 0") -> str:
+    return SMALL.replace("{order}", order).replace("{angles}", angles)
+
+
+def test_fk_by_hand() -> None:
+    clip = bvh.parse(small())
+    assert clip.names == ("Hips", "Left Knee", "Left Knee_End")  # names may hold spaces
+    assert clip.ends.tolist() == [False, False, True]
+    assert clip.frames == 2 and clip.fps == pytest.approx(120, rel=1e-4)
+    p = clip.positions()
+    np.testing.assert_allclose(p[0], [[1, 2, 3], [1, 12, 3], [1, 12, 8]], atol=1e-12)
+    # frame 1: Rz(90) maps y to -x; the knee's Rx(90) maps its z to -y, then Rz(90): -y -> +x
+    np.testing.assert_allclose(p[1], [[1, 2, 3], [-9, 2, 3], [-4, 2, 3]], atol=1e-12)
+
+
+@pytest.mark.parametrize("order", ["Zrotation Xrotation Yrotation", "Yrotation Xrotation Zrotation",
+                                   "Xrotation Zrotation Yrotation"])
+def test_channel_order_is_the_product_in_listed_order(order: str) -> None:
+    angles = {"X": 30.0, "Y": -50.0, "Z": 70.0}
+    axes = [w[0] for w in order.split()]
+    clip = bvh.parse(small(order, " ".join(str(angles[a]) for a in axes)))
+
+    def rot(axis: str, deg: float) -> np.ndarray:
+        c, s = np.cos(np.deg2rad(deg)), np.sin(np.deg2rad(deg))
+        i, j = [(1, 2), (2, 0), (0, 1)]["XYZ".index(axis)]
+        R = np.eye(3)
+        R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+        return R
+
+    R_knee = rot(axes[0], angles[axes[0]]) @ rot(axes[1], angles[axes[1]]) @ rot(axes[2], angles[axes[2]])
+    R_root = rot("Z", 90)
+    end = np.array([1, 2, 3]) + R_root @ (np.array([0, 10, 0]) + R_knee @ [0, 0, 5])
+    np.testing.assert_allclose(clip.positions()[1, 2], end, atol=1e-12)
+
+
+def test_six_channels_on_a_child_replace_its_offset() -> None:
+    text = small().replace("CHANNELS 3 Xrotation Yrotation Zrotation",
+                           "CHANNELS 6 Xposition Yposition Zposition Xrotation Yrotation Zrotation")
+    text = text.replace("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 10 0 0 0 0").replace("1 2 3 90 0 0 90 0 0",
+                                                                               "1 2 3 0 0 0 0 20 0 0 0 0")
+    p = bvh.parse(text).positions()
+    np.testing.assert_allclose(p[:, 1], [[1, 12, 3], [1, 22, 3]], atol=1e-12)
+
+
+def test_units_from_height() -> None:
+    tall = small().replace("OFFSET 0 10 0", "OFFSET 0 170 0").replace("OFFSET 0 0 5", "OFFSET 0 0 0")
+    assert bvh.unit_scale(bvh.parse(tall)) == (0.01, "cm")
+    assert bvh.unit_scale(bvh.parse(tall.replace("OFFSET 0 170 0", "OFFSET 0 1.7 0"))) == (1.0, "m")
+    assert bvh.unit_scale(bvh.parse(tall.replace("OFFSET 0 170 0", "OFFSET 0 67 0"))) == (0.0254, "in")
+    with pytest.raises(InputError, match="--scale"):
+        bvh.unit_scale(bvh.parse(tall.replace("OFFSET 0 170 0", "OFFSET 0 0.1 0")))
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (("HIERARCHY", "HIERARCHI"), "line 1: expected 'HIERARCHY'"),
+    (("OFFSET 0 10 0", "OFFSET 0 ten 0"), "line 8: expected a number"),
+    (("Zrotation Xrotation Yrotation", "Zrotation Xrotation Wrotation"), "unknown channel 'wrotation'"),
+    (("Frames: 2", "Frames: 3"), "needs 27 numbers, found 18"),
+    (("Frame Time: 0.0083333", "Frame Time: 0"), "Frame Time: must be > 0"),
+    (("1 2 3 90 0 0 90 0 0", "1 2 3 90 0 0 90 x 0"), "expected a channel value"),
+    (("  }\n}\nMOTION", "  }\nMOTION"), "expected JOINT, End Site or '}'"),
+    (("MOTION", "MOTIONS"), "expected 'MOTION'"),
+    (("JOINT Left Knee", "JOINT Hips"), "joint name 'Hips' appears twice"),
+])
+def test_malformed_files_are_one_line_errors(edit: tuple[str, str], message: str) -> None:
+    with pytest.raises(bvh.BvhError, match=message) as e:
+        bvh.parse(small().replace(*edit), "bad.bvh")
+    assert "\n" not in str(e.value) and "bad.bvh" in str(e.value)
+    assert isinstance(e.value, MjkinError)
+
+
+def test_truncated_and_missing_files(tmp_path: Path) -> None:
+    with pytest.raises(bvh.BvhError, match="file ends early"):
+        bvh.parse(small()[:60])
+    with pytest.raises(bvh.BvhError, match="not found"):
+        bvh.read(tmp_path / "none.bvh")
+
+
+@need_mocap
+@pytest.mark.parametrize(("name", "frames", "joints", "root"), [
+    ("mixamo_freebvh", 69, 55, "mixamorig:Hips"), ("mocapbank_19joint", 455, 19, "Hips")])
+def test_shared_clips(name: str, frames: int, joints: int, root: str) -> None:
+    clip = bvh.read(MOCAP / f"{name}.bvh")
+    assert clip.frames == frames and clip.fps == pytest.approx(30, rel=1e-4) and clip.names[0] == root
+    assert int((~clip.ends).sum()) == joints
+    assert bvh.unit_scale(clip) == (0.01, "cm")
+    p = clip.positions()
+    height = p[0, :, 1].max() - p[0, :, 1].min()
+    assert 140 < height < 200 and np.isfinite(p).all()  # a person in centimetres, upright along y

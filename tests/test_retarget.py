@@ -1,0 +1,146 @@
+"""Retargeting BVH onto the primate (and the G1): role mapping by names, planted feet, floor, limits, speeds;
+a crouch written here (feet fixed by construction), the shared clips, the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mjkin
+from mjkin import bvh
+from mjkin.apps.cli import run
+from mjkin.errors import InputError
+from mjkin.motion import Trajectory
+from mjkin.retarget import report, source_mapping
+
+MOCAP = Path(__file__).resolve().parents[2] / "shared" / "mocap"
+G1 = Path(__file__).resolve().parents[2] / "shared" / "models" / "unitree_g1" / "g1.xml"
+need_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"the shared clips are not here ({MOCAP})")
+
+THIGH = SHIN = 42.0  # cm
+
+
+def joint(name: str, offset: tuple[float, float, float], children: str = "", end: tuple | None = None,
+          channels: str = "3 Zrotation Xrotation Yrotation") -> str:
+    tail = f"End Site\n{{\nOFFSET {end[0]} {end[1]} {end[2]}\n}}\n" if end else ""
+    return f"JOINT {name}\n{{\nOFFSET {offset[0]} {offset[1]} {offset[2]}\nCHANNELS {channels}\n{children}{tail}}}\n"
+
+
+def crouch_bvh(frames: int = 24, names: dict[str, str] | None = None, prefix: str = "", collar: bool = False) -> str:
+    """A 19-joint-style rig (cm, y up, facing +z) bending its knees by up to 60 degrees, feet fixed by construction.
+
+    ``names`` renames the limb joints ({S} = Left/Right), ``prefix`` goes before every name, ``collar`` adds a
+    collarbone named {S}Shoulder above each arm (as Mixamo has).
+    """
+    n = {"hip": "{S}Hip", "knee": "{S}Knee", "ankle": "{S}Ankle", "sh": "{S}Shoulder", "el": "{S}Elbow",
+         "wr": "{S}Wrist", **(names or {})}
+    legs = arms = ""
+    for side, x in (("Left", 9.0), ("Right", -9.0)):
+        def nm(k: str, side: str = side) -> str:
+            return prefix + n[k].replace("{S}", side)
+        legs += joint(nm("hip"), (x, -5, 0), joint(nm("knee"), (0, -THIGH, 0), joint(
+            nm("ankle"), (0, -SHIN, 0), end=(0, -7, 14))))
+        arm = joint(nm("sh"), (2 * x, 25, 0), joint(nm("el"), (0, -28, 0), joint(nm("wr"), (0, -26, 0),
+                                                                                     end=(0, -8, 0))))
+        arms += joint(f"{prefix}{side}Shoulder", (0, 0, 0), arm) if collar else arm
+    head = joint(prefix + "Neck", (0, 30, 0), joint(prefix + "Head", (0, 8, 0), end=(0, 18, 0)))
+    chest = joint(prefix + "Chest", (0, 12, 0), arms + head)
+    hierarchy = (f"HIERARCHY\nROOT {prefix}Hips\n{{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition "
+                 f"Zrotation Xrotation Yrotation\n{chest}{legs}}}\n")
+    rig = bvh.parse(hierarchy + "MOTION\nFrames: 1\nFrame Time: 1\n" + "0 " * 200)
+    lines = []
+    for f in range(frames):
+        a = np.rad2deg(np.deg2rad(30.0) * np.sin(np.pi * f / (frames - 1)))  # thigh pitch; the knee bends 2a
+        hips_y = 5 + 7 + (THIGH + SHIN) * np.cos(np.deg2rad(a))
+        pitch = {n["hip"]: -a, n["knee"]: 2 * a, n["ankle"]: -a}  # +X pitches a leg forward (toward +z)
+        row = [0.0, hips_y, 0.0, 0.0, 0.0, 0.0]
+        for name, chans in zip(rig.names[1:], rig.channels[1:], strict=True):
+            generic = name[len(prefix):].replace("Left", "{S}").replace("Right", "{S}")
+            row += [pitch.get(generic, 0.0) if c == "xrotation" else 0.0 for c in chans]
+        lines.append(" ".join(f"{v:.9f}" for v in row))
+    return hierarchy + f"MOTION\nFrames: {frames}\nFrame Time: 0.0333333\n" + "\n".join(lines) + "\n"
+
+
+@pytest.fixture(scope="module")
+def primate() -> mjkin.Tree:
+    return mjkin.load("primate")
+
+
+def test_crouch_keeps_the_feet_planted(primate: mjkin.Tree) -> None:
+    clip = bvh.parse(crouch_bvh(), "crouch.bvh")
+    p = clip.positions()
+    assert np.ptp(p[:, clip.index("LeftAnkle")], axis=0).max() < 1e-4  # the source's feet stay (cm)
+    traj = mjkin.retarget(clip, primate)
+    assert traj.q.shape == (clip.frames, primate.nq) and np.allclose(np.diff(traj.times), clip.frame_time)
+    contact = np.array(traj.meta["retarget"]["contact"])
+    assert contact.all()  # both feet down throughout
+    rep = report(primate, traj)
+    assert rep["skate_per_contact_max"] < 2e-3 and rep["floor_min"] > -5e-3 and rep["limits"] is None
+    assert rep["speed_limit_ratio"] <= 1 + 1e-9
+    pelvis = primate.pose(traj.q, "lower_torso", "body")[:, 2, 3]
+    assert pelvis[len(pelvis) // 2] < pelvis[0] - 0.05  # it crouches
+
+
+def test_roles_by_names_of_the_common_rigs() -> None:
+    clip19 = bvh.parse(crouch_bvh(2))
+    roles = source_mapping(clip19)
+    assert clip19.names[roles["left_shoulder"]] == "LeftShoulder" and clip19.names[roles["left_hip"]] == "LeftHip"
+    assert clip19.names[roles["left_toe"]] == "LeftAnkle_End"
+    cmu = bvh.parse(crouch_bvh(2, {"hip": "{S}UpLeg", "knee": "{S}Leg", "ankle": "{S}Foot", "sh": "{S}Arm",
+                                   "el": "{S}ForeArm", "wr": "{S}Hand"}))
+    roles = source_mapping(cmu)
+    assert cmu.names[roles["right_knee"]] == "RightLeg" and cmu.names[roles["left_shoulder"]] == "LeftArm"
+    # Mixamo: the same names in a namespace, and LeftShoulder is the collarbone above LeftArm
+    clip = bvh.parse(crouch_bvh(2, {"hip": "{S}UpLeg", "knee": "{S}Leg", "ankle": "{S}Foot", "sh": "{S}Arm",
+                                    "el": "{S}ForeArm", "wr": "{S}Hand"}, prefix="mixamorig:", collar=True))
+    roles = source_mapping(clip)
+    assert clip.names[roles["left_shoulder"]] == "mixamorig:LeftArm" and clip.names[roles["pelvis"]] == "mixamorig:Hips"
+
+
+def test_unmappable_rig_is_one_line(primate: mjkin.Tree) -> None:
+    clip = bvh.parse(crouch_bvh(2, {"knee": "{S}Shin_Bone", "wr": "{S}Paw"}), "odd.bvh")
+    with pytest.raises(InputError, match="cannot map left_knee, left_wrist, right_knee, right_wrist") as e:
+        mjkin.retarget(clip, primate)
+    assert "\n" not in str(e.value)
+    mapping = {"source": {f"{s}_knee": f"{S}Shin_Bone" for s, S in (("left", "Left"), ("right", "Right"))}
+               | {f"{s}_wrist": f"{S}Paw" for s, S in (("left", "Left"), ("right", "Right"))}}
+    assert mjkin.retarget(clip, primate, mapping).q.shape == (2, primate.nq)
+
+
+@need_mocap
+@pytest.mark.parametrize("clip", ["mixamo_freebvh", "mocapbank_19joint"])
+def test_shared_clips_on_the_primate(primate: mjkin.Tree, clip: str) -> None:
+    traj = mjkin.retarget(MOCAP / f"{clip}.bvh", primate)
+    rep = report(primate, traj)
+    assert rep["contact_frames"] > 0
+    assert rep["skate_per_frame_mean"] <= 2e-3 and rep["skate_per_contact_max"] <= 0.01
+    assert rep["floor_min"] >= -5e-3 and rep["limits"] is None and rep["speed_limit_ratio"] <= 1 + 1e-9
+    assert rep["keypoint_error_median"] <= (0.03 if clip == "mixamo_freebvh" else 0.06)
+
+
+@need_mocap
+def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "walk.json"
+    assert run(["retarget", str(MOCAP / "mixamo_freebvh.bvh"), "--model", "primate", "-o", str(out), "--report",
+                "--retime"]) == 0
+    printed = capsys.readouterr().out
+    assert "frames of" in printed and json.loads(printed[printed.index("{"):])["frames"] == 69
+    traj = Trajectory.load(out, mjkin.load("primate"))
+    assert traj.q.shape[0] == 69 and traj.meta["retime"]["duration"] > 0
+    bad = tmp_path / "map.json"
+    bad.write_text('{"source": {"elbow": "X"}}')
+    assert run(["retarget", str(MOCAP / "mixamo_freebvh.bvh"), "--model", "primate", "--mapping", str(bad)]) == 2
+    assert "unknown role 'elbow'" in capsys.readouterr().err
+
+
+@need_mocap
+@pytest.mark.skipif(not G1.is_file(), reason=f"the G1 is not here ({G1})")
+def test_walk_on_the_g1() -> None:
+    g1 = mjkin.load(G1)
+    traj = mjkin.retarget(MOCAP / "mixamo_freebvh.bvh", g1)
+    rep = report(g1, traj)
+    assert rep["limits"] is None and rep["speed_limit_ratio"] <= 1 + 1e-9
+    assert rep["skate_per_frame_mean"] <= 2e-3
