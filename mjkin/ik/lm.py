@@ -164,13 +164,14 @@ def run_loop(problem: Problem, prog: Program, q: Array, code: int, st: kernel.Se
     hist_q = np.full((B, H, nq), np.nan)
     hist_err = np.zeros((B, H, 2))
     iters, status, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
+    binding = np.zeros(B, np.int64)
     err = np.zeros((B, len(prog.goals), 2))
     kin, ga, solve_batch = problem.tree.kin, prog.arrays, kernels().solve_batch
     starts, restart_q, active = problem.starts, problem.restart_q, problem.active
 
     def run(lo: int, hi: int) -> None:  # targets lo..hi-1; the compiled code releases the GIL
-        solve_batch(kin, ga, q, code, st, max_iters, starts, restart_q, active, iters, status, used, err, hist_q,
-                    hist_err, lo, hi)
+        solve_batch(kin, ga, q, code, st, max_iters, starts, restart_q, active, iters, status, used, binding, err,
+                    hist_q, hist_err, lo, hi)
 
     parallel_chunks(run, B)
     history = None
@@ -178,4 +179,4 @@ def run_loop(problem: Problem, prog: Program, q: Array, code: int, st: kernel.Se
         hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
         history = History(hist_q, hist_err)
     return package(prog, q, err, iters, status, used, problem.tol, problem.rot_tol, problem.method_name, history,
-                   problem.tree)
+                   problem.tree, binding)

@@ -247,7 +247,7 @@ class Problem:
         """The result when no dof may move: the starts ``q (B, nq)`` as they are, met or not, after 0 iterations."""
         _, _, err = evaluate_program(self.tree, prog, q)
         worst, met = np.empty((prog.B, 2)), np.empty(prog.B, dtype=bool)
-        summarise(err, prog.counted, self.tol, self.rot_tol, worst, met)
+        summarise(err, prog.counted, prog.hard, self.tol, self.rot_tol, worst, met)
         zeros = np.zeros(prog.B, np.int64)
         status = np.where(met, CONVERGED, UNREACHABLE)
         history = History(q[:, None].copy(), worst[:, None].copy()) if self.history else None

@@ -39,18 +39,24 @@ class Result:
 
     Attributes:
         q: ``(..., nq)`` best configuration found, inside the joint limits, a valid ``qpos``.
-        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians).
+        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians),
+            and every hard constraint holding (each row ``>= -1e-6``, :data:`~mjkin.ik.kernel.HARD_TOL`).
         error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
         iterations: ``(...)`` steps taken (CCD: sweeps).
         status: ``"converged"``, ``"unreachable"`` (stalled away from the goal, or nothing may
             move), ``"limits"`` (stalled with a joint limit blocking the way), ``"max_iterations"``,
-            ``"timeout"`` (the ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``:
-            every pose found was in contact).
-        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
+            ``"timeout"`` (the ``timeout`` ran out first), ``"constraint"`` (stalled with a hard
+            constraint holding the answer back, or no pose found that keeps every hard constraint:
+            :attr:`binding` names it) or ``"collision"`` (``avoid_collisions``: every pose found was in
+            contact).
+        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (hard constraints first, then by
+            priority); a hard constraint's is its violation (how far its lowest row is below zero).
         goals: the goals as solved.
         method: the method that ran.
         restarts: ``(...)`` random restarts used.
         history: per-iteration record when asked for (``history=True``).
+        binding: ``(...)`` index in :attr:`goals` of the hard constraint at (or below) its bound at
+            :attr:`q` when the solve did not converge, else -1.
         tree: the tree solved on; not pickled (a result sent to another process travels
             without its ``MjModel``): re-attach it with :meth:`with_tree`.
     """
@@ -65,6 +71,7 @@ class Result:
     method: str
     restarts: Array
     history: History | None = None
+    binding: Array | None = None
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
@@ -116,13 +123,17 @@ def _shaped(batch: tuple[int, ...], a: Array) -> Array:
 
 
 def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
-            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
-    """Build a :class:`Result` from flat per-target arrays."""
+            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None,
+            binding: NDArray | None = None) -> Result:
+    """Build a :class:`Result` from flat per-target arrays (``binding`` None: no binding constraint)."""
     worst, success = np.empty((len(q), 2)), np.empty(len(q), dtype=bool)
-    summarise(err, prog.counted, float(tol), float(rot_tol), worst, success)
+    summarise(err, prog.counted, prog.hard, float(tol), float(rot_tol), worst, success)
+    if binding is None:
+        binding = np.full(len(q), -1, np.int64)
     names = STATUS[status]
     b = prog.batch
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
-                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist,
+                  binding=_shaped(b, binding), tree=tree)
