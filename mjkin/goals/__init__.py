@@ -22,10 +22,11 @@ from .position import Position
 from .program import Program, Structure, compile_goals
 from .registry import KINDS, register
 from .rest import Rest
+from .steplimit import StepLimit
 
-for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling):
+for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling, StepLimit):
     register(_kind)
 
 __all__ = ["DATA", "JOINT_UNITS", "KINDS", "METRES", "METRES_AND_RADIANS", "RADIANS", "Aim", "Coupling", "FrameGoal",
-           "Goal", "HalfSpace", "Line", "Orientation", "Plane", "Pose", "Position", "Program", "Rest", "Structure",
-           "compile_goals", "concatenate", "register"]
+           "Goal", "HalfSpace", "Line", "Orientation", "Plane", "Pose", "Position", "Program", "Rest", "StepLimit",
+           "Structure", "compile_goals", "concatenate", "register"]

@@ -127,13 +127,13 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
                     spatial.quat_distance(at(v)[qi], [1.0, 0.0, 0.0, 0.0])),
                     "jac": lambda v, qi=qi, di=di: cone_jac(v, qi, di)})
         v = np.zeros(len(free))
-        for lv in range(len(prog.level_rows) - 1):
-            idx = rows_of((level_of == lv) & ~constraint_goal)
-            if len(idx) == 0:
-                continue
+        levels: list[Array | None] = [sel for lv in range(len(prog.level_rows) - 1)
+                                      if len(sel := rows_of((level_of == lv) & ~constraint_goal))]
+        for idx in levels or ([None] if cons else []):  # constraints alone: the smallest move that meets them
             reported = [v]  # the start and SciPy's iterates (its callback comes after each iteration)
+            objective = (lambda x, _: (0.5 * float(x @ x), x)) if idx is None else cost
             try:
-                res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                res = minimize(objective, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
                                options={"maxiter": max_iters, "ftol": 1e-16},
                                callback=lambda x, seen=reported: seen.append(x.copy()))
             except _OutOfTime:
@@ -142,8 +142,9 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
             iterations += int(res.nit)
             v = res.x
             achieved = res.fun
-            cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
-                            "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
+            if idx is not None:
+                cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
+                                "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
         q_new = tree.clip(at(v, False))
         done = np.abs(tree.difference(q_new, q_start)).max() < 1e-12
         q_start = q_new
