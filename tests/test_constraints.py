@@ -237,3 +237,21 @@ def test_success_means_every_hard_constraint_holds(seed, wall, step, method):
             assert np.all(steps(tree, res.q, q_prev) <= step + HARD_TOL)
     if step is not None and not wall and method != "optimize":  # the start keeps the limit, so every answer does
         assert np.all(steps(tree, res.q, q_prev) <= step + HARD_TOL)
+
+
+def test_cartesian_env_keeps_max_joint_speed():
+    import gymnasium as gym
+
+    import mjkin.envs  # noqa: F401  (registers the ids)
+
+    speed = 0.5
+    env = gym.make("mjkin/Reach-v0", action_type="cartesian", max_joint_speed=speed)
+    tree = env.unwrapped.tree
+    env.reset(seed=0)
+    prev, worst = env.unwrapped.q.copy(), 0.0
+    for _ in range(20):
+        env.step(np.ones(3, dtype=np.float32))
+        now = env.unwrapped.q.copy()
+        worst = max(worst, steps(tree, now, prev).max())
+        prev = now
+    assert 0 < worst <= speed / 30 + 1e-9
