@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
+from .com import com_many
 from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
 from .frames import Frames, forward
 from .jacobian import check_offset, frame_jacobian_one
@@ -241,6 +242,21 @@ class Tree:
         frame_jacobian_one(self.kin, np.ascontiguousarray(q).reshape(1, -1), body,
                            local if offset is None else moved(local, check_offset(offset)), J)
         return J
+
+    def com(self, q: ArrayLike) -> Array:
+        """Whole-figure centre of mass ``(..., 3)`` (world, m) at ``q (..., nq)``; MuJoCo's ``subtree_com[0]``."""
+        return self._com(q)[0]
+
+    def com_jacobian(self, q: ArrayLike) -> Array:
+        """Jacobian ``(..., 3, nv)`` of :meth:`com`: its velocity is ``J @ v``; MuJoCo's ``mj_jacSubtreeCom(.., 0)``."""
+        return self._com(q)[1]
+
+    def _com(self, q: ArrayLike) -> tuple[Array, Array]:
+        f = self.kinematics(q)
+        B = f.rot.shape[0]
+        C, J = np.empty((B, 3)), np.empty((B, 3, self.nv))
+        com_many(self.kin, f.rot, f.pos, f.inner_rot, f.inner_pos, C, J)
+        return C.reshape(f.batch + (3,)), J.reshape(f.batch + (3, self.nv))
 
 
 # what Tree (and, for contacts, Scene) reads from a model: (element kind, MjModel array, what it is)
