@@ -228,12 +228,23 @@ def solid_distance(kind: int, size: Array, R: Array, c: Array, p: Array, y: Arra
     return d
 
 
-@njit
-def _along(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array, t: float, p: Array, y: Array,
-           n: Array) -> float:
-    for i in range(3):
-        p[i] = a[i] + t * u[i]
-    return solid_distance(kind, size, R, c, p, y, n)
+@njit_inline
+def _local_distance(kind: int, size: Array, x0: float, x1: float, x2: float) -> float:
+    """:func:`solid_distance`'s value alone, for a point ``(x0, x1, x2)`` in the solid's frame."""
+    if kind == BOX:
+        q0, q1, q2 = abs(x0) - size[0], abs(x1) - size[1], abs(x2) - size[2]
+    else:
+        q0, q1, q2 = np.sqrt(x0 * x0 + x1 * x1) - size[0], abs(x2) - size[1], -np.inf
+    out = max(q0, 0.0) ** 2 + max(q1, 0.0) ** 2 + max(q2, 0.0) ** 2
+    return np.sqrt(out) if out > 0.0 else max(q0, q1, q2)
+
+
+@njit_inline
+def _along(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array, t: float) -> float:
+    """:func:`solid_distance` of the point ``a + t u``, its value alone."""
+    p0, p1, p2 = a[0] + t * u[0] - c[0], a[1] + t * u[1] - c[1], a[2] + t * u[2] - c[2]
+    return _local_distance(kind, size, R[0, 0] * p0 + R[1, 0] * p1 + R[2, 0] * p2,
+                           R[0, 1] * p0 + R[1, 1] * p1 + R[2, 1] * p2, R[0, 2] * p0 + R[1, 2] * p1 + R[2, 2] * p2)
 
 
 @njit
@@ -244,27 +255,29 @@ def segment_solid(a: Array, u: Array, kind: int, size: Array, R: Array, c: Array
     Golden-section search of the convex function ``t -> solid_distance``; writes the
     segment's point ``p``, the solid's closest point ``y`` and its normal ``n`` there.
     """
-    lo, hi = 0.0, 1.0
+    best = 0.0
     if u[0] * u[0] + u[1] * u[1] + u[2] * u[2] > 0.0:
+        lo, hi = 0.0, 1.0
         x1, x2 = hi - GOLDEN, GOLDEN
-        f1 = _along(kind, size, R, c, a, u, x1, p, y, n)
-        f2 = _along(kind, size, R, c, a, u, x2, p, y, n)
+        f1, f2 = _along(kind, size, R, c, a, u, x1), _along(kind, size, R, c, a, u, x2)
         for _ in range(GOLDEN_STEPS):
             if f1 <= f2:
                 hi, x2, f2 = x2, x1, f1
                 x1 = hi - GOLDEN * (hi - lo)
-                f1 = _along(kind, size, R, c, a, u, x1, p, y, n)
+                f1 = _along(kind, size, R, c, a, u, x1)
             else:
                 lo, x1, f1 = x1, x2, f2
                 x2 = lo + GOLDEN * (hi - lo)
-                f2 = _along(kind, size, R, c, a, u, x2, p, y, n)
-        best, fb = 0.5 * (lo + hi), _along(kind, size, R, c, a, u, 0.5 * (lo + hi), p, y, n)
+                f2 = _along(kind, size, R, c, a, u, x2)
+        best = 0.5 * (lo + hi)
+        fb = _along(kind, size, R, c, a, u, best)
         for t in (0.0, 1.0):
-            f = _along(kind, size, R, c, a, u, t, p, y, n)
+            f = _along(kind, size, R, c, a, u, t)
             if f < fb:
                 best, fb = t, f
-        return _along(kind, size, R, c, a, u, best, p, y, n)
-    return _along(kind, size, R, c, a, u, 0.0, p, y, n)
+    for i in range(3):
+        p[i] = a[i] + best * u[i]
+    return solid_distance(kind, size, R, c, p, y, n)
 
 
 @njit
@@ -394,27 +407,22 @@ def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1
             for i in range(3):
                 p1[i], p2[i] = q1[i] + s * u1[i], q2[i] + t * u2[i]
         return best
-    d = np.inf  # separated: the nearest of the corner-box and edge-edge pairs
+    d = np.inf  # separated: the nearest of the corner-box and edge-edge pairs, found by value, then placed
+    which = 0  # 0..7 box 1's corners, 8..15 box 2's, 16 + 12 e1 + e2 the edge pairs
     v = np.empty(3)
-    y = np.empty(3)
-    m = np.empty(3)
     a = np.empty(3)
     u = np.empty(3)
     b = np.empty(3)
     w = np.empty(3)
-    for k in range(8):
+    for k in range(8):  # (a corner is the segment's start, t = 0)
         _box_corner(s1, R1, c1, k, v)
-        dk = solid_distance(BOX, s2, R2, c2, v, y, m)
+        dk = _along(BOX, s2, R2, c2, v, D, 0.0)
         if dk < d:
-            d = dk
-            for i in range(3):
-                p1[i], p2[i] = v[i], y[i]
+            d, which = dk, k
         _box_corner(s2, R2, c2, k, v)
-        dk = solid_distance(BOX, s1, R1, c1, v, y, m)
+        dk = _along(BOX, s1, R1, c1, v, D, 0.0)
         if dk < d:
-            d = dk
-            for i in range(3):
-                p1[i], p2[i] = y[i], v[i]
+            d, which = dk, 8 + k
     for e1 in range(12):
         _box_edge(s1, R1, c1, e1, a, u)
         for e2 in range(12):
@@ -423,9 +431,19 @@ def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1
             dk = np.sqrt((b[0] + t * w[0] - a[0] - s * u[0]) ** 2 + (b[1] + t * w[1] - a[1] - s * u[1]) ** 2
                          + (b[2] + t * w[2] - a[2] - s * u[2]) ** 2)
             if dk < d:
-                d = dk
-                for i in range(3):
-                    p1[i], p2[i] = a[i] + s * u[i], b[i] + t * w[i]
+                d, which = dk, 16 + 12 * e1 + e2
+    if which < 8:
+        _box_corner(s1, R1, c1, which, p1)
+        d = solid_distance(BOX, s2, R2, c2, p1, p2, n)
+    elif which < 16:
+        _box_corner(s2, R2, c2, which - 8, p2)
+        d = solid_distance(BOX, s1, R1, c1, p2, p1, n)
+    else:
+        _box_edge(s1, R1, c1, (which - 16) // 12, a, u)
+        _box_edge(s2, R2, c2, (which - 16) % 12, b, w)
+        s, t = segments_closest(a, u, b, w)
+        for i in range(3):
+            p1[i], p2[i] = a[i] + s * u[i], b[i] + t * w[i]
     for i in range(3):
         n[i] = (p2[i] - p1[i]) / d
     return d
@@ -449,8 +467,8 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
     ga, gb = (g2, g1) if swap else (g1, g2)
     qa, qb = (p2, p1) if swap else (p1, p2)
     ta, tb = geoms.type[ga], geoms.type[gb]
-    Ra, Rb = np.empty((3, 3)), np.empty((3, 3))
-    ca, cb = np.empty(3), np.empty(3)
+    frames, points = np.empty((2, 3, 3)), np.empty((7, 3))  # two allocations, the rest views (see mjkin.jit)
+    Ra, Rb, ca, cb = frames[0], frames[1], points[0], points[1]
     geom_world(geoms, rot, pos, ga, Ra, ca)
     geom_world(geoms, rot, pos, gb, Rb, cb)
     sa, sb = geoms.size[ga], geoms.size[gb]
@@ -460,7 +478,7 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
             qa[i] = qb[i] = n[i] = np.nan
         return d
     if ta == PLANE:  # the other geom's deepest point below the plane z = 0
-        v = np.empty(3)
+        v = points[2]
         for i in range(3):
             n[i] = Ra[i, 2]
             v[i] = -n[i]
@@ -471,10 +489,10 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
     elif tb == BOX and ta == BOX:
         d = box_box(sa, Ra, ca, sb, Rb, cb, qa, qb, n)
     else:  # a sphere or capsule against a sphere, capsule, cylinder or box
-        a, u = np.empty(3), np.empty(3)
+        a, u = points[3], points[4]
         ra = _core(ta, sa, Ra, ca, a, u)
         if tb == SPHERE or tb == CAPSULE:
-            b, w = np.empty(3), np.empty(3)
+            b, w = points[5], points[6]
             rb = _core(tb, sb, Rb, cb, b, w)
             s, t = segments_closest(a, u, b, w)
             for i in range(3):
