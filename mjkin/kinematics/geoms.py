@@ -248,14 +248,63 @@ def _along(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array, t: fl
 
 
 @njit
+def _segment_hits_box(a: Array, u: Array, size: Array, R: Array, c: Array) -> bool:
+    """Whether the segment ``a + t u`` meets the box (slab clipping in the box's frame)."""
+    lo, hi = 0.0, 1.0
+    for i in range(3):
+        x = R[0, i] * (a[0] - c[0]) + R[1, i] * (a[1] - c[1]) + R[2, i] * (a[2] - c[2])
+        v = R[0, i] * u[0] + R[1, i] * u[1] + R[2, i] * u[2]
+        if v == 0.0:
+            if abs(x) > size[i]:
+                return False
+            continue
+        t1, t2 = (-size[i] - x) / v, (size[i] - x) / v
+        lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+        if lo > hi:
+            return False
+    return True
+
+
+@njit
+def _segment_box_apart(a: Array, u: Array, size: Array, R: Array, c: Array, p: Array, y: Array,
+                       n: Array) -> float:
+    """:func:`segment_solid` for a segment clear of a box: the nearest of its ends and the box's edges (exact)."""
+    d, best = _along(BOX, size, R, c, a, u, 0.0), 0.0  # best: the segment's end t (0, 1), or -1 - edge k
+    f = _along(BOX, size, R, c, a, u, 1.0)
+    if f < d:
+        d, best = f, 1.0
+    e, w = np.empty(3), np.empty(3)
+    for k in range(12):
+        _box_edge(size, R, c, k, e, w)
+        s, t = segments_closest(a, u, e, w)
+        f = np.sqrt((e[0] + t * w[0] - a[0] - s * u[0]) ** 2 + (e[1] + t * w[1] - a[1] - s * u[1]) ** 2
+                    + (e[2] + t * w[2] - a[2] - s * u[2]) ** 2)
+        if f < d:
+            d, best = f, -1.0 - k
+    if best >= 0.0:
+        for i in range(3):
+            p[i] = a[i] + best * u[i]
+        return solid_distance(BOX, size, R, c, p, y, n)
+    _box_edge(size, R, c, int(-1.0 - best), e, w)
+    s, t = segments_closest(a, u, e, w)
+    for i in range(3):
+        p[i], y[i] = a[i] + s * u[i], e[i] + t * w[i]
+        n[i] = (p[i] - y[i]) / d
+    return d
+
+
+@njit
 def segment_solid(a: Array, u: Array, kind: int, size: Array, R: Array, c: Array, p: Array, y: Array,
                   n: Array) -> float:
     """Least signed distance of the segment ``a + t u`` (``t`` in ``[0, 1]``) from a box or cylinder.
 
-    Golden-section search of the convex function ``t -> solid_distance``; writes the
-    segment's point ``p``, the solid's closest point ``y`` and its normal ``n`` there.
+    Golden-section search of the convex function ``t -> solid_distance`` (a segment
+    clear of a box: its ends and the box's edges, exact); writes the segment's point
+    ``p``, the solid's closest point ``y`` and its normal ``n`` there.
     """
     best = 0.0
+    if kind == BOX and not _segment_hits_box(a, u, size, R, c):
+        return _segment_box_apart(a, u, size, R, c, p, y, n)
     if u[0] * u[0] + u[1] * u[1] + u[2] * u[2] > 0.0:
         lo, hi = 0.0, 1.0
         x1, x2 = hi - GOLDEN, GOLDEN
