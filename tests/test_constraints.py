@@ -255,3 +255,84 @@ def test_cartesian_env_keeps_max_joint_speed():
         worst = max(worst, steps(tree, now, prev).max())
         prev = now
     assert 0 < worst <= speed / 30 + 1e-9
+
+
+# ------------------------------------------------------------------ Clearance
+OBSTACLES = ('<geom name="ob0" type="sphere" size="0.1" pos="0.35 0.2 0.6"/>'
+             '<geom name="ob1" type="sphere" size="0.08" pos="0.3 -0.25 0.45"/>'
+             '<geom name="ob2" type="sphere" size="0.1" pos="-0.3 0.3 0.7"/>'
+             '<geom name="table" type="box" size="0.3 0.3 0.02" pos="0.55 0 0.25"/>')
+
+
+def cluttered(name="arm7"):
+    """A bundled arm among three spheres and a table (the flange, a cylinder, meets the box: bounded)."""
+    xml = mjkin.bundled_models()[name].read_text().replace("<worldbody>", "<worldbody>" + OBSTACLES, 1)
+    return tree_of(xml)
+
+
+def mujoco_clearance(tree, q):
+    """The least signed distance over MuJoCo's contact pairs by ``mujoco.mj_geomDistance`` (the oracle)."""
+    from mjkin.kinematics.geoms import contact_pairs, fallback_distance
+
+    return min(fallback_distance(tree, q, int(a), int(b))[0] for a, b in contact_pairs(tree))
+
+
+def test_clearance_rows_are_the_closest_pairs_with_their_gradients(rng):
+    from mjkin.kinematics.geoms import contact_pairs, distance_jacobians
+
+    tree = cluttered()
+    goal = G.Clearance(0.02, closest=4)
+    for q in tree.random_q(rng, 5):
+        g, J, _ = evaluate(tree, goal, q)
+        d, Jd = distance_jacobians(tree, q, contact_pairs(tree))
+        near = np.sort(d)[:4] - 0.02
+        live = near < G.Clearance.REACH
+        np.testing.assert_allclose(g[0][live], near[live], atol=1e-9)
+        np.testing.assert_allclose(g[0][~live], G.Clearance.REACH)
+        for r in np.flatnonzero(live):
+            p = int(np.argmin(np.abs(d - 0.02 - g[0, r])))
+            np.testing.assert_allclose(J[0, r], Jd[p], atol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["lm", "auto", "optimize"])
+def test_clearance_holds_on_every_success_by_mujoco(method):
+    tree = cluttered()
+    rng = np.random.default_rng(4)
+    qs = tree.random_q(rng, 60)
+    qs = qs[tree.distances(qs).min(axis=1) >= 0.02][:8]  # targets that a clear pose reaches
+    goal = G.Clearance(0.02)
+    wins = 0
+    for q in qs:
+        res = mjkin.solve(tree, [G.Position("ee", tree.pose(q, "ee")[:3, 3]), goal], method=method)
+        if res.success:
+            wins += 1
+            assert mujoco_clearance(tree, res.q) >= 0.02 - HARD_TOL
+        elif res.status == "constraint":
+            assert res.goals[int(res.binding)] is goal
+    assert wins >= len(qs) - 2
+
+
+def test_avoid_collisions_is_a_clearance_that_moves_only_what_it_may():
+    tree = cluttered()
+    q0 = tree.model.key_qpos[0]
+    target = tree.pose(tree.random_q(np.random.default_rng(8)), "ee")[:3, 3]
+    res = mjkin.solve(tree, G.Position("ee", target), q0=q0, avoid_collisions=True, joints=["j2", "j3", "j4"])
+    assert isinstance(res.goals[-1], G.Clearance)
+    moved = np.flatnonzero(np.abs(res.q - q0) > 0)
+    assert set(moved) <= {int(tree.jnt_qadr[tree.id(j, "joint")]) for j in ("j2", "j3", "j4")}
+    if res.success:
+        assert not mjkin.scene.Scene(tree).in_collision(res.q)
+
+
+@pytest.mark.parametrize("kwargs,error,match", [
+    ({"margin": float("nan")}, GoalError, "margin"),
+    ({"margin": "1"}, GoalError, "margin"),
+    ({"pairs": [("ob0",)]}, GoalError, "pairs"),
+    ({"pairs": [("ob0", "nothing")]}, mjkin.UnknownNameError, "nothing"),
+    ({"pairs": [(0, 99)]}, GoalError, "99"),
+])
+def test_bad_clearance_fails_in_one_line(kwargs, error, match):
+    tree = cluttered()
+    with pytest.raises(error, match=match) as info:
+        mjkin.solve(tree, [G.Position("ee", [0.3, 0, 0.5]), G.Clearance(**kwargs)])
+    assert "\n" not in str(info.value)

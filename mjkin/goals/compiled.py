@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics
+from ..kinematics.geoms import Geoms
 from ..kinematics.jacobian import jacobian_kernel
 
 Array = NDArray[np.float64]
@@ -42,6 +43,8 @@ class GoalArrays(NamedTuple):
     level_rows: Index  # (L + 1,)
     counted: NDArray[np.bool_]  # (G,)
     hard: NDArray[np.bool_]  # (G,) a hard constraint (its rows, first of all, are values s >= 0 and ds/dv)
+    geoms: Geoms  # the model's geoms, for distances
+    pairs: Index  # (P, 3) geom pairs [geom1, geom2, goal] that goals keep apart (each goal's contiguous)
 
 
 @njit

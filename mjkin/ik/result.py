@@ -47,8 +47,7 @@ class Result:
             move), ``"limits"`` (stalled with a joint limit blocking the way), ``"max_iterations"``,
             ``"timeout"`` (the ``timeout`` ran out first), ``"constraint"`` (stalled with a hard
             constraint holding the answer back, or no pose found that keeps every hard constraint:
-            :attr:`binding` names it) or ``"collision"`` (``avoid_collisions``: every pose found was in
-            contact).
+            :attr:`binding` names it; with ``avoid_collisions``, the contact that could not be avoided).
         goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (hard constraints first, then by
             priority); a hard constraint's is its violation (how far its lowest row is below zero).
         goals: the goals as solved.
