@@ -184,7 +184,11 @@ class Problem:
         return hinges[~np.isin(hinges, coupled)]
 
     def _active_dofs(self) -> NDArray[np.bool_]:
-        """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies."""
+        """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies.
+
+        With ``avoid_collisions``, only dofs that move a goal frame (an object's joints are not
+        pushed aside to make room).
+        """
         tree = self.tree
         active = np.ones(tree.nv, dtype=bool)
         if self.joints is not None:
@@ -199,6 +203,12 @@ class Problem:
                 chain = set(tree.body_dofs[body].tolist()) - set(tree.body_dofs[b].tolist())
                 below[list(chain)] = True
             active &= below
+        bodies = {int(x) for x in self.structure.body if x >= 0}
+        if self.avoid_collisions and bodies:  # keeping clear moves only the joints that move the goal frames
+            moving = np.zeros(tree.nv, dtype=bool)
+            for body in bodies:
+                moving[tree.body_dofs[body]] = True
+            active &= moving
         return active
 
     def _restart_q(self) -> NDArray[np.bool_]:

@@ -21,7 +21,7 @@ ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True,
-                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,all}",
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,constraints,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -81,6 +81,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     s = sub.add_parser("retarget", help="the shared BVH clips onto the primate and the G1: skate, floor, speed")
     s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
+    common(s)
+
+    s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "
+                                           "(arm7, Panda among obstacles)")
+    s.add_argument("--targets", type=positive_int, default=200, help="targets per model (default 200)")
+    s.add_argument("--margin", type=positive_float, default=0.01, help="clearance, m (default 0.01)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
