@@ -86,7 +86,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "
                                            "(arm7, Panda among obstacles)")
     s.add_argument("--targets", type=positive_int, default=200, help="targets per model (default 200)")
-    s.add_argument("--margin", type=positive_float, default=0.01, help="clearance, m (default 0.01)")
+    s.add_argument("--margin", type=positive_float, default=0.005,
+                   help="clearance, m (default 0.005: the Panda's link0-link1 pair is never more than 8 mm apart)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")

@@ -37,7 +37,7 @@ def clearance(tree: Tree, q: np.ndarray) -> float:
     return min(fallback_distance(tree, q, int(a), int(b))[0] for a, b in contact_pairs(tree))
 
 
-def bench_constraints(targets: int = 200, margin: float = 0.01, seed: int = 0) -> Report:
+def bench_constraints(targets: int = 200, margin: float = 0.005, seed: int = 0) -> Report:
     """Solve ``targets`` reachable, clear positions per model three ways; success, violations, median time."""
     rows = [row for name, frame in MODELS.items() for row in _model_rows(name, frame, targets, margin, seed)]
     return Report({f"constraints (clearance >= {margin} m; MuJoCo mj_geomDistance re-check; one thread)": rows},
