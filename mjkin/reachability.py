@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import goals as G
 from . import spatial
-from .checks import check_count, check_number
+from .checks import check_count, check_number, shown
 from .errors import InputError, MjkinIOError
 from .files import atomic_path
 from .ik.evaluate import singular_values
@@ -115,7 +115,7 @@ def _orientations(orientations: int | ArrayLike) -> tuple[Array, str]:
     quat = np.asarray(orientations, dtype=np.float64)
     if quat.ndim != 2 or quat.shape[1] != 4 or not len(quat) or not np.all(np.isfinite(quat)) or np.any(
             np.linalg.norm(quat, axis=-1) < 1e-9):
-        raise InputError(f"orientations must be a count or (K, 4) quaternions (w, x, y, z), got {orientations!r:.80}")
+        raise InputError(f"orientations must be a count or (K, 4) quaternions (w, x, y, z), got {shown(orientations)}")
     return spatial.quat_to_mat(spatial.quat_normalize(quat)), "xyz"
 
 
@@ -319,7 +319,7 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
     targets = _poses(poses)
     box = np.asarray(region, dtype=np.float64)
     if box.shape != (4,) or not np.all(np.isfinite(box)) or box[2] < box[0] or box[3] < box[1]:
-        raise InputError(f"region must be x_min, y_min, x_max, y_max with min <= max, got {region!r:.80}")
+        raise InputError(f"region must be x_min, y_min, x_max, y_max with min <= max, got {shown(region)}")
     map_keys = ("resolution", "orientations", "samples", "seed", "cache", "restarts")
     map_options = {k: options.pop(k) for k in map_keys if k in options}
     cap = capability or reachability(tree, frame, kind=kind, tol=tol, rot_tol=rot_tol, **map_options)

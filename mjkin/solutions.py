@@ -96,7 +96,7 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
     if len(q):
         q = _polish(problem, given, _distinct(tree, q, merge))
         q = _distinct(tree, q[_checked(problem, given, q)], merge)
-    q = q[np.argsort(_distance(tree, q, tree.qpos0[None]), kind="stable")]
+    q = q[np.argsort(joint_distance(tree, q, tree.qpos0[None]), kind="stable")]
     if max_solutions is not None and len(q) > max_solutions:
         q = q[np.sort(_spread(tree, q, max_solutions))]
     return _result(problem, found, given, q)
@@ -114,7 +114,7 @@ def _periodic(tree: Tree) -> NDArray[np.int64]:
     return tree.jnt_dofadr[wide]
 
 
-def _distance(tree: Tree, a: Array, b: Array) -> Array:
+def joint_distance(tree: Tree, a: Array, b: Array) -> Array:
     """Largest joint difference ``(...)`` between ``a`` and ``b`` (broadcast ``(..., nq)``), wide hinges modulo 2π."""
     v = tree.difference(a, b)
     p = _periodic(tree)
@@ -126,7 +126,7 @@ def _distinct(tree: Tree, q: Array, merge: float) -> Array:
     """The rows of ``q (n, nq)`` that differ by more than ``merge`` from every earlier kept one."""
     kept: list[int] = []
     for i in range(len(q)):
-        if not kept or _distance(tree, q[kept], q[i][None]).min() > merge:
+        if not kept or joint_distance(tree, q[kept], q[i][None]).min() > merge:
             kept.append(i)
     return q[kept]
 
@@ -134,11 +134,11 @@ def _distinct(tree: Tree, q: Array, merge: float) -> Array:
 def _spread(tree: Tree, q: Array, k: int) -> NDArray[np.int64]:
     """Indices of ``k`` rows of ``q (n, nq)`` chosen by farthest-point sampling from row 0."""
     chosen = [0]
-    near = _distance(tree, q, q[0][None])
+    near = joint_distance(tree, q, q[0][None])
     while len(chosen) < k:
         i = int(np.argmax(near))
         chosen.append(i)
-        near = np.minimum(near, _distance(tree, q, q[i][None]))
+        near = np.minimum(near, joint_distance(tree, q, q[i][None]))
     return np.array(chosen)
 
 
@@ -162,7 +162,7 @@ def _errors(problem: Problem, given: tuple[Goal, ...], q: Array) -> tuple[Array,
     _, _, err = evaluate_program(tree, prog, np.ascontiguousarray(q))
     worst, met = np.empty((k, 2)), np.empty(k, dtype=bool)
     summarise(err, prog.counted, problem.tol, problem.rot_tol, worst, met)
-    return err, worst, met & (_distance(tree, q, tree.clip(q)) <= 1e-12)
+    return err, worst, met & (joint_distance(tree, q, tree.clip(q)) <= 1e-12)
 
 
 def _checked(problem: Problem, given: tuple[Goal, ...], q: Array) -> NDArray[np.bool_]:

@@ -25,7 +25,7 @@ from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load, source_of
-from . import bench, retarget_cli
+from . import bench, placement_cli, retarget_cli
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
 
 if TYPE_CHECKING:
@@ -620,6 +620,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--samples", type=positive_int, default=100_000, help="random configurations (default 100000)")
     s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
     s.set_defaults(run=cmd_workspace)
+
+    s = sub.add_parser("reachability", help="a frame's capability map (share of orientations IK reaches per voxel), "
+                                            "one slice plotted (.png)")
+    placement_cli.reachability_arguments(s)
+    s.set_defaults(run=placement_cli.run_reachability)
+
+    s = sub.add_parser("place-base", help="where to put the base so a frame reaches the poses: ranked on the "
+                                          "capability map, verified by IK, heat map (.png)")
+    placement_cli.place_base_arguments(s)
+    s.set_defaults(run=placement_cli.run_place_base)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     bench.add_arguments(s)
