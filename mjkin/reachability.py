@@ -40,6 +40,9 @@ Array = NDArray[np.float64]
 VERSION = 1  # of the cache files' contents
 SAMPLES = 20_000  # random configurations: the box, and the start of each voxel's solves
 NEAREST = 8  # of the samples nearest a voxel, the start is the one whose z axis is nearest the asked direction
+# restarts of a voxel's solve: on the Panda's map (0.15 m, 12 directions) agreement with brute-force IK (64 restarts)
+# on 1000 random entries was 98.7 % with 2, 99.8 % with 6 (build 9 s -> 11 s)
+RESTARTS = 6
 TOL, ROT_TOL = 1e-4, 1e-3  # a capability map's tolerances (m, rad), as mjkin bench ik's
 
 
@@ -129,7 +132,7 @@ def _cache_file(folder: str | os.PathLike[str], tree: Tree, parts: tuple) -> Pat
 def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientations: int | ArrayLike = 16,
                  kind: str | None = None, samples: int = SAMPLES, seed: int = 0,
                  cache: str | os.PathLike[str] | None = None, tol: float = TOL, rot_tol: float = ROT_TOL,
-                 restarts: int = 2, **options: Any) -> ReachabilityMap:
+                 restarts: int = RESTARTS, **options: Any) -> ReachabilityMap:
     """The capability map of ``frame``: for each voxel, which of a fixed set of orientations IK reaches.
 
     Args:

@@ -33,40 +33,48 @@ from .kinematics.qspace import HINGE
 from .kinematics.tree import Tree
 
 Array = NDArray[np.float64]
-STARTS = 128  # seeded starts: on the UR-type and spherical-wrist arms every analytic solution was found (README)
+STARTS = 128  # seeded starts per round
+ROUNDS = 8  # rounds of starts at most: another while the last found a new solution
+SPREAD_POOL = 4  # with max_solutions = k, rounds stop once 4 k distinct solutions are there to spread from
+MAX_ITERS = 200  # near a wrist singularity LM creeps: at 50 iterations 7 % of starts converged, at 200 most
 MERGE = 1e-3  # solutions closer than this (largest joint difference, rad or m) are one
 POLISH = 1e-3  # the polish run's tolerances, as a share of the caller's
 
 
 def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | None = None, starts: int = STARTS,
-              merge: float = MERGE, seed: int = 0, **options: Any) -> Result:
+              rounds: int = ROUNDS, merge: float = MERGE, seed: int = 0, **options: Any) -> Result:
     """The distinct configurations that meet ``goal`` inside the joint limits.
 
-    ``starts`` seeded quasi-random starts (the joints that move a goal frame; the
-    others keep ``qpos0``) are solved as one batch of :class:`mjkin.Problem`, the
-    converged ones merged when no joint differs by more than ``merge`` (unlimited
+    Rounds of ``starts`` seeded quasi-random starts (one scrambled Sobol sequence over
+    the joints that move a goal frame; the others keep ``qpos0``) are solved, each
+    round as one batch of :class:`mjkin.Problem`, until a round finds no new solution
+    (at most ``rounds``); the converged ones are merged when no joint differs by more than ``merge`` (unlimited
     hinges, and hinges whose range spans a full turn, compared modulo 2π: ``q`` and
     ``q + 2π`` are one solution), polished from one representative each at a
     thousandth of the tolerances, and checked again by FK against ``tol`` and
     ``rot_tol``; only those that pass are returned.
 
     A 6-axis arm has finitely many solutions (a UR-type arm and one with a spherical
-    wrist up to 8): with the default 128 starts all of them were found on 100 % of
-    1000 random poses of each (README, ``mjkin bench solutions``). A redundant chain
-    (a 7-DoF arm under a pose goal) has continuous self-motion families instead: the
-    answer is then a spread of them — the distinct converged starts, thinned by
-    farthest-point sampling to ``max_solutions`` — not every solution.
+    wrist up to 8): on 1000 random poses of each, all were found except at poses
+    within a hair of a wrist singularity (README, ``mjkin bench solutions``). A
+    redundant chain (a 7-DoF arm under a pose goal) has continuous self-motion
+    families instead: every round finds new members, so all ``rounds`` run (or until
+    ``4 * max_solutions`` are there), and the answer is a spread of the families — the
+    distinct converged starts, thinned by farthest-point sampling to ``max_solutions``
+    — not every solution.
 
     Args:
         tree: the kinematic tree.
         goal: one goal or several with unbatched targets (see :mod:`mjkin.goals`).
         max_solutions: return at most this many, the most spread out (farthest-point
             sampling from the one nearest ``qpos0``); None: all found.
-        starts: number of seeded starts.
+        starts: seeded starts per round.
+        rounds: most rounds of starts.
         merge: largest joint difference (rad or m) of two configurations counted as one.
         seed: seeds the starts (the same seed, the same answer).
         **options: :class:`mjkin.Problem` options (``method``, ``tol``, ``rot_tol``,
-            ``base``, ``joints``, the method's own; ``restarts`` defaults to 0: the starts are the restarts).
+            ``base``, ``joints``, the method's own; ``restarts`` defaults to 0 (the starts are the
+            restarts) and ``max_iters`` to 200).
 
     Returns:
         A :class:`mjkin.Result` with ``q (k, nq)`` sorted by distance from ``qpos0``, ``success``
@@ -87,19 +95,47 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
         raise GoalError("solutions takes one target per goal (no leading batch axis); call it once per target")
     if not isinstance(options.get("method"), Method):
         options.setdefault("restarts", 0)
+        options.setdefault("max_iters", MAX_ITERS)
     many = tuple(_repeated(g, n) for g in given)
     problem = Problem(tree, many, seed=seed, **options)
     rng = np.random.default_rng(seed)
-    q0 = np.where(problem.restart_q, qspace.random(tree, rng, n, spread=True), tree.qpos0)
-    found = problem.solve(q0)
-    q = found.q[found.success]
+    pool = np.where(problem.restart_q, qspace.random(tree, rng, n * check_count(rounds, "rounds"), spread=True),
+                    tree.qpos0)
+    q = np.zeros((0, tree.nq))
+    for r in range(rounds):
+        starts_r = pool[r * n:(r + 1) * n]
+        if len(q):
+            starts_r = np.concatenate([starts_r[:n // 2], _recombined(problem, q, starts_r[n // 2:], rng)])
+        found = problem.solve(starts_r)
+        converged = found.q[found.success]
+        if len(converged):  # polished before merging: near a singularity the 1e-6 band spans many merge widths
+            converged = _polish(problem, given, _distinct(tree, converged, merge))
+        more = _distinct(tree, np.concatenate([q, converged]), merge)
+        grew, q = len(more) > len(q), more
+        if (r and not grew) or (max_solutions is not None and len(q) >= SPREAD_POOL * max_solutions):
+            break
     if len(q):
-        q = _polish(problem, given, _distinct(tree, q, merge))
         q = _distinct(tree, q[_checked(problem, given, q)], merge)
     q = q[np.argsort(joint_distance(tree, q, tree.qpos0[None]), kind="stable")]
     if max_solutions is not None and len(q) > max_solutions:
         q = q[np.sort(_spread(tree, q, max_solutions))]
     return _result(problem, found, given, q)
+
+
+def _recombined(problem: Problem, q: Array, fresh: Array, rng: np.random.Generator) -> Array:
+    """Starts ``(m, nq)``: rows of the solutions ``q (k, nq)`` with half the moving joints from ``fresh (m, nq)``.
+
+    Each start keeps the first or the second half of a random solution's moving joints and takes
+    the rest from ``fresh``. Solutions of one pose often share half their joints (a spherical
+    wrist's flip keeps the arm's three; the arm's configurations share one wrist pose), so such a
+    start lands near a missing solution more often than a fully random one.
+    """
+    idx = np.flatnonzero(problem.restart_q)
+    first = rng.random(len(fresh)) < 0.5
+    mask = np.zeros(fresh.shape, dtype=bool)
+    mask[:, idx[:len(idx) // 2]] = first[:, None]
+    mask[:, idx[len(idx) // 2:]] = ~first[:, None]
+    return np.where(mask, fresh, q[rng.integers(0, len(q), len(fresh))])
 
 
 def _repeated(g: Goal, n: int) -> Goal:

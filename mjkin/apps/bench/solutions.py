@@ -21,6 +21,7 @@ from .arms import ARMS, CLOSED_FORMS, mjcf
 from .report import Report, Row, gc_paused
 
 MATCH = 1e-4  # an analytic solution counts as found when a returned one is this close (largest joint difference, rad)
+SINGULAR = 1e-3  # a pose is near a wrist singularity when |sin q5| is below this
 MAP = {"resolution": 0.15, "orientations": 12}  # the Panda's map
 BRUTE_RESTARTS = 64  # restarts of the brute-force check of a map entry
 
@@ -32,20 +33,23 @@ def _all_found(name: str, n: int, seed: int) -> Row:
     q = tree.random_q(rng, n)
     T = tree.pose(q, "ee")
     solutions(tree, G.Pose("ee", T[0]))  # warm-up: kernels compiled, the goal structure cached
-    found, extra, counts, times = 0, 0, [], []
+    extra, counts, times = 0, [], []
+    singular, hit = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     with gc_paused():
         for i in range(n):
             ref = CLOSED_FORMS[name](dh_fk(ARMS[name], q[i]))
+            singular[i] = np.abs(np.sin(q[i, 4])) < SINGULAR  # q5 is the wrist's bend on both arms
             start = time.perf_counter()
             res = solutions(tree, G.Pose("ee", T[i]))
             times.append(time.perf_counter() - start)
             d = joint_distance(tree, res.q[:, None], ref[None]) if len(res.q) else np.full((0, len(ref)), np.inf)
-            found += bool(len(ref)) and bool(np.all(d.min(0, initial=np.inf) < MATCH))
+            hit[i] = bool(len(ref)) and bool(np.all(d.min(0, initial=np.inf) < MATCH))
             extra += int(np.sum(d.min(1, initial=np.inf) >= MATCH))
             counts.append(len(ref))
     ms = 1000 * np.array(times)
     return {"arm": name, "poses": n, "analytic_mean": round(float(np.mean(counts)), 2),
-            "all_found_pct": round(100 * found / n, 1), "not_analytic": extra,
+            "all_found_pct": round(100 * float(hit.mean()), 1), "near_singular": int(singular.sum()),
+            "all_found_pct_regular": round(100 * float(hit[~singular].mean()), 1), "not_analytic": extra,
             "median_ms": round(float(np.median(ms)), 1), "p95_ms": round(float(np.percentile(ms, 95)), 1)}
 
 
