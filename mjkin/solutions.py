@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .checks import check_count, check_number
-from .errors import GoalError
+from .errors import GoalError, InputError
 from .goals import Goal
 from .goals.program import as_goals, encode
 from .ik.evaluate import evaluate_program
@@ -91,6 +91,8 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
         check_count(max_solutions, "max_solutions")
     merge = check_number(merge, "merge", 0, strict=True)
     given = as_goals(goal)
+    if "root" in options:
+        raise InputError("solutions takes no root= (a planted body's pose comes from one q0; solutions have many)")
     if any(g.batch() != () for g in given):
         raise GoalError("solutions takes one target per goal (no leading batch axis); call it once per target")
     if not isinstance(options.get("method"), Method):

@@ -103,6 +103,13 @@ def test_reachability_bad_input_is_one_line(ur, bad, text):
     assert "\n" not in str(info.value)
 
 
+def test_ik_command_says_what_is_proven(capsys):
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "3,0,0.5", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["reason"] == "out_of_reach"
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "3,0,0.5"]) == 0
+    assert "proven out of reach" in capsys.readouterr().out
+
+
 def test_commands_write_their_plots(tmp_path, capsys):
     model = tmp_path / "ur.xml"
     model.write_text(mjcf("ur"))

@@ -101,6 +101,7 @@ def test_no_solution_says_why():
     ({"starts": 0}, mjkin.InputError),
     ({"max_solutions": -1}, mjkin.InputError),
     ({"merge": float("nan")}, mjkin.InputError),
+    ({"root": "link1"}, mjkin.InputError),
 ])
 def test_bad_input_is_one_line(bad, error):
     tree = mjkin.load("arm7")

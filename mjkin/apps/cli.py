@@ -238,12 +238,14 @@ def cmd_ik(args: argparse.Namespace) -> int:
     q = display_q(tree, res.q)
     report = {"q": q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
-              "method": res.method}
+              "method": res.method, "reason": str(res.reason)}
     if args.json:
         print(strict_json(report))
     else:
+        why = {"out_of_reach": "; proven out of reach", "limits": "; proven blocked by the joint limits",
+               "not_found": "; not proven unreachable"}.get(str(res.reason), "")
         print(f"{'success' if res.success else 'failed'}: {res.status} after {report['iterations']} iterations, "
-              f"{report['restarts']} restarts ({res.method})")
+              f"{report['restarts']} restarts ({res.method}){why}")
         print(f"position error {res.error[0]:.3g} m, rotation error {res.error[1]:.3g} rad"
               + ("" if args.quat is not None else " (not a goal)"))
         print("q " + fixed(q))
