@@ -38,6 +38,38 @@ def test_closed_forms_are_right():
             assert np.abs(np.angle(np.exp(1j * (ref - q)))).max(-1).min() < 1e-6  # the pose's own q is among them
 
 
+def axes_and_offsets(tree: mjkin.Tree, intersecting: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IK-Geo's description of a 6-axis chain at q = 0: axes ``H (6, 3)``, offsets ``P (7, 3)``, the tool's rotation.
+
+    Anchors of axes ``i`` and ``i + 1`` (``i`` in ``intersecting``) are moved along them to their common point.
+    """
+    T0 = tree.fk(tree.qpos0)
+    H = np.array([T0[tree.jnt_body[j]][:3, :3] @ tree.jnt_axis[j] for j in range(6)])
+    A = np.array([T0[tree.jnt_body[j]][:3, :3] @ tree.jnt_pos[j] + T0[tree.jnt_body[j]][:3, 3] for j in range(6)])
+    for i in intersecting:
+        s, *_ = np.linalg.lstsq(np.stack([H[i], -H[i + 1]], 1), A[i + 1] - A[i], rcond=None)
+        A[i] = A[i + 1] = A[i] + s[0] * H[i]
+    E = tree.pose(tree.qpos0, "ee")
+    return H, np.vstack([A[0], np.diff(A, axis=0), E[:3, 3] - A[5]]), E[:3, :3]
+
+
+@pytest.mark.parametrize("name, kind, intersecting", [("ur", "three_parallel_two_intersecting", [4]),
+                                                      ("spherical", "spherical_two_parallel", [3, 4])])
+def test_closed_forms_agree_with_ik_geo(arms, name, kind, intersecting):
+    """The closed forms give IK-Geo's solutions (its Python binding takes and gives rotations transposed)."""
+    ik_geo = pytest.importorskip("ik_geo", reason="ik-geo (PyPI) is an optional check of the closed forms")
+    tree = arms[name]
+    H, P, R0 = axes_and_offsets(tree, intersecting)
+    robot = getattr(ik_geo.Robot, kind)(H.tolist(), P.tolist())
+    for q in tree.random_q(np.random.default_rng(5), 20):
+        T = tree.pose(q, "ee")
+        theirs = np.array([s for s, least_squares in robot.get_ik((T[:3, :3] @ R0.T).T.tolist(), T[:3, 3].tolist())
+                           if not least_squares]).reshape(-1, 6)
+        ours = CLOSED_FORMS[name](dh_fk(ARMS[name], q))
+        assert len(theirs) == len(ours)
+        assert joint_distance(tree, theirs[:, None], ours[None]).min(0).max() < 1e-6
+
+
 @pytest.mark.parametrize("name", list(ARMS))
 def test_every_analytic_solution_is_found(arms, name):
     tree, rng = arms[name], np.random.default_rng(1)
