@@ -48,6 +48,15 @@ def test_map_agrees_with_ik_and_the_reach_bound(ur, ur_map):
     assert m.at(centres[cells]).shape == (60,) and m.at([100.0, 0, 0]) == 0
 
 
+def test_whole_orientations_from_quaternions(ur, ur_map):
+    """Quaternions ask for whole orientations: never more reached than their z axes alone would be."""
+    quats = mjkin.spatial.mat_to_quat(ur_map.orientations)
+    full = mjkin.reachability(ur, "ee", **{**SMALL, "orientations": quats})
+    assert full.axes == "xyz" and ur_map.axes == "z" and full.reached.shape == ur_map.reached.shape
+    assert full.reached.sum() < ur_map.reached.sum()
+    assert np.mean(full.reached <= ur_map.reached) > 0.99
+
+
 def test_cache_round_trip(ur, ur_map, tmp_path, monkeypatch):
     first = mjkin.reachability(ur, "ee", cache=tmp_path, **SMALL)
     assert len(list(tmp_path.glob("reachability-*.npz"))) == 1

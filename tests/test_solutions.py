@@ -149,19 +149,37 @@ def arm7() -> mjkin.Tree:
     return mjkin.load("arm7")
 
 
-@settings(max_examples=25)
-@given(seed=st.integers(0, 2**32 - 1))
-def test_a_reachable_target_is_never_proven_out_of_reach(arm7, seed):
-    """Sample q, FK: that target is reachable, so a failed solve (one iteration) may say not_found, never a proof."""
+FRAMES = {"arm7": "ee", "ball_chain": "tip", "planar_prismatic": "tip", "panda": "flange", "primate": "left_hand"}
+
+
+@pytest.fixture(scope="module")
+def models() -> dict[str, mjkin.Tree]:
+    return {name: mjkin.load(name) for name in FRAMES}
+
+
+@settings(max_examples=15)
+@given(seed=st.integers(0, 2**32 - 1), model=st.sampled_from(sorted(FRAMES)))
+def test_a_reachable_target_is_never_proven_unreachable(models, seed, model):
+    """Sample q, FK: that target is reachable, so a solve that fails (no iteration) may say not_found, never prove."""
+    tree, frame = models[model], FRAMES[model]
     rng = np.random.default_rng(seed)
-    q = arm7.random_q(rng, 8)
-    T = arm7.pose(q, "ee")
-    res = mjkin.solve(arm7, G.Pose("ee", T), method="lm", max_iters=1, restarts=0)
-    failed = ~res.success
-    assert set(res.reason[failed]) <= {"not_found"} and set(res.reason[~failed]) <= {""}
-    body, T_site = arm7.frame_body("ee", "site")
-    anchor, bound = reach_bound(arm7, body, T_site[:3, 3], np.ones(arm7.nv, bool), q)
+    q = tree.random_q(rng, 8)
+    T = tree.pose(q, frame)
+    for goal in (G.Pose(frame, T), G.Position(frame, T[:, :3, 3])):
+        res = mjkin.solve(tree, goal, method="lm", max_iters=0, restarts=0)
+        assert set(res.reason[~res.success]) <= {"not_found"} and set(res.reason[res.success]) <= {""}
+    body, T_site = tree.frame_body(frame)
+    anchor, bound = reach_bound(tree, body, T_site[:3, 3], np.ones(tree.nv, bool), q)
     assert np.all(np.linalg.norm(T[:, :3, 3] - anchor, axis=-1) <= bound + 1e-12)
+
+
+@settings(max_examples=25)
+@given(value=st.floats(-0.5, 0.5), kind=st.sampled_from(["hinge", "slide"]))
+def test_a_single_joint_target_inside_the_limits_is_never_proven_blocked(value, kind):
+    tree = single_joint(kind)
+    target = tree.pose(np.array([value]), "ee")[:3, 3]
+    res = mjkin.solve(tree, G.Position("ee", target), method="lm", max_iters=0, restarts=0)
+    assert str(res.reason) in ("", "not_found")
 
 
 def test_far_targets_are_proven_out_of_reach(arm7):
