@@ -46,13 +46,14 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
     """The distinct configurations that meet ``goal`` inside the joint limits.
 
     Rounds of ``starts`` seeded quasi-random starts (one scrambled Sobol sequence over
-    the joints that move a goal frame; the others keep ``qpos0``) are solved, each
-    round as one batch of :class:`mjkin.Problem`, until a round finds no new solution
-    (at most ``rounds``); the converged ones are merged when no joint differs by more than ``merge`` (unlimited
+    the joints that move a goal frame, the others at ``qpos0``; after the first round,
+    half of each round recombines the solutions found with fresh joint values) are
+    solved, each round as one batch of :class:`mjkin.Problem`, until a round finds no
+    new solution (at most ``rounds``). Converged answers are polished at a thousandth
+    of the tolerances and merged when no joint differs by more than ``merge`` (unlimited
     hinges, and hinges whose range spans a full turn, compared modulo 2π: ``q`` and
-    ``q + 2π`` are one solution), polished from one representative each at a
-    thousandth of the tolerances, and checked again by FK against ``tol`` and
-    ``rot_tol``; only those that pass are returned.
+    ``q + 2π`` are one solution); every survivor is checked again by FK against ``tol``
+    and ``rot_tol`` and the joint limits, and only those that pass are returned.
 
     A 6-axis arm has finitely many solutions (a UR-type arm and one with a spherical
     wrist up to 8): on 1000 random poses of each, all were found except at poses
@@ -212,7 +213,7 @@ def _result(problem: Problem, found: Result, given: tuple[Goal, ...], q: Array) 
     """A :class:`Result` for the solutions ``q (k, nq)`` (each checked converged); ``found``: the batch solve."""
     tree, k = problem.tree, len(q)
     err, worst, _ = _errors(problem, given, q) if k else (np.zeros((0, len(given), 2)), np.zeros((0, 2)), None)
-    reason = "" if k else str(np.reshape(found.reason, -1)[0]) if found.reason is not None else NOT_FOUND
+    reason = "" if k else (str(np.reshape(found.reason, -1)[0]) if found.reason is not None else "") or NOT_FOUND
     return Result(q=q, success=np.ones(k, bool), error=worst, iterations=np.zeros(k, np.int64),
                   status=np.full(k, "converged"), goal_errors=err,
                   goals=tuple(given[i] for i in problem.structure.order), method=found.method,
