@@ -132,7 +132,7 @@ def test_commands_write_their_plots(tmp_path, capsys):
     poses = tmp_path / "poses.json"
     poses.write_text(json.dumps({"poses": rows}))
     heat = tmp_path / "heat.png"
-    assert main(["place-base", str(model), "--frame", "ee", "--poses", str(poses), "--region=-0.2,-0.2,0.2,0.2",
+    assert main(["place-base", str(model), "--frame", "ee", "--poses", str(poses), "--region", "-0.2,-0.2,0.2,0.2",
                  "--step", "0.1", "-o", str(heat), *cache]) == 0
     assert heat.stat().st_size > 1000 and "3/3 poses" in capsys.readouterr().out
 

@@ -39,7 +39,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_SIDE = 8192  # largest --width/--height: MuJoCo's offscreen buffer is raised to it, GL allows 16384 at least
 SIGPIPE_EXIT = 128 + 13  # what a shell reports for a tool that SIGPIPE ended (``set -o pipefail`` sees it)
 UNIT_TOL = 1e-3  # a command-line quaternion whose norm is further from 1 (not rounding: a mistake) gets a warning
-VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points")
+VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points", "--region")
 NEGATIVE_NUMBER = re.compile(r"-\.?\d")  # how a value such as "-20,5,0" starts (argparse takes it for an option)
 
 
