@@ -51,6 +51,10 @@ class Result:
         method: the method that ran.
         restarts: ``(...)`` random restarts used.
         history: per-iteration record when asked for (``history=True``).
+        reason: ``(...)`` why a target failed, beside ``status``: ``"out_of_reach"`` (proven: the
+            target lies beyond the chain's reach bound, :func:`mjkin.ik.reasons.reach_bound`),
+            ``"limits"`` (proven: reachable only outside the joint limits; checked where it is cheap,
+            a single moving joint), ``"not_found"`` (no proof either way); ``""`` for a success.
         tree: the tree solved on; not pickled (a result sent to another process travels
             without its ``MjModel``): re-attach it with :meth:`with_tree`.
     """
@@ -65,6 +69,7 @@ class Result:
     method: str
     restarts: Array
     history: History | None = None
+    reason: NDArray[np.str_] | None = None
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
@@ -111,7 +116,7 @@ class Result:
         return self.error[..., 1]
 
 
-def _shaped(batch: tuple[int, ...], a: Array) -> Array:
+def _shaped(batch: tuple[int, ...], a: NDArray) -> NDArray:
     return a.reshape(batch + a.shape[1:]) if batch else a[0]
 
 
@@ -125,4 +130,5 @@ def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
-                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist,
+                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")), tree=tree)
