@@ -214,24 +214,28 @@ def test_primitive_distance_jacobians_match_finite_differences(kinds, s1, s2, po
 
 def test_fallback_is_mujocos_from_mjkin_fk(rng):
     """Pairs mjkin does not compute itself: MuJoCo's distance at mjkin's geom frames, and its gradient."""
-    tree = mjkin.load("""<mujoco><worldbody>
+    tree = mjkin.load("""<mujoco><asset><mesh name="tet" vertex="0 0 0  .2 0 0  0 .2 0  0 0 .2"/></asset>
+        <worldbody>
         <body><joint type="ball"/><geom type="ellipsoid" size=".1 .2 .3" pos="0 0 .2"/></body>
         <body pos=".5 0 0"><joint axis="0 1 0"/><joint axis="1 0 0"/><geom type="cylinder" size=".1 .2"/></body>
+        <body pos="0 .5 0"><joint axis="0 0 1"/><geom type="mesh" mesh="tet"/></body>
         </worldbody></mujoco>""")
     pairs = contact_pairs(tree)
-    assert pairs.tolist() == [[0, 1]] and not native_pairs(tree.geoms, pairs).any()
+    assert pairs.tolist() == [[0, 1], [0, 2], [1, 2]] and not native_pairs(tree.geoms, pairs).any()
     for q in tree.random_q(rng, 5):
         d = world_state(tree, q)
-        ref = mujoco.mj_geomDistance(tree.model, d, 0, 1, 10.0, None)
-        dist, grad = G.fallback_distance(tree, q, 0, 1)
-        assert abs(dist - ref) < 1e-9 and tree.distances(q)[0] == dist
-        h = 1e-4  # MuJoCo's convex solver stops at ~1e-6: a coarse difference
-        for i in range(tree.nv):
-            e = np.zeros(tree.nv)
-            e[i] = h
-            fd = (G.fallback_distance(tree, tree.integrate(q, e), 0, 1)[0]
-                  - G.fallback_distance(tree, tree.integrate(q, -e), 0, 1)[0]) / (2 * h)
-            assert abs(grad[i] - fd) < 1e-2
+        ours = tree.distances(q)
+        for k, (g1, g2) in enumerate(pairs.tolist()):
+            ref = mujoco.mj_geomDistance(tree.model, d, g1, g2, 10.0, None)
+            dist, grad = G.fallback_distance(tree, q, g1, g2)
+            assert abs(dist - ref) < 1e-9 and ours[k] == dist
+            h = 1e-4  # MuJoCo's convex solver stops at ~1e-6: a coarse difference
+            for i in range(tree.nv):
+                e = np.zeros(tree.nv)
+                e[i] = h
+                fd = (G.fallback_distance(tree, tree.integrate(q, e), g1, g2)[0]
+                      - G.fallback_distance(tree, tree.integrate(q, -e), g1, g2)[0]) / (2 * h)
+                assert abs(grad[i] - fd) < 1e-2, (g1, g2, i)
 
 
 @pytest.mark.parametrize("name", ["primate", "arm7"])
