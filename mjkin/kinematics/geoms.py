@@ -7,23 +7,27 @@ the explicit ``<pair>`` elements). :func:`pair_distance` is the compiled signed
 distance of one pair for one configuration's FK output (negative: penetration
 depth), with witness points on each geom; :func:`pair_distance_jacobian` adds
 its gradient ``n·(J_p2 − J_p1)`` along the unit normal ``n`` from geom 1 to
-geom 2. Pairs it computes itself (:func:`native`): a plane with a sphere,
-capsule, ellipsoid, cylinder or box (planes are half-spaces, as in MuJoCo); a
-sphere or capsule with a sphere, capsule, cylinder or box; box with box. Other
-pairs (meshes, ellipsoids, cylinder–cylinder and cylinder–box, ...) go through
-:func:`fallback_distance`, which asks ``mujoco.mj_geomDistance`` with the geom
-frames taken from mjkin's FK.
+geom 2. Pairs it computes itself (:func:`native`): any two of sphere, capsule,
+ellipsoid, cylinder and box, and a plane with any of them (planes are
+half-spaces, as in MuJoCo). Other pairs (meshes, height fields, SDFs) go
+through :func:`fallback_distance`, which asks ``mujoco.mj_geomDistance`` with
+the geom frames taken from mjkin's FK.
 
 Methods: sphere and capsule are a point or a segment swept by a radius, so a
 pair's distance is its cores' distance less the radii. Segment–segment is the
 closed form of Ericson, *Real-Time Collision Detection* §5.1.9. A segment
-against a box or cylinder minimises the point's signed distance to the solid
-(closed form, convex along the segment) by golden-section search; for a
+clear of a box: the nearest of its ends and the box's edges (exact). A segment
+against a cylinder, or into a box, minimises the point's signed distance to the
+solid (closed form, convex along the segment) by golden-section search; for a
 separated pair this is the exact distance (to ~1e-12 of the segment's length),
 for a penetrating capsule it is its deepest point's depth. Box–box: the
 separating-axis test (15 axes); separated boxes take the least of the
 vertex–box and edge–edge distances (exact), overlapping ones the smallest
-overlap along the axes (the penetration depth).
+overlap along the axes (the penetration depth). Ellipsoids, cylinder–cylinder
+and cylinder–box: Gilbert–Johnson–Keerthi on the shapes' support points
+(distance to 1e-10 m when apart; when they overlap, the deepest separation over
+their axes and the axes' cross products, an estimate at least as deep as the
+true one).
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH, SDF = (
     int(mujoco.mjtGeom.mjGEOM_BOX), int(mujoco.mjtGeom.mjGEOM_MESH), int(mujoco.mjtGeom.mjGEOM_SDF))
 GOLDEN = 0.6180339887498949
 GOLDEN_STEPS = 60  # golden-section steps along a segment: 0.618^60 ≈ 3e-13 of its length
+GJK_STEPS = 100  # support-point iterations, at most
+GJK_TOL = 1e-10  # m: GJK stops when the distance is known to this
 FALLBACK_DISTMAX = 10.0  # m: mj_geomDistance reports at most this
 
 
@@ -122,11 +128,7 @@ def contact_pairs(tree: Tree) -> Index:
 def native(t1: int, t2: int) -> bool:
     """Whether :func:`pair_distance` computes a pair of geom types itself (else it returns NaN)."""
     a, b = min(t1, t2), max(t1, t2)
-    if a == PLANE:
-        return b == SPHERE or b == CAPSULE or b == ELLIPSOID or b == CYLINDER or b == BOX
-    if a == SPHERE or a == CAPSULE:
-        return b == SPHERE or b == CAPSULE or b == CYLINDER or b == BOX
-    return a == BOX and b == BOX
+    return (a == PLANE or SPHERE <= a <= BOX) and SPHERE <= b <= BOX
 
 
 def native_pairs(geoms: Geoms, pairs: ArrayLike) -> NDArray[np.bool_]:
@@ -499,6 +501,182 @@ def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1
 
 
 @njit
+def _solve_small(G: Array, r: Array, m: int, out: Array) -> bool:
+    """Solve the ``m x m`` (``m <= 3``) system ``G out = r`` by Cramer's rule; False when it is singular."""
+    if m == 0:
+        return True
+    if m == 1:
+        if G[0, 0] <= 1e-300:
+            return False
+        out[0] = r[0] / G[0, 0]
+        return True
+    if m == 2:
+        det = G[0, 0] * G[1, 1] - G[0, 1] * G[1, 0]
+        if abs(det) <= 1e-14 * G[0, 0] * G[1, 1]:
+            return False
+        out[0] = (r[0] * G[1, 1] - G[0, 1] * r[1]) / det
+        out[1] = (G[0, 0] * r[1] - r[0] * G[1, 0]) / det
+        return True
+    det = (G[0, 0] * (G[1, 1] * G[2, 2] - G[1, 2] * G[2, 1]) - G[0, 1] * (G[1, 0] * G[2, 2] - G[1, 2] * G[2, 0])
+           + G[0, 2] * (G[1, 0] * G[2, 1] - G[1, 1] * G[2, 0]))
+    if abs(det) <= 1e-14 * G[0, 0] * G[1, 1] * G[2, 2]:
+        return False
+    for k in range(3):  # column k replaced by r
+        M00, M10, M20 = (r[0], r[1], r[2]) if k == 0 else (G[0, 0], G[1, 0], G[2, 0])
+        M01, M11, M21 = (r[0], r[1], r[2]) if k == 1 else (G[0, 1], G[1, 1], G[2, 1])
+        M02, M12, M22 = (r[0], r[1], r[2]) if k == 2 else (G[0, 2], G[1, 2], G[2, 2])
+        out[k] = (M00 * (M11 * M22 - M12 * M21) - M01 * (M10 * M22 - M12 * M20)
+                  + M02 * (M10 * M21 - M11 * M20)) / det
+    return True
+
+
+@njit
+def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array) -> int:
+    """Reduce the simplex ``W[:k]`` (its support points ``A``, ``B``) to the face nearest the origin.
+
+    Every face is tried (at most 15): the nearest point of its affine hull, kept if its
+    barycentric weights are all non-negative; the nearest kept point is the simplex's
+    (Gilbert, Johnson and Keerthi's sub-algorithm, by enumeration). Writes it to ``v``
+    and its weights to ``lam``, keeps only the face's rows; returns the face's size.
+    """
+    best, best_mask = np.inf, 1
+    G, r = np.empty((3, 3)), np.empty(3)
+    mu, weights, x = np.empty(3), np.empty(4), np.empty(3)
+    idx = np.empty(4, np.int64)
+    for mask in range(1, 1 << k):
+        m = 0
+        for i in range(k):
+            if (mask >> i) & 1:
+                idx[m] = i
+                m += 1
+        o = idx[0]
+        for i in range(1, m):  # weights mu of the edges from the face's first point
+            for j in range(1, m):
+                G[i - 1, j - 1] = ((W[idx[i], 0] - W[o, 0]) * (W[idx[j], 0] - W[o, 0])
+                                   + (W[idx[i], 1] - W[o, 1]) * (W[idx[j], 1] - W[o, 1])
+                                   + (W[idx[i], 2] - W[o, 2]) * (W[idx[j], 2] - W[o, 2]))
+            r[i - 1] = -(W[o, 0] * (W[idx[i], 0] - W[o, 0]) + W[o, 1] * (W[idx[i], 1] - W[o, 1])
+                         + W[o, 2] * (W[idx[i], 2] - W[o, 2]))
+        if not _solve_small(G, r, m - 1, mu):
+            continue
+        inside = True
+        w0 = 1.0
+        for i in range(m - 1):
+            w0 -= mu[i]
+            inside = inside and mu[i] >= 0.0
+        if not inside or w0 < 0.0:
+            continue
+        for c in range(3):
+            x[c] = W[o, c]
+            for i in range(1, m):
+                x[c] += mu[i - 1] * (W[idx[i], c] - W[o, c])
+        dist = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+        if dist < best:
+            best, best_mask = dist, mask
+            weights[0] = w0
+            for i in range(m - 1):
+                weights[i + 1] = mu[i]
+    m = 0
+    for i in range(k):
+        if (best_mask >> i) & 1:
+            for c in range(3):
+                W[m, c], A[m, c], B[m, c] = W[i, c], A[i, c], B[i, c]
+            lam[m] = weights[m]
+            m += 1
+    for c in range(3):
+        v[c] = 0.0
+        for i in range(m):
+            v[c] += lam[i] * W[i, c]
+    return m
+
+
+@njit
+def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array,
+             p2: Array, n: Array) -> float:
+    """Signed distance of two overlapping convex geoms, estimated by separating axes (their own and crosses).
+
+    The largest separation ``n·(p2 - p1)`` over the candidate axes, with ``p1``, ``p2`` the
+    supports along ``±n``: negative, and at least as deep as the true penetration.
+    """
+    best = -np.inf
+    ax, u, m, za, zb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for k in range(16):
+        if k < 3:
+            for i in range(3):
+                ax[i] = Ra[i, k]
+        elif k < 6:
+            for i in range(3):
+                ax[i] = Rb[i, k - 3]
+        elif k < 15:
+            ia, ib = (k - 6) // 3, (k - 6) % 3
+            ax[0] = Ra[1, ia] * Rb[2, ib] - Ra[2, ia] * Rb[1, ib]
+            ax[1] = Ra[2, ia] * Rb[0, ib] - Ra[0, ia] * Rb[2, ib]
+            ax[2] = Ra[0, ia] * Rb[1, ib] - Ra[1, ia] * Rb[0, ib]
+        else:
+            for i in range(3):
+                ax[i] = cb[i] - ca[i]
+        norm = np.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+        if norm < 1e-9:
+            continue
+        for sg in (1.0, -1.0):  # both ways along the axis: u = sg ax / |ax|, m = -u
+            for i in range(3):
+                u[i] = sg * ax[i] / norm
+                m[i] = -u[i]
+            _support(ta, sa, Ra, ca, u, za)
+            _support(tb, sb, Rb, cb, m, zb)
+            sep = u[0] * (zb[0] - za[0]) + u[1] * (zb[1] - za[1]) + u[2] * (zb[2] - za[2])
+            if sep > best:
+                best = sep
+                for i in range(3):
+                    p1[i], p2[i], n[i] = za[i], zb[i], u[i]
+    return best
+
+
+@njit
+def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array, p2: Array,
+        n: Array) -> float:
+    """Signed distance of two convex geoms (sphere, capsule, ellipsoid, cylinder, box) by their support points.
+
+    Gilbert–Johnson–Keerthi on the Minkowski difference: separated geoms get their distance
+    (to :data:`GJK_TOL`) with the closest points ``p1``, ``p2``; overlapping ones
+    :func:`_overlap`'s estimate.
+    """
+    W, A, B = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
+    lam, v, dir_a, dir_b = np.empty(4), np.empty(3), np.empty(3), np.empty(3)
+    for i in range(3):
+        v[i] = ca[i] - cb[i]
+    vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if vv == 0.0:
+        v[0], vv = 1.0, 1.0
+    k = 0
+    for _ in range(GJK_STEPS):
+        norm = np.sqrt(vv)
+        for i in range(3):
+            dir_a[i], dir_b[i] = -v[i] / norm, v[i] / norm
+        _support(ta, sa, Ra, ca, dir_a, A[k])
+        _support(tb, sb, Rb, cb, dir_b, B[k])
+        vw = 0.0
+        for i in range(3):
+            W[k, i] = A[k, i] - B[k, i]
+            vw += v[i] * W[k, i]
+        if k > 0 and vv - vw <= GJK_TOL * norm:  # the support no nearer: |v| is within GJK_TOL of the distance
+            break
+        k = _simplex_closest(W, A, B, lam, k + 1, v)
+        vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+        if k == 4 or vv <= 1e-24:
+            return _overlap(ta, sa, Ra, ca, tb, sb, Rb, cb, p1, p2, n)
+    for i in range(3):
+        p1[i] = p2[i] = 0.0
+        for j in range(k):
+            p1[i] += lam[j] * A[j, i]
+            p2[i] += lam[j] * B[j, i]
+    d = np.sqrt(vv)
+    for i in range(3):
+        n[i] = (p2[i] - p1[i]) / d
+    return d
+
+
+@njit
 def _core(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array) -> float:
     """A sphere or capsule as its core segment ``a + t u`` and radius (returned)."""
     h = size[1] if kind == CAPSULE else 0.0
@@ -537,6 +715,8 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
             qa[i] = qb[i] - d * n[i]
     elif tb == BOX and ta == BOX:
         d = box_box(sa, Ra, ca, sb, Rb, cb, qa, qb, n)
+    elif ta == ELLIPSOID or tb == ELLIPSOID or ta == CYLINDER:  # cylinder-cylinder, cylinder-box
+        d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n)
     else:  # a sphere or capsule against a sphere, capsule, cylinder or box
         a, u = points[3], points[4]
         ra = _core(ta, sa, Ra, ca, a, u)
