@@ -116,6 +116,16 @@ def by_gjk(model: mujoco.MjModel, pairs: np.ndarray) -> np.ndarray:
     return ((t == ELLIPSOID).any(1) | ((t[:, 0] == CYLINDER) & (t[:, 1] >= CYLINDER))) & (t[:, 0] != PLANE)
 
 
+def sampled_capsule_box(m: mujoco.MjModel, d: mujoco.MjData, cap: int, box: int) -> float:
+    """Least signed distance of a capsule from a box over 10001 points of its axis (MuJoCo's geom frames)."""
+    R, c, s = d.geom_xmat[box].reshape(3, 3), d.geom_xpos[box], m.geom_size[box]
+    axis = d.geom_xmat[cap].reshape(3, 3)[:, 2] * m.geom_size[cap, 1]
+    pts = d.geom_xpos[cap] + np.linspace(-1, 1, 10001)[:, None] * axis
+    q = np.abs((pts - c) @ R) - s
+    outside = np.linalg.norm(np.maximum(q, 0), axis=1)
+    return float(np.min(np.where(outside > 0, outside, q.max(1))) - m.geom_size[cap, 0])
+
+
 def check_against_mujoco(tree: mjkin.Tree, qs: np.ndarray, pairs: np.ndarray) -> None:
     m = tree.model.__copy__()
     m.opt.ccd_tolerance, m.opt.ccd_iterations = 1e-12, 500  # MuJoCo's convex solver to the last digits
@@ -127,6 +137,10 @@ def check_against_mujoco(tree: mjkin.Tree, qs: np.ndarray, pairs: np.ndarray) ->
             ref = mujoco.mj_geomDistance(m, d, a, b, 100.0, None)
             kind = tuple(sorted((int(m.geom_type[a]), int(m.geom_type[b]))))
             msg = f"geoms {a}, {b} (types {kind}) at q #{k}"
+            if kind == (CAPSULE, BOX) and ref > 0 > ours[k, i]:
+                # MuJoCo reports a capsule through a box, both ends outside, as apart: sample its axis instead
+                assert sampled_capsule_box(m, d, *((a, b) if m.geom_type[a] == CAPSULE else (b, a))) < 0, msg
+                continue
             if ref > 0 or kind in EXACT_DEPTH:
                 assert abs(ours[k, i] - ref) < DIST_TOL, msg
             elif abs(ref) > DIST_TOL:
