@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import ALL_MODELS, FD_TOL, bundled, model_id, shared, tree_of
+from mjkin.kinematics import distance as D
 from mjkin.kinematics import geoms as G
 from mjkin.kinematics.frames import forward
 from mjkin.kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE, contact_pairs, native_pairs
@@ -197,7 +198,7 @@ def test_primitive_pairs_equal_mj_geomDistance(kinds, s1, s2, pose):
 def fd_check(tree: mjkin.Tree, q: np.ndarray, pairs: np.ndarray, tol: float = FD_TOL, kinks: bool = False,
              h: float = 1e-6) -> None:
     """Gradients against central differences; ``kinks=True`` skips where the one-sided ones disagree."""
-    d, J = G.distance_jacobians(tree, q, pairs)
+    d, J = D.distance_jacobians(tree, q, pairs)
     np.testing.assert_array_equal(d, tree.distances(q, pairs))
     for i in range(tree.nv):
         e = np.zeros(tree.nv)
@@ -225,7 +226,7 @@ def test_primitive_distance_jacobians_match_finite_differences(kinds, s1, s2, po
     # off the poses where features tie exactly (as identical boxes one inside the other): no derivative there
     q[-7:-4] += [0.0123, -0.0071, 0.0049]
     q[-4:] = mjkin.spatial.quat_mul(q[-4:], mjkin.spatial.quat_normalize([1.0, 0.013, -0.021, 0.008]))
-    d, _ = G.distance_jacobians(tree, q, np.array([[0, 1]]))
+    d, _ = D.distance_jacobians(tree, q, np.array([[0, 1]]))
     # at contact the distance has a kink, and so have penetration depths where two faces tie (skipped by kinks=True),
     # where a capsule's deepest point is as far from a cylinder's side as from its cap, or where the cores of two
     # capsules cross (left out)
@@ -252,14 +253,14 @@ def test_fallback_is_mujocos_from_mjkin_fk(rng):
         ours = tree.distances(q)
         for k, (g1, g2) in enumerate(pairs.tolist()):
             ref = mujoco.mj_geomDistance(tree.model, d, g1, g2, 10.0, None)
-            dist, grad = G.fallback_distance(tree, q, g1, g2)
+            dist, grad = D.fallback_distance(tree, q, g1, g2)
             assert abs(dist - ref) < 1e-9 and (ours[k] == dist if k else abs(ours[k] - ref) < DIST_TOL)
             h = 1e-4  # MuJoCo's convex solver stops at ~1e-6: a coarse difference
             for i in range(tree.nv):
                 e = np.zeros(tree.nv)
                 e[i] = h
-                fd = (G.fallback_distance(tree, tree.integrate(q, e), g1, g2)[0]
-                      - G.fallback_distance(tree, tree.integrate(q, -e), g1, g2)[0]) / (2 * h)
+                fd = (D.fallback_distance(tree, tree.integrate(q, e), g1, g2)[0]
+                      - D.fallback_distance(tree, tree.integrate(q, -e), g1, g2)[0]) / (2 * h)
                 assert abs(grad[i] - fd) < 1e-2, (g1, g2, i)
 
 
@@ -273,7 +274,7 @@ def test_near_pairs_are_those_whose_bounding_spheres_come_within_reach(name, rng
     for q in tree.random_q(rng, 20):
         f = forward(tree, q[None])
         k = G.near_pairs(gs, f.rot, f.pos, pairs, reach, out)
-        R, x = G.geom_frames(tree, f.rot, f.pos, np.arange(tree.model.ngeom))
+        R, x = D.geom_frames(tree, f.rot, f.pos, np.arange(tree.model.ngeom))
         a, b = pairs[:, 0], pairs[:, 1]
         gap = np.linalg.norm(x[a] - x[b], axis=1) - gs.rbound[a] - gs.rbound[b]
         plane_a, plane_b = gs.type[a] == PLANE, gs.type[b] == PLANE

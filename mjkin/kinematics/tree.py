@@ -16,9 +16,10 @@ from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
 from .com import com_many
+from .distance import distances
 from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
 from .frames import Frames, forward
-from .geoms import Geoms, distances, geom_arrays
+from .geoms import Geoms, geom_arrays
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
@@ -257,7 +258,8 @@ class Tree:
     def distances(self, q: ArrayLike, pairs: ArrayLike | None = None) -> Array:
         """Signed distances ``(..., P)`` (m, < 0 = penetration) of geom pairs ``(P, 2)`` at ``q (..., nq)``.
 
-        Default pairs: those MuJoCo's collision tests (:func:`mjkin.kinematics.geoms.contact_pairs`).
+        Default pairs: those MuJoCo's collision tests (:func:`mjkin.kinematics.geoms.contact_pairs`);
+        see :mod:`mjkin.kinematics.distance`.
         """
         return distances(self, q, pairs)
 
