@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .jit import njit, njit_inline
+from .kinematics.geoms import contact_pairs
 from .kinematics.tree import Tree
 
 if TYPE_CHECKING:
@@ -86,20 +87,7 @@ class Scene:
         m = self.model
         body = np.asarray(m.geom_bodyid)
         weld = np.asarray(m.body_weldid)[body]
-        parent_weld = np.asarray(m.body_weldid)[np.asarray(m.body_parentid)[weld]]
-        g1, g2 = np.triu_indices(m.ngeom, 1)
-        contype, affinity = np.asarray(m.geom_contype), np.asarray(m.geom_conaffinity)
-        ok = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
-        ok &= weld[g1] != weld[g2]
-        if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT:
-            both = (weld[g1] != 0) & (weld[g2] != 0)
-            ok &= ~(both & ((weld[g1] == parent_weld[g2]) | (parent_weld[g1] == weld[g2])))
-        if m.nexclude:  # signature (body1 << 16) + body2; either order
-            sig = np.asarray(m.exclude_signature)
-            ok &= ~np.isin((body[g1] << 16) + body[g2], sig) & ~np.isin((body[g2] << 16) + body[g1], sig)
-        pairs = np.stack([g1[ok], g2[ok]], 1)
-        if m.npair:
-            pairs = np.concatenate([pairs, np.stack([m.pair_geom1, m.pair_geom2], 1)])
+        pairs = contact_pairs(self.tree)
         if self._masked:
             pairs = pairs[self._keep[pairs[:, 0], pairs[:, 1]]]
         kind = np.asarray(m.geom_type)
@@ -111,7 +99,6 @@ class Scene:
         self._half = np.where(capsule, np.asarray(m.geom_size)[:, 1], 0.0)
         reach = np.where(exact, np.asarray(m.geom_size)[:, 0], np.asarray(m.geom_rbound)) \
             + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0)
-        pairs = pairs[~plane[pairs].all(1)]  # MuJoCo has no plane-plane collision
         is_plane = plane[pairs]
         self._prefilter = not bool(np.any(is_plane & (weld[pairs] != 0)))
         mujoco.mj_kinematics(m, self.data)  # the world's planes are where qpos0 puts them

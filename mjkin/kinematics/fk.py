@@ -231,7 +231,9 @@ class Kinematics(NamedTuple):
     The first fields are :class:`mjkin.kinematics.fk.Plan`'s (see there); the rest locate
     each dof (``dof_*``, ``(nv, ...)``) and each body's ancestor dofs
     (``body_dof_idx[body_dof_ptr[b]:body_dof_ptr[b + 1]]``), and give the joint
-    limits ``jnt_lo``/``jnt_hi`` (``(njnt,)``, ±inf when unlimited).
+    limits ``jnt_lo``/``jnt_hi`` (``(njnt,)``, ±inf when unlimited), each body's
+    mass ``body_mass (nbody,)`` (kg) and the centre of mass in its body frame
+    ``body_ipos (nbody, 3)`` (MuJoCo's inertial frame position).
     """
 
     parent: Index
@@ -262,6 +264,8 @@ class Kinematics(NamedTuple):
     dof_qadr: Index
     dof_jnt: Index
     jnt_body: Index
+    body_mass: Array
+    body_ipos: Array
 
 
 def kinematic_arrays(tree: Bodies) -> Kinematics:
@@ -276,7 +280,8 @@ def kinematic_arrays(tree: Bodies) -> Kinematics:
         p.hinge_coord, p.anchor_zero, tree.jnt_type, tree.jnt_qadr, tree.jnt_axis, tree.jnt_pos, tree.qpos0,
         tree.jnt_dofadr, ptr, idx, tree.jnt_body[p.dof_jnt], p.jnt_inner[p.dof_jnt], p.dof_axis, p.dof_world,
         p.dof_rot, p.dof_anchor, lo, hi, np.array(tree.jnt_qadr[p.dof_jnt], dtype=np.int64), p.dof_jnt,
-        tree.jnt_body)
+        tree.jnt_body, np.array(tree.model.body_mass, dtype=np.float64),
+        np.array(tree.model.body_ipos, dtype=np.float64))
 
 
 @njit

@@ -15,8 +15,11 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
+from .com import com_many
+from .distance import distances
 from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
 from .frames import Frames, forward
+from .geoms import Geoms, geom_arrays
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
@@ -60,6 +63,7 @@ class Tree:
     plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
     body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
+    geoms: Geoms = field(init=False, repr=False)  # the geoms, for the compiled distances
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
     ids: dict[str, dict[str, int]] = field(init=False, repr=False)  # name -> id, per element kind
@@ -81,6 +85,7 @@ class Tree:
         put("body_dofs", tuple(_ro(d, np.int64) for d in dofs))
         k = kinematic_arrays(self)
         put("kin", k)
+        put("geoms", geom_arrays(m))
         put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                         k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
         put("n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
@@ -241,6 +246,29 @@ class Tree:
         frame_jacobian_one(self.kin, np.ascontiguousarray(q).reshape(1, -1), body,
                            local if offset is None else moved(local, check_offset(offset)), J)
         return J
+
+    def com(self, q: ArrayLike) -> Array:
+        """Whole-figure centre of mass ``(..., 3)`` (world, m) at ``q (..., nq)``; MuJoCo's ``subtree_com[0]``."""
+        return self._com(q)[0]
+
+    def com_jacobian(self, q: ArrayLike) -> Array:
+        """Jacobian ``(..., 3, nv)`` of :meth:`com`: its velocity is ``J @ v``; MuJoCo's ``mj_jacSubtreeCom(.., 0)``."""
+        return self._com(q)[1]
+
+    def distances(self, q: ArrayLike, pairs: ArrayLike | None = None) -> Array:
+        """Signed distances ``(..., P)`` (m, < 0 = penetration) of geom pairs ``(P, 2)`` at ``q (..., nq)``.
+
+        Default pairs: those MuJoCo's collision tests (:func:`mjkin.kinematics.geoms.contact_pairs`);
+        see :mod:`mjkin.kinematics.distance`.
+        """
+        return distances(self, q, pairs)
+
+    def _com(self, q: ArrayLike) -> tuple[Array, Array]:
+        f = self.kinematics(q)
+        B = f.rot.shape[0]
+        C, J = np.empty((B, 3)), np.empty((B, 3, self.nv))
+        com_many(self.kin, f.rot, f.pos, f.inner_rot, f.inner_pos, C, J)
+        return C.reshape(f.batch + (3,)), J.reshape(f.batch + (3, self.nv))
 
 
 # what Tree (and, for contacts, Scene) reads from a model: (element kind, MjModel array, what it is)

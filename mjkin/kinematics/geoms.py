@@ -1,0 +1,151 @@
+"""Geoms for clearance: their arrays for the compiled code, the pairs MuJoCo would collide, and a broad phase.
+
+:func:`contact_pairs` lists the geom pairs MuJoCo's collision tests (its
+``mj_collision`` filters: ``contype``/``conaffinity``, bodies welded together,
+parent–child bodies unless ``filterparent`` is disabled, ``<exclude>``, plus
+the explicit ``<pair>`` elements); :func:`near_pairs` keeps those whose
+bounding spheres come within a distance, for one configuration. Their signed
+distances and gradients are :mod:`mjkin.kinematics.distance`'s.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..jit import njit, njit_inline
+
+if TYPE_CHECKING:
+    from .tree import Tree
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH, SDF = (
+    int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD), int(mujoco.mjtGeom.mjGEOM_SPHERE),
+    int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_ELLIPSOID), int(mujoco.mjtGeom.mjGEOM_CYLINDER),
+    int(mujoco.mjtGeom.mjGEOM_BOX), int(mujoco.mjtGeom.mjGEOM_MESH), int(mujoco.mjtGeom.mjGEOM_SDF))
+
+
+class Geoms(NamedTuple):
+    """A model's geoms as the compiled code reads them (``ngeom`` geoms, MuJoCo's ids and conventions)."""
+
+    type: Index  # (ngeom,) mjtGeom
+    body: Index  # (ngeom,) body the geom is fixed to
+    size: Array  # (ngeom, 3) MuJoCo's geom_size
+    pos: Array  # (ngeom, 3) geom origin in its body frame
+    rot: Array  # (ngeom, 3, 3) geom axes in its body frame
+    rbound: Array  # (ngeom,) bounding-sphere radius about the origin (0 for planes: unbounded)
+    margin: Array  # (ngeom,) MuJoCo's geom_margin
+
+
+def geom_arrays(model: mujoco.MjModel) -> Geoms:
+    """The :class:`Geoms` of a compiled model (a :class:`mjkin.Tree` keeps them as ``tree.geoms``)."""
+    n = model.ngeom
+    rot = np.empty((n, 9))
+    for g in range(n):
+        q = np.asarray(model.geom_quat[g], dtype=np.float64)
+        mujoco.mju_quat2Mat(rot[g], q / np.linalg.norm(q))
+    return Geoms(np.array(model.geom_type, dtype=np.int64), np.array(model.geom_bodyid, dtype=np.int64),
+                 np.array(model.geom_size, dtype=np.float64).reshape(n, 3),
+                 np.array(model.geom_pos, dtype=np.float64).reshape(n, 3), rot.reshape(n, 3, 3),
+                 np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64))
+
+
+def contact_pairs(tree: Tree) -> Index:
+    """Geom pairs ``(P, 2)`` MuJoCo's collision tests, each once, ``g1 < g2`` for the pairs it makes itself.
+
+    As ``mj_collision``: a pair of geoms on bodies that are not welded together
+    (the world and everything welded to it count as one), nor parent and child
+    of each other's weld bodies (unless ``disableflags`` has ``filterparent``),
+    whose ``contype``/``conaffinity`` match, and whose bodies are not an
+    ``<exclude>`` pair; then every explicit ``<pair>``. Pairs with no MuJoCo
+    collision function (plane–plane, plane–height field, height field–height
+    field) are left out.
+    """
+    m = tree.model
+    body = np.asarray(m.geom_bodyid, dtype=np.int64)
+    weld_of = np.asarray(m.body_weldid, dtype=np.int64)
+    weld = weld_of[body]
+    parent_weld = weld_of[np.asarray(m.body_parentid)[weld]]
+    g1, g2 = np.triu_indices(m.ngeom, 1)
+    contype, affinity = np.asarray(m.geom_contype), np.asarray(m.geom_conaffinity)
+    ok = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
+    ok &= weld[g1] != weld[g2]
+    if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT:
+        both = (weld[g1] != 0) & (weld[g2] != 0)
+        ok &= ~(both & ((weld[g1] == parent_weld[g2]) | (parent_weld[g1] == weld[g2])))
+    if m.nexclude:  # signature (body1 << 16) + body2, body1 < body2
+        lo, hi = np.minimum(body[g1], body[g2]), np.maximum(body[g1], body[g2])
+        ok &= ~np.isin((lo << 16) + hi, np.asarray(m.exclude_signature, dtype=np.int64))
+    kind = np.asarray(m.geom_type)
+    flat = (kind == PLANE) | (kind == HFIELD)
+    ok &= ~(flat[g1] & flat[g2])
+    pairs = np.stack([g1[ok], g2[ok]], 1)
+    if m.npair:
+        explicit = np.stack([m.pair_geom1, m.pair_geom2], 1).astype(np.int64)
+        explicit = explicit[~(flat[explicit[:, 0]] & flat[explicit[:, 1]])]
+        known = {(int(a), int(b)) for a, b in pairs}
+        new = [i for i, (a, b) in enumerate(explicit.tolist()) if (a, b) not in known and (b, a) not in known]
+        pairs = np.concatenate([pairs, explicit[new]])
+    return np.ascontiguousarray(pairs, dtype=np.int64)
+
+
+@njit
+def native(t1: int, t2: int) -> bool:
+    """Whether :func:`pair_distance` computes a pair of geom types itself (else it returns NaN)."""
+    a, b = min(t1, t2), max(t1, t2)
+    return (a == PLANE or SPHERE <= a <= BOX) and SPHERE <= b <= BOX
+
+
+def native_pairs(geoms: Geoms, pairs: ArrayLike) -> NDArray[np.bool_]:
+    """Which pairs ``(P, 2)`` :func:`pair_distance` computes (the others need :func:`fallback_distance`)."""
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return np.array([native(geoms.type[a], geoms.type[b]) for a, b in p], dtype=bool)
+
+
+@njit_inline
+def geom_world(geoms: Geoms, rot: Array, pos: Array, g: int, R: Array, x: Array) -> None:
+    """World axes ``R (3, 3)`` and origin ``x (3,)`` of geom ``g`` from FK output 0."""
+    bd = geoms.body[g]
+    for i in range(3):
+        for k in range(3):
+            R[i, k] = rot[0, bd, i, 0] * geoms.rot[g, 0, k] + rot[0, bd, i, 1] * geoms.rot[g, 1, k] + (
+                rot[0, bd, i, 2] * geoms.rot[g, 2, k])
+        x[i] = pos[0, bd, i] + (rot[0, bd, i, 0] * geoms.pos[g, 0] + rot[0, bd, i, 1] * geoms.pos[g, 1]
+                                + rot[0, bd, i, 2] * geoms.pos[g, 2])
+
+
+@njit
+def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float, out: Index) -> int:
+    """Pairs whose bounding spheres come within ``reach`` (m) of each other, for one configuration's FK.
+
+    Writes the indices into ``pairs (P, 2)`` of those pairs to ``out[:k]`` and returns
+    ``k``. A plane (unbounded) counts the other geom's bounding sphere's height above it.
+    Pass ``reach`` = the clearance margin plus a slack for how far the geoms may move
+    before the next call.
+    """
+    R1, R2 = np.empty((3, 3)), np.empty((3, 3))
+    c1, c2 = np.empty(3), np.empty(3)
+    k = 0
+    for p in range(pairs.shape[0]):
+        g1, g2 = pairs[p, 0], pairs[p, 1]
+        geom_world(geoms, rot, pos, g1, R1, c1)
+        geom_world(geoms, rot, pos, g2, R2, c2)
+        if geoms.type[g1] == PLANE or geoms.type[g2] == PLANE:
+            if geoms.type[g1] == PLANE:
+                gap = R1[0, 2] * (c2[0] - c1[0]) + R1[1, 2] * (c2[1] - c1[1]) + R1[2, 2] * (c2[2] - c1[2])
+                gap -= geoms.rbound[g2]
+            else:
+                gap = R2[0, 2] * (c1[0] - c2[0]) + R2[1, 2] * (c1[1] - c2[1]) + R2[2, 2] * (c1[2] - c2[2])
+                gap -= geoms.rbound[g1]
+        else:
+            gap = np.sqrt((c2[0] - c1[0]) ** 2 + (c2[1] - c1[1]) ** 2 + (c2[2] - c1[2]) ** 2) - (
+                geoms.rbound[g1] + geoms.rbound[g2])
+        if gap <= reach:
+            out[k] = p
+            k += 1
+    return k
