@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import bvh, spatial
 from . import goals as G
 from .errors import InputError, MjkinIOError
-from .ik import solve
+from .ik import Problem
 from .kinematics.tree import Tree, fingerprint
 from .motion import Trajectory, outside_limits, sole_points
 from .scene import Scene
@@ -456,9 +456,13 @@ def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> tuple[Array, float]
     q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
     out = np.empty((F, tree.nq))
     t_first = 0.0
+    problem: Problem | None = None
     for f in range(F):
         t = time.perf_counter()
-        q = solve(tree, frame_goals(tree, plan_, f, q), q0=q, tol=tol, restarts=0, max_iters=MAX_ITERS).q
+        goals = frame_goals(tree, plan_, f, q)
+        if problem is None:
+            problem = Problem(tree, goals, tol=tol, restarts=0, max_iters=MAX_ITERS)
+        q = problem.solve(q, goals).q
         out[f] = q
         t_first = time.perf_counter() - t if f == 0 else t_first
     return out, t_first
