@@ -32,7 +32,8 @@ import json
 import os
 import re
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,7 @@ FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its bod
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
 MAX_ITERS = 15  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
+REST_WEIGHT = 0.05  # of the pull toward the previous frame's pose
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -369,8 +371,11 @@ def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
     A stand-in for a hard per-joint step limit in the solve: it runs after it.
     """
     out = np.array(q)
+    if len(out) < 2:
+        return out
     step = np.broadcast_to(np.asarray(max_step, float), (tree.nv,))
-    for f in range(1, len(out)):
+    over = np.any(np.abs(tree.difference(out[1:], out[:-1])) > step, axis=-1)
+    for f in range(int(np.argmax(over)) + 1 if over.any() else len(out), len(out)):  # from the first fast frame on
         d = tree.difference(out[f], out[f - 1])
         if np.any(np.abs(d) > step):
             out[f] = tree.integrate(out[f - 1], np.clip(d, -step, step))
@@ -379,7 +384,8 @@ def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
 
 def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
              mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
-             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, model_source: str = "") -> Trajectory:
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, extra_goals: Sequence[G.Goal] = (),
+             model_source: str = "") -> Trajectory:
     """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
 
     Args:
@@ -390,6 +396,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         scale: metres per BVH unit; default from the skeleton's height.
         max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``.
         tol: IK position tolerance (m).
+        extra_goals: goals added to every frame's as they are (targets that do not change from
+            frame to frame, such as a clearance between the figure's bodies); their priority
+            decides whether they outrank the feet (0) or join the body's goals (1).
         model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
 
     Returns:
@@ -410,7 +419,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale)
-    q, t_first = solve_frames(tree, plan_, tol)
+    q, t_first = solve_frames(tree, plan_, tol, tuple(extra_goals))
     q = limit_speed(tree, q, speed * clip.frame_time)
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
@@ -425,46 +434,82 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                       source=model_source)
 
 
-def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Goal]:
-    """Goals of frame ``f``: the feet's toe and heel points at priority 0; the body and ``q_prev`` (weighted) at 1."""
+@dataclass(frozen=True)
+class FrameGoals:
+    """Every frame's goals, laid out once for the clip: frame ``f``'s goals are :meth:`at` ``(f, q_prev)``.
+
+    ``goals`` are frame 0's (their kinds, frames, weights and priorities are every frame's);
+    goal ``k`` takes field ``fields[k]`` from ``targets[k][f]`` (``(F, 3)`` points,
+    ``(F, 3, 3)`` rotations), or keeps its target when ``fields[k]`` is empty (``extra``
+    goals). ``rest`` pulls toward the previous frame's pose; it comes last.
+    """
+
+    goals: tuple[G.Goal, ...]
+    fields: tuple[str, ...]
+    targets: tuple[Array, ...]
+    rest: G.Rest
+
+    def at(self, f: int, q_prev: Array) -> list[G.Goal]:
+        """Frame ``f``'s goals, resting toward ``q_prev (nq,)``."""
+        out = [replace(g, **{k: a[f]}) if k else g for g, k, a in zip(self.goals, self.fields, self.targets,
+                                                                          strict=True)]
+        out.append(replace(self.rest, q_rest=q_prev))
+        return out
+
+
+def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> FrameGoals:
+    """Every frame's goals (see :class:`FrameGoals`), their targets as arrays over the clip.
+
+    The feet's toe and heel points at priority 0; at 1 (weighted) the pelvis, the torso's and
+    pelvis's turn, the limb points and head; ``extra`` as given; the previous frame's pose (at 1).
+    """
     b = plan_.bodies
     goals: list[G.Goal] = []
+    fields: list[str] = []
+    targets: list[Array] = []
+
+    def add(goal: G.Goal, field: str, target: Array) -> None:
+        goals.append(replace(goal, **{field: target[0]}) if field else goal)
+        fields.append(field)
+        targets.append(target)
+
     for i, s in enumerate(SIDES):
-        T = plan_.feet[i, f]
+        T = plan_.feet[i]
         for point in sole_points(tree, b[f"{s}_ankle"]):
-            goals.append(G.Position(b[f"{s}_ankle"], T[:3, :3] @ point + T[:3, 3], kind="body",
-                                    offset=tuple(point)))
-    goals.append(G.Position(b["pelvis"], plan_.points["pelvis"][f], kind="body", priority=1))
-    goals.append(G.Orientation(b["pelvis"], plan_.rotations["pelvis"][f], kind="body", priority=1, weight=0.3))
-    goals.append(G.Orientation(b["torso"], plan_.rotations["torso"][f], kind="body", priority=1, weight=0.3))
+            add(G.Position(b[f"{s}_ankle"], kind="body", offset=tuple(point)), "xyz", T[:, :3, :3] @ point
+                + T[:, :3, 3])
+    add(G.Position(b["pelvis"], kind="body", priority=1), "xyz", plan_.points["pelvis"])
+    for r in ("pelvis", "torso"):
+        add(G.Orientation(b[r], kind="body", priority=1, weight=0.3), "quat", plan_.rotations[r])
     for r in ("head", *(f"{s}_{p}" for s in SIDES for p in ("knee", "shoulder", "elbow", "wrist"))):
         off = plan_.offsets[r]
-        goals.append(G.Position(b[r], plan_.points[r][f], kind="body", priority=1,
-                                offset=tuple(off) if np.any(off) else None, weight=1.0 if "wrist" in r else 0.5))
-    goals.append(G.Rest(q_rest=q_prev, weight=0.05, priority=1))  # one level for the body: each costs a projection
-    return goals
+        add(G.Position(b[r], kind="body", priority=1, offset=tuple(off) if np.any(off) else None,
+                       weight=1.0 if "wrist" in r else 0.5), "xyz", plan_.points[r])
+    for g in extra:
+        add(g, "", np.empty(0))
+    # one level for the body and the rest pose: each level costs a projection per iteration
+    rest = G.Rest(q_rest=tree.qpos0, weight=REST_WEIGHT, priority=1)
+    return FrameGoals(tuple(goals), tuple(fields), tuple(targets), rest)
 
 
-def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> tuple[Array, float]:
-    """Joint values ``(F, nq)``, frame by frame, each warm-started from (and resting toward) the previous one.
+def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal] = ()) -> tuple[Array, float]:
+    """Joint values ``(F, nq)``, frame by frame through one :class:`~mjkin.Problem`.
 
-    Also returns the seconds the first frame took (it may include compiling the solver).
+    Each frame is warm-started from (and rests toward) the previous frame's pose; ``extra``
+    goals join every frame's. Also returns the seconds the first frame took (it may include compiling the solver).
     """
     F = len(plan_.points["pelvis"])
     q = tree.qpos0.copy()
     free = tree.layout.free_q[0]
     q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
     out = np.empty((F, tree.nq))
-    t_first = 0.0
-    problem: Problem | None = None
+    layout = frame_goals(tree, plan_, extra)
+    t = time.perf_counter()
+    problem = Problem(tree, layout.at(0, q), tol=tol, restarts=0, max_iters=MAX_ITERS)
     for f in range(F):
-        t = time.perf_counter()
-        goals = frame_goals(tree, plan_, f, q)
-        if problem is None:
-            problem = Problem(tree, goals, tol=tol, restarts=0, max_iters=MAX_ITERS)
-        q = problem.solve(q, goals).q
-        out[f] = q
-        t_first = time.perf_counter() - t if f == 0 else t_first
+        q = out[f] = problem.solve(q, layout.at(f, q)).q
+        if f == 0:
+            t_first = time.perf_counter() - t
     return out, t_first
 
 
