@@ -315,7 +315,7 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         for s in SIDES:
             ahead = P(f"{s}_toe") - P(f"{s}_ankle") if f"{s}_toe" in roles else pelvis[..., :, 0]
             x = _unit(ahead)
-            y = _unit(np.cross(up, x))
+            y = _unit(np.cross(P(f"{s}_knee") - P(f"{s}_ankle"), x))  # across the shin: defined however the toe points
             out[f"{s}_ankle"] = np.stack([x, y, np.cross(x, y)], axis=-1)
         return out
 
