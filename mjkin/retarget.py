@@ -1,6 +1,7 @@
 """Retargeting motion capture (BVH) onto an MJCF figure, with the feet planted while they touch the floor.
 
-The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
+The method, per clip (targets for every frame worked out at once, then one warm-started
+solve per frame through one :class:`mjkin.Problem`):
 
 1. The source is read (:mod:`mjkin.bvh`), put in metres (units from its height, or
    ``scale``), turned z-up and so that it first faces the figure's +x.
@@ -17,9 +18,9 @@ The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
    hysteresis). A planted foot's target is frozen flat on the floor for the whole
    contact and eased back to the source's over :data:`EASE` frames after it lifts.
    Swinging feet are lifted so no sole point is below the floor.
-5. Goals: both feet's toe and heel points at the top priority, then (weighted) pelvis,
-   limb points, head, torso/pelvis orientations and the previous frame's pose; each frame
-   is warm-started from the previous one. Afterwards :func:`limit_speed`
+5. Goals, in one priority level: both feet's toe and heel points weighted far above
+   (:data:`FOOT_WEIGHT`) the pelvis, limb points, head, torso/pelvis orientations and the
+   previous frame's pose; each frame is warm-started from the previous one. Afterwards :func:`limit_speed`
    clamps each frame's change toward the previous one to the joint speed limit.
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
@@ -84,8 +85,15 @@ FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its bod
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
-MAX_ITERS = 15  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
-REST_WEIGHT = 0.05  # of the pull toward the previous frame's pose
+# Each frame is one warm-started solve of MAX_ITERS iterations at most, all goals in one priority level (a second
+# level costs a projection per iteration: 1.7-2x the time), the feet's toe and heel points weighted FOOT_WEIGHT
+# against the body's goals (they slide a few micrometres per frame), REST_WEIGHT toward the previous frame's pose
+# (less lets a shoulder or hip swing faster than the speed limit between frames). The body's goals conflict a
+# little, so frames stop at MAX_ITERS, not at tol; more iterations change no figure of the report by much
+# (`mjkin bench retarget`: 15 iterations and two levels took 2.5-3x the time).
+MAX_ITERS = 6
+FOOT_WEIGHT = 1000.0
+REST_WEIGHT = 0.02
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -460,8 +468,9 @@ class FrameGoals:
 def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> FrameGoals:
     """Every frame's goals (see :class:`FrameGoals`), their targets as arrays over the clip.
 
-    The feet's toe and heel points at priority 0; at 1 (weighted) the pelvis, the torso's and
-    pelvis's turn, the limb points and head; ``extra`` as given; the previous frame's pose (at 1).
+    At priority 1, weighted: the feet's toe and heel points (:data:`FOOT_WEIGHT`), the pelvis,
+    the torso's and pelvis's turn, the limb points and head, the previous frame's pose
+    (:data:`REST_WEIGHT`); ``extra`` as given.
     """
     b = plan_.bodies
     goals: list[G.Goal] = []
@@ -476,8 +485,8 @@ def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> Fr
     for i, s in enumerate(SIDES):
         T = plan_.feet[i]
         for point in sole_points(tree, b[f"{s}_ankle"]):
-            add(G.Position(b[f"{s}_ankle"], kind="body", offset=tuple(point)), "xyz", T[:, :3, :3] @ point
-                + T[:, :3, 3])
+            foot = G.Position(b[f"{s}_ankle"], kind="body", offset=tuple(point), priority=1, weight=FOOT_WEIGHT)
+            add(foot, "xyz", T[:, :3, :3] @ point + T[:, :3, 3])
     add(G.Position(b["pelvis"], kind="body", priority=1), "xyz", plan_.points["pelvis"])
     for r in ("pelvis", "torso"):
         add(G.Orientation(b[r], kind="body", priority=1, weight=0.3), "quat", plan_.rotations[r])
@@ -487,7 +496,6 @@ def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> Fr
                        weight=1.0 if "wrist" in r else 0.5), "xyz", plan_.points[r])
     for g in extra:
         add(g, "", np.empty(0))
-    # one level for the body and the rest pose: each level costs a projection per iteration
     rest = G.Rest(q_rest=tree.qpos0, weight=REST_WEIGHT, priority=1)
     return FrameGoals(tuple(goals), tuple(fields), tuple(targets), rest)
 
