@@ -82,6 +82,9 @@ FIGURES: dict[str, dict[str, str]] = {
                ("shoulder", "shoulder_roll_link"), ("elbow", "elbow_pitch_link"), ("wrist", "zero_link"))}},
 }
 FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its body, where it is not the origin
+# how much of the source's lean (pelvis to mid-shoulders, from upright) the pelvis takes, by model name: half
+# (the primate's waist turns 0.7 rad at most), all on the G1 (its torso only turns about the vertical)
+FIGURE_LEAN = {"g1": 1.0}
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
@@ -317,7 +320,8 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         up = np.array([0.0, 0.0, 1.0])
         P = lambda r: pts[..., roles[r], :]  # noqa: E731
         mid_sh = 0.5 * (P("left_shoulder") + P("right_shoulder"))
-        pelvis = _frame(P("left_hip") - P("right_hip"), _unit(mid_sh - P("pelvis")) + up)  # half the lean
+        lean = FIGURE_LEAN.get(tree.name, 0.5)
+        pelvis = _frame(P("left_hip") - P("right_hip"), lean * _unit(mid_sh - P("pelvis")) + (1 - lean) * up)
         torso = _frame(P("left_shoulder") - P("right_shoulder"), mid_sh - P("pelvis"))
         out = {"pelvis": pelvis, "torso": torso}
         for s in SIDES:
