@@ -253,8 +253,12 @@ def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, c
     T[:, 2, 3] += np.maximum(0.0, floor - lowest)
     out = T.copy()
     held: Array | None = None
-    last = T[0]
-    since = EASE
+    last, since = 0, EASE
+    pivot_f: list[int] = []  # contact frames with the heel up, their held pose's frame, eased frames, from, u
+    pivot_from: list[int] = []
+    ease_f: list[int] = []
+    ease_from: list[int] = []
+    ease_u: list[float] = []
     for f in range(F):
         if contact[f]:
             if held is None:
@@ -262,23 +266,29 @@ def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, c
                 yaw = np.arctan2(T[f, 1, 0], T[f, 0, 0]) - np.arctan2(rest[1, 0], rest[0, 0])
                 held[:3, :3] = _yaw(yaw) @ rest[:3, :3]
                 held[2, 3] = rest[2, 3]
+                start = f
             out[f] = held
-            if not heel[f]:  # toe pivot: driven turn about the frozen toe (never tipping the heel under the floor)
-                pivot = held[:3, :3] @ toe + held[:3, 3]
-                out[f, :3, :3] = T[f, :3, :3]
-                out[f, :3, 3] = pivot - T[f, :3, :3] @ toe
-                dip = floor - (np.einsum("ij,pj->pi", out[f, :3, :3], soles) + out[f, :3, 3])[:, 2].min()
-                if dip > 1e-9:
-                    out[f] = held
-            last, since = out[f].copy(), 0
+            if not heel[f]:
+                pivot_f.append(f)
+                pivot_from.append(start)
+            last, since = f, 0
         else:
             held = None
             if since < EASE:
                 since += 1
-                u = since / EASE
-                out[f, :3, 3] = (1 - u) * last[:3, 3] + u * T[f, :3, 3]
-                out[f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
-                    spatial.mat_to_quat(last[:3, :3]), spatial.mat_to_quat(T[f, :3, :3]), u))
+                ease_f.append(f)
+                ease_from.append(last)
+                ease_u.append(since / EASE)
+    if pivot_f:  # toe pivot: the driven turn about the frozen toe, unless it tips the heel under the floor
+        R, H = T[pivot_f, :3, :3], out[pivot_from]
+        p = H[:, :3, :3] @ toe + H[:, :3, 3] - R @ toe
+        ok = (np.einsum("fij,pj->fpi", R, soles) + p[:, None])[..., 2].min(axis=1) >= floor - 1e-9
+        out[np.array(pivot_f)[ok], :3, :3], out[np.array(pivot_f)[ok], :3, 3] = R[ok], p[ok]
+    if ease_f:  # after a lift-off: from the last pose in contact to the driven one
+        A, u = out[ease_from], np.array(ease_u)
+        out[ease_f, :3, 3] = (1 - u)[:, None] * A[:, :3, 3] + u[:, None] * T[ease_f, :3, 3]
+        out[ease_f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
+            spatial.mat_to_quat(A[:, :3, :3]), spatial.mat_to_quat(T[ease_f, :3, :3]), u))
     return out
 
 
