@@ -34,7 +34,9 @@ from mjkin.ik.kernel import (
     _scaled_errors,
     _step,
     step_scratch,
+    summarise,
 )
+from mjkin.ik.packed import Packed
 from mjkin.jit import monotonic_ns, njit, njit_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
@@ -213,6 +215,14 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
         iters[b] = it
         status[b] = code
         used[b] = u
+
+
+@njit
+def solve_packed(pk: Packed, lo: int, hi: int) -> None:
+    """Solve targets ``lo <= b < hi`` of a packed problem (:mod:`mjkin.ik.packed`) and summarise their errors."""
+    solve_batch(pk.kin, pk.ga, pk.q, pk.method, pk.settings, pk.max_iters, pk.starts, pk.restart_q, pk.active, pk.iters,
+                pk.status, pk.used, pk.err, pk.hist_q, pk.hist_err, lo, hi)
+    summarise(pk.err[lo:hi], pk.ga.counted, pk.settings.tol, pk.settings.rot_tol, pk.worst[lo:hi], pk.success[lo:hi])
 
 
 

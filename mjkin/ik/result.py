@@ -120,9 +120,17 @@ def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray
     """Build a :class:`Result` from flat per-target arrays."""
     worst, success = np.empty((len(q), 2)), np.empty(len(q), dtype=bool)
     summarise(err, prog.counted, float(tol), float(rot_tol), worst, success)
-    names = STATUS[status]
+    return result_of(prog, q, worst, success, err, iters, status, used, method, history, tree)
+
+
+def result_of(prog: Program, q: Array, worst: Array, success: NDArray, err: Array, iters: NDArray, status: NDArray,
+              used: NDArray, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
+    """A :class:`Result` from flat per-target arrays, already summarised (``worst (B, 2)``, ``success (B,)``).
+
+    The result keeps the arrays (views of them), so they must be the caller's no more.
+    """
     b = prog.batch
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
-                  iterations=_shaped(b, iters), status=_shaped(b, names), goal_errors=_shaped(b, err),
+                  iterations=_shaped(b, iters), status=_shaped(b, STATUS[status]), goal_errors=_shaped(b, err),
                   goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)
