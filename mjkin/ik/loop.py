@@ -67,7 +67,7 @@ def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array,
 # END evaluate_goals
 
 
-@njit
+@njit_inline
 def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st: Settings, max_iters: int,
               restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], err_out: Array,
               hist_q: Array, hist_err: Array) -> tuple:
@@ -204,7 +204,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     return it, status, used
 
 
-@njit
+@njit_inline
 def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Settings, max_iters: int,
                 restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], iters: Index,
                 status: Index, used: Index, err: Array, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:

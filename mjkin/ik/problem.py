@@ -109,6 +109,7 @@ class Problem:
         self.structure = structure(tree, user)
         self.wrap = self._wrapped_hinges()
         self.active = self._active_dofs()
+        self.mobile = bool(self.active.any())  # some dof may move
         self.restart_q = self._restart_q()
         self.n_restarts = self.method.restart_count(self.time_limit is not None)
         self.starts = self._random_starts(self.n_restarts) if self.seed is not None else np.zeros((0, tree.nq))
@@ -156,7 +157,7 @@ class Problem:
         q = self._start(q_start, prog)
         if self.seed is None and self.n_restarts:
             self.starts = self._random_starts(self.n_restarts)
-        if not self.active.any():  # nothing may move: the start is the answer, whatever the method
+        if not self.mobile:  # nothing may move: the start is the answer, whatever the method
             result = self._immobile(prog, q)
         else:
             result = self._run(prog, q.copy() if self.avoid_collisions else q)  # the run overwrites its starts

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
+from .fk import Kinematics, PackedKinematics, Plan, frame_pose_one, kinematic_arrays, moved, pack_kinematics
 from .frames import Frames, forward
 from .jacobian import check_offset, frame_jacobian_one
 
@@ -60,6 +60,7 @@ class Tree:
     plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
     body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
+    packed: PackedKinematics = field(init=False, repr=False)  # kin as one compiled object (not pickled)
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
     ids: dict[str, dict[str, int]] = field(init=False, repr=False)  # name -> id, per element kind
@@ -81,6 +82,7 @@ class Tree:
         put("body_dofs", tuple(_ro(d, np.int64) for d in dofs))
         k = kinematic_arrays(self)
         put("kin", k)
+        put("packed", pack_kinematics(k))
         put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                         k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
         put("n_inner", int(np.count_nonzero(k.jnt_inner >= 0)))
@@ -89,6 +91,13 @@ class Tree:
             T = spatial.make_transform(self.site_rot[i], self.site_pos[i])
             frames["site", i] = (int(self.site_body[i]), _ro(T))
         put("frames", frames)
+
+    def __getstate__(self) -> dict:
+        """Pickle the tree without :attr:`packed` (compiled memory; packed again on arrival)."""
+        return {k: v for k, v in self.__dict__.items() if k != "packed"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, packed=pack_kinematics(state["kin"]))
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
@@ -218,12 +227,17 @@ class Tree:
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,) and q.flags.c_contiguous:
+            body, local = self.frame_body(name, kind)  # one q: one compiled call, which checks q too
+            T = np.empty((4, 4))
+            if frame_pose_one(self.packed, q, body, local, T):
+                return T
         q = self.check_q(q)
         if q.ndim > 1:
             return self.kinematics(q).pose(*self.frame(name, kind))
         body, local = self.frame_body(name, kind)
         T = np.empty((4, 4))
-        frame_pose_one(np.ascontiguousarray(q).reshape(1, -1), body, local, T, *self.fk_args)
+        frame_pose_one(self.packed, np.ascontiguousarray(q).reshape(-1), body, local, T)
         return T
 
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
