@@ -316,28 +316,51 @@ def pack_kinematics(kin: Kinematics) -> PackedKinematics:
     return PackedKinematics(kin)
 
 
+@njit_inline
+def _fk_one(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> bool:
+    """:func:`fk_kernel` for one ``q (nq,)`` into :func:`fk_scratch`'s arrays, if ``q`` is a valid configuration.
+
+    Returns False (nothing written) for a NaN or inf or a zero quaternion, the cases
+    :func:`mjkin.kinematics.qspace.check` refuses (the caller's full check says why).
+    """
+    for a in range(q.shape[0]):
+        if not np.isfinite(q[a]):
+            return False
+    for j in range(kin.jnt_type.shape[0]):
+        if kin.jnt_type[j] == BALL or kin.jnt_type[j] == FREE:
+            a = kin.jnt_qadr[j] + (3 if kin.jnt_type[j] == FREE else 0)
+            if q[a] ** 2 + q[a + 1] ** 2 + q[a + 2] ** 2 + q[a + 3] ** 2 < 1e-18:
+                return False
+    fk_kernel(q.reshape(1, q.shape[0]), kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count,
+              kin.jnt_inner, kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr,
+              kin.jnt_axis, kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
+    return True
+
+
 @njit
 def frame_pose_one(pk: PackedKinematics, q: Array, body: int, local: Array, T: Array) -> bool:
     """World pose ``T (4, 4)`` of the frame ``local (4, 4)`` fixed in ``body``, for one ``q (nq,)``.
 
     The short path of :meth:`mjkin.Tree.pose` for a single configuration: one compiled
-    call, no per-body output. Returns False (``T`` unwritten) when ``q`` is not a valid
-    configuration (a NaN or inf, a zero quaternion): the caller's full check says why.
+    call, no per-body output. False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
     """
-    kin = pk.kin
-    for a in range(q.shape[0]):
-        if not np.isfinite(q[a]):
-            return False
-    for j in range(kin.jnt_type.shape[0]):  # as mjkin.kinematics.qspace.check
-        if kin.jnt_type[j] == BALL or kin.jnt_type[j] == FREE:
-            a = kin.jnt_qadr[j] + (3 if kin.jnt_type[j] == FREE else 0)
-            if q[a] ** 2 + q[a + 1] ** 2 + q[a + 2] ** 2 + q[a + 3] ** 2 < 1e-18:
-                return False
-    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
-    fk_kernel(q.reshape(1, q.shape[0]), kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count,
-              kin.jnt_inner, kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr,
-              kin.jnt_axis, kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
+    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
+    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
+        return False
     frame_world(rot, pos, 0, body, local, T)
+    return True
+
+
+@njit
+def body_poses_one(pk: PackedKinematics, q: Array, T: Array) -> bool:
+    """World pose of every body ``T (nbody, 4, 4)`` for one ``q (nq,)``: the short path of :meth:`mjkin.Tree.fk`.
+
+    False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
+    """
+    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
+    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
+        return False
+    _poses_kernel(rot[0], pos[0], T)
     return True
 
 

@@ -6,7 +6,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeGuard
 
 import mujoco
 import numpy as np
@@ -15,7 +15,16 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .fk import Kinematics, PackedKinematics, Plan, frame_pose_one, kinematic_arrays, moved, pack_kinematics
+from .fk import (
+    Kinematics,
+    PackedKinematics,
+    Plan,
+    body_poses_one,
+    frame_pose_one,
+    kinematic_arrays,
+    moved,
+    pack_kinematics,
+)
 from .frames import Frames, forward
 from .jacobian import check_offset, frame_jacobian_one
 
@@ -217,18 +226,30 @@ class Tree:
         return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
+    def _one_q(self, q: ArrayLike) -> TypeGuard[Array]:
+        """Whether ``q`` is one configuration ready for the single-q compiled paths (float64, C-contiguous, ``(nq,)``).
+
+        Its values are checked there; only when they fail does :meth:`check_q` run, to word the error.
+        """
+        return (type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,)
+                and q.flags.c_contiguous)
+
     def kinematics(self, q: ArrayLike) -> Frames:
         """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
         return forward(self, self.check_q(q))
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
+        if self._one_q(q):  # one compiled call, which checks q too
+            T = np.empty((self.nbody, 4, 4))
+            if body_poses_one(self.packed, q, T):
+                return T
         return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
-        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,) and q.flags.c_contiguous:
-            body, local = self.frame_body(name, kind)  # one q: one compiled call, which checks q too
+        if self._one_q(q):  # one compiled call, which checks q too
+            body, local = self.frame_body(name, kind)
             T = np.empty((4, 4))
             if frame_pose_one(self.packed, q, body, local, T):
                 return T
