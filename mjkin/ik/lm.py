@@ -168,6 +168,8 @@ class Loop:
         self.problem, self.code, self.st, self.max_iters = problem, code, st, max_iters
         self.H = max_iters + 1 if problem.history else 0
         self.one: tuple | None = None  # (packed, its arrays) of single targets
+        self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
+        self.solve_packed: Callable[[Packed, int, int], None] | None = None
         self.lock = threading.Lock()
 
     def arrays(self, prog: Program, q: Array) -> tuple:
@@ -199,21 +201,22 @@ class Loop:
 
     def single(self, prog: Program, q: Array) -> Result:
         """One target through the arrays packed once (:meth:`__call__` holds the lock)."""
-        if self.one is None:
+        if self.one is None or self.solve_packed is None:
             arrays = self.arrays(prog, q.copy())
-            self.one = (self.pack(arrays), arrays)
+            self.one, self.starts_in_one = (self.pack(arrays), arrays), self.problem.starts
+            self.solve_packed = kernels().solve_packed
         packed, arrays = self.one
         ga, q_in, starts = arrays[:3]
         ga.data[...] = prog.arrays.data
         if prog.structure.joint_targets:
             ga.rest_q[...] = prog.arrays.rest_q
         q_in[...] = q
-        if self.problem.starts is not starts:  # new restart starts each solve (seed=None)
-            starts[...] = self.problem.starts
+        if self.problem.starts is not self.starts_in_one:  # new restart starts each solve (seed=None)
+            starts[...] = self.starts_in_one = self.problem.starts
         if self.H:
             arrays[7].fill(np.nan)
             arrays[8].fill(0.0)
-        kernels().solve_packed(packed, 0, 1)
+        self.solve_packed(packed, 0, 1)
         q[...] = q_in
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))
