@@ -26,6 +26,7 @@ from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE, summarise
 from .method import Method
 from .methods import METHODS
+from .reasons import certify
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
@@ -163,6 +164,9 @@ class Problem:
             result = self._run(prog, q.copy() if self.avoid_collisions else q)  # the run overwrites its starts
         if self.avoid_collisions:
             result = self._collision_free(prog, result, q)
+        if not np.all(result.success):  # only a failure pays for telling a proof from a miss
+            reason = certify(self, prog, q, np.reshape(result.success, -1))
+            result = replace(result, reason=reason.reshape(np.shape(result.success)))
         if len(self.wrap):
             q_out = np.array(result.q)
             qspace.wrap(tree, q_out, self.wrap)

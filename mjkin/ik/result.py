@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 STATUS = np.array(STATUS_NAMES)
+NO_REASON = np.full(1, "", dtype="<U12")[0]  # an unbatched success's reason
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,10 @@ class Result:
         method: the method that ran.
         restarts: ``(...)`` random restarts used.
         history: per-iteration record when asked for (``history=True``).
+        reason: ``(...)`` why a target failed, beside ``status``: ``"out_of_reach"`` (proven: the
+            target lies beyond the chain's reach bound, :func:`mjkin.ik.reasons.reach_bound`),
+            ``"limits"`` (proven: reachable only outside the joint limits; checked where it is cheap,
+            a single moving joint), ``"not_found"`` (no proof either way); ``""`` for a success.
         tree: the tree solved on; not pickled (a result sent to another process travels
             without its ``MjModel``): re-attach it with :meth:`with_tree`.
     """
@@ -65,15 +70,16 @@ class Result:
     method: str
     restarts: Array
     history: History | None = None
+    reason: NDArray[np.str_] | None = None
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
     def __init__(self, q: Array, success: Array, error: Array, iterations: Array, status: Array, goal_errors: Array,
                  goals: tuple[Goal, ...], method: str, restarts: Array, history: History | None = None,
-                 tree: Tree | None = None) -> None:
+                 reason: NDArray[np.str_] | None = None, tree: Tree | None = None) -> None:
         # the fields at once: a frozen dataclass's own __init__ sets them one by one (~2 µs of a ~40 µs solve)
         self.__dict__.update(q=q, success=success, error=error, iterations=iterations, status=status,
                              goal_errors=goal_errors, goals=goals, method=method, restarts=restarts, history=history,
-                             tree=tree)
+                             reason=reason, tree=tree)
 
     def __getstate__(self) -> dict:
         """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it).
@@ -119,7 +125,7 @@ class Result:
         return self.error[..., 1]
 
 
-def _shaped(batch: tuple[int, ...], a: Array) -> Array:
+def _shaped(batch: tuple[int, ...], a: NDArray) -> NDArray:
     return a.reshape(batch + a.shape[1:]) if batch else a[0]
 
 
@@ -141,4 +147,5 @@ def result_of(prog: Program, q: Array, worst: Array, success: NDArray, err: Arra
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, STATUS[status]), goal_errors=_shaped(b, err),
-                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist, tree=tree)
+                  goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist,
+                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")) if b else NO_REASON, tree=tree)
