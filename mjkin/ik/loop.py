@@ -5,6 +5,8 @@ This file is a template: :mod:`mjkin.ik.compiled` writes a copy with
 (:mod:`mjkin.goals.registry`) and imports that copy. A solve of one target runs
 entirely inside :func:`solve_one`; :func:`solve_batch` runs a range of targets
 (the caller splits large batches across threads: the compiled code releases the GIL).
+Python calls :func:`solve_packed`, which takes all the arrays as one packed argument
+(:mod:`mjkin.ik.packed`); the other two are inlined into it.
 """
 
 from __future__ import annotations
