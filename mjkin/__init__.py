@@ -13,7 +13,9 @@ from .ik import Problem, Result, singular_values, solve
 from .kinematics import build
 from .kinematics.tree import Tree, bundled_models, load
 from .parallel import set_threads, threads
+from .reachability import place_base, reachability
 from .retarget import retarget
+from .solutions import solutions
 from .workspace import workspace
 
 __version__ = "0.1.0"
@@ -32,7 +34,10 @@ __all__ = [
     "bundled_models",
     "goals",
     "load",
+    "place_base",
+    "reachability",
     "singular_values",
+    "solutions",
     "retarget",
     "set_threads",
     "solve",

@@ -82,19 +82,25 @@ class Clip:
         F, J = len(values), len(self.names)
         T = np.broadcast_to(np.eye(4), (F, J, 4, 4)).copy()
         T[:, :, :3, 3] = self.offsets
+        turns: dict[str, tuple[list[int], list[list[int]]]] = {}  # Euler sequence -> joints, their angle columns
         for j, chans in enumerate(self.channels):
             rot = [(c[0], k) for k, c in enumerate(chans) if c.endswith("rotation")]
             for k, c in enumerate(chans):
                 if c.endswith("position"):
                     T[:, j, "xyz".index(c[0]), 3] = values[:, self.columns[j] + k]
             if rot:
-                angles = np.deg2rad(values[:, [self.columns[j] + k for _, k in rot]])
+                cols = [self.columns[j] + k for _, k in rot]
                 seq = "".join(a for a, _ in rot).upper()  # upper case: intrinsic, in the listed order
                 if len(seq) < 3:  # fewer than three rotation channels: pad with zero turns about unused axes
                     pad = "".join(a for a in "XYZ" if a not in seq)[: 3 - len(seq)]
-                    angles = np.concatenate([angles, np.zeros((F, len(pad)))], axis=1)
+                    cols += [-1] * len(pad)
                     seq += pad
-                T[:, j, :3, :3] = spatial.euler_to_mat(angles, seq)
+                joints, columns = turns.setdefault(seq, ([], []))
+                joints.append(j)
+                columns.append(cols)
+        padded = np.concatenate([np.deg2rad(values), np.zeros((F, 1))], axis=1)  # column -1: a zero turn
+        for seq, (joints, columns) in turns.items():  # one conversion per sequence, all its joints at once
+            T[:, joints, :3, :3] = spatial.euler_to_mat(padded[:, columns], seq)
         return T
 
     def world(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:

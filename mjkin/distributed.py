@@ -195,6 +195,7 @@ def concatenate(parts: Sequence[Result], tree: Tree | None = None) -> Result:
     return Result(q=cat("q"), success=cat("success"), error=cat("error"), iterations=cat("iterations"),
                   status=cat("status"), goal_errors=cat("goal_errors"), goals=goals,
                   method=first.method, restarts=cat("restarts"), history=history,
+                  reason=None if first.reason is None else cat("reason"),
                   binding=None if first.binding is None else cat("binding"), tree=tree)
 
 

@@ -1,6 +1,7 @@
 """Retargeting motion capture (BVH) onto an MJCF figure, with the feet planted while they touch the floor.
 
-The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
+The method, per clip (targets for every frame worked out at once, then one warm-started
+solve per frame through one :class:`mjkin.Problem`):
 
 1. The source is read (:mod:`mjkin.bvh`), put in metres (units from its height, or
    ``scale``), turned z-up and so that it first faces the figure's +x.
@@ -17,9 +18,9 @@ The method, per clip (all frames solved in one batched :func:`mjkin.solve`):
    hysteresis). A planted foot's target is frozen flat on the floor for the whole
    contact and eased back to the source's over :data:`EASE` frames after it lifts.
    Swinging feet are lifted so no sole point is below the floor.
-5. Goals: both feet's toe and heel points at the top priority, then (weighted) pelvis,
-   limb points, head, torso/pelvis orientations and the previous frame's pose; each frame
-   is warm-started from the previous one. Afterwards :func:`limit_speed`
+5. Goals, in one priority level: both feet's toe and heel points weighted far above
+   (:data:`FOOT_WEIGHT`) the pelvis, limb points, head, torso/pelvis orientations and the
+   previous frame's pose; each frame is warm-started from the previous one. Afterwards :func:`limit_speed`
    clamps each frame's change toward the previous one to the joint speed limit.
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
@@ -32,7 +33,8 @@ import json
 import os
 import re
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import bvh, spatial
 from . import goals as G
 from .errors import InputError, MjkinIOError
-from .ik import solve
+from .ik import Problem
 from .kinematics.tree import Tree, fingerprint
 from .motion import Trajectory, outside_limits, sole_points
 from .scene import Scene
@@ -80,10 +82,21 @@ FIGURES: dict[str, dict[str, str]] = {
                ("shoulder", "shoulder_roll_link"), ("elbow", "elbow_pitch_link"), ("wrist", "zero_link"))}},
 }
 FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its body, where it is not the origin
+# how much of the source's lean (pelvis to mid-shoulders, from upright) the pelvis takes, by model name: half
+# (the primate's waist turns 0.7 rad at most), all on the G1 (its torso only turns about the vertical)
+FIGURE_LEAN = {"g1": 1.0}
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
-MAX_ITERS = 15  # per frame: the body's goals conflict a little, so most frames stop here, not at tol
+# Each frame is one warm-started solve of MAX_ITERS iterations at most, all goals in one priority level (a second
+# level costs a projection per iteration: 1.7-2x the time), the feet's toe and heel points weighted FOOT_WEIGHT
+# against the body's goals (they slide a few micrometres per frame), REST_WEIGHT toward the previous frame's pose
+# (less lets a shoulder or hip swing faster than the speed limit between frames). The body's goals conflict a
+# little, so frames stop at MAX_ITERS, not at tol; more iterations change no figure of the report by much
+# (`mjkin bench retarget`: 15 iterations and two levels took 2.5-3x the time).
+MAX_ITERS = 6
+FOOT_WEIGHT = 1000.0
+REST_WEIGHT = 0.02
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -240,8 +253,12 @@ def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, c
     T[:, 2, 3] += np.maximum(0.0, floor - lowest)
     out = T.copy()
     held: Array | None = None
-    last = T[0]
-    since = EASE
+    last, since = 0, EASE
+    pivot_f: list[int] = []  # contact frames with the heel up, their held pose's frame, eased frames, from, u
+    pivot_from: list[int] = []
+    ease_f: list[int] = []
+    ease_from: list[int] = []
+    ease_u: list[float] = []
     for f in range(F):
         if contact[f]:
             if held is None:
@@ -249,23 +266,29 @@ def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, c
                 yaw = np.arctan2(T[f, 1, 0], T[f, 0, 0]) - np.arctan2(rest[1, 0], rest[0, 0])
                 held[:3, :3] = _yaw(yaw) @ rest[:3, :3]
                 held[2, 3] = rest[2, 3]
+                start = f
             out[f] = held
-            if not heel[f]:  # toe pivot: driven turn about the frozen toe (never tipping the heel under the floor)
-                pivot = held[:3, :3] @ toe + held[:3, 3]
-                out[f, :3, :3] = T[f, :3, :3]
-                out[f, :3, 3] = pivot - T[f, :3, :3] @ toe
-                dip = floor - (np.einsum("ij,pj->pi", out[f, :3, :3], soles) + out[f, :3, 3])[:, 2].min()
-                if dip > 1e-9:
-                    out[f] = held
-            last, since = out[f].copy(), 0
+            if not heel[f]:
+                pivot_f.append(f)
+                pivot_from.append(start)
+            last, since = f, 0
         else:
             held = None
             if since < EASE:
                 since += 1
-                u = since / EASE
-                out[f, :3, 3] = (1 - u) * last[:3, 3] + u * T[f, :3, 3]
-                out[f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
-                    spatial.mat_to_quat(last[:3, :3]), spatial.mat_to_quat(T[f, :3, :3]), u))
+                ease_f.append(f)
+                ease_from.append(last)
+                ease_u.append(since / EASE)
+    if pivot_f:  # toe pivot: the driven turn about the frozen toe, unless it tips the heel under the floor
+        R, H = T[pivot_f, :3, :3], out[pivot_from]
+        p = H[:, :3, :3] @ toe + H[:, :3, 3] - R @ toe
+        ok = (np.einsum("fij,pj->fpi", R, soles) + p[:, None])[..., 2].min(axis=1) >= floor - 1e-9
+        out[np.array(pivot_f)[ok], :3, :3], out[np.array(pivot_f)[ok], :3, 3] = R[ok], p[ok]
+    if ease_f:  # after a lift-off: from the last pose in contact to the driven one
+        A, u = out[ease_from], np.array(ease_u)
+        out[ease_f, :3, 3] = (1 - u)[:, None] * A[:, :3, 3] + u[:, None] * T[ease_f, :3, 3]
+        out[ease_f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
+            spatial.mat_to_quat(A[:, :3, :3]), spatial.mat_to_quat(T[ease_f, :3, :3]), u))
     return out
 
 
@@ -307,13 +330,14 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         up = np.array([0.0, 0.0, 1.0])
         P = lambda r: pts[..., roles[r], :]  # noqa: E731
         mid_sh = 0.5 * (P("left_shoulder") + P("right_shoulder"))
-        pelvis = _frame(P("left_hip") - P("right_hip"), _unit(mid_sh - P("pelvis")) + up)  # half the lean
+        lean = FIGURE_LEAN.get(tree.name, 0.5)
+        pelvis = _frame(P("left_hip") - P("right_hip"), lean * _unit(mid_sh - P("pelvis")) + (1 - lean) * up)
         torso = _frame(P("left_shoulder") - P("right_shoulder"), mid_sh - P("pelvis"))
         out = {"pelvis": pelvis, "torso": torso}
         for s in SIDES:
             ahead = P(f"{s}_toe") - P(f"{s}_ankle") if f"{s}_toe" in roles else pelvis[..., :, 0]
             x = _unit(ahead)
-            y = _unit(np.cross(up, x))
+            y = _unit(np.cross(P(f"{s}_knee") - P(f"{s}_ankle"), x))  # across the shin: defined however the toe points
             out[f"{s}_ankle"] = np.stack([x, y, np.cross(x, y)], axis=-1)
         return out
 
@@ -369,8 +393,11 @@ def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
     A stand-in for a hard per-joint step limit in the solve: it runs after it.
     """
     out = np.array(q)
+    if len(out) < 2:
+        return out
     step = np.broadcast_to(np.asarray(max_step, float), (tree.nv,))
-    for f in range(1, len(out)):
+    over = np.any(np.abs(tree.difference(out[1:], out[:-1])) > step, axis=-1)
+    for f in range(int(np.argmax(over)) + 1 if over.any() else len(out), len(out)):  # from the first fast frame on
         d = tree.difference(out[f], out[f - 1])
         if np.any(np.abs(d) > step):
             out[f] = tree.integrate(out[f - 1], np.clip(d, -step, step))
@@ -379,7 +406,8 @@ def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
 
 def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
              mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
-             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, model_source: str = "") -> Trajectory:
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, extra_goals: Sequence[G.Goal] = (),
+             model_source: str = "") -> Trajectory:
     """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
 
     Args:
@@ -390,6 +418,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         scale: metres per BVH unit; default from the skeleton's height.
         max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``.
         tol: IK position tolerance (m).
+        extra_goals: goals added to every frame's as they are (targets that do not change from
+            frame to frame, such as a clearance between the figure's bodies); their priority
+            decides whether they outrank the feet (0) or join the body's goals (1).
         model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
 
     Returns:
@@ -410,7 +441,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale)
-    q, t_first = solve_frames(tree, plan_, tol)
+    q, t_first = solve_frames(tree, plan_, tol, tuple(extra_goals))
     q = limit_speed(tree, q, speed * clip.frame_time)
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
@@ -425,42 +456,82 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                       source=model_source)
 
 
-def frame_goals(tree: Tree, plan_: Retarget, f: int, q_prev: Array) -> list[G.Goal]:
-    """Goals of frame ``f``: the feet's toe and heel points at priority 0; the body and ``q_prev`` (weighted) at 1."""
+@dataclass(frozen=True)
+class FrameGoals:
+    """Every frame's goals, laid out once for the clip: frame ``f``'s goals are :meth:`at` ``(f, q_prev)``.
+
+    ``goals`` are frame 0's (their kinds, frames, weights and priorities are every frame's);
+    goal ``k`` takes field ``fields[k]`` from ``targets[k][f]`` (``(F, 3)`` points,
+    ``(F, 3, 3)`` rotations), or keeps its target when ``fields[k]`` is empty (``extra``
+    goals). ``rest`` pulls toward the previous frame's pose; it comes last.
+    """
+
+    goals: tuple[G.Goal, ...]
+    fields: tuple[str, ...]
+    targets: tuple[Array, ...]
+    rest: G.Rest
+
+    def at(self, f: int, q_prev: Array) -> list[G.Goal]:
+        """Frame ``f``'s goals, resting toward ``q_prev (nq,)``."""
+        out = [replace(g, **{k: a[f]}) if k else g for g, k, a in zip(self.goals, self.fields, self.targets,
+                                                                          strict=True)]
+        out.append(replace(self.rest, q_rest=q_prev))
+        return out
+
+
+def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> FrameGoals:
+    """Every frame's goals (see :class:`FrameGoals`), their targets as arrays over the clip.
+
+    At priority 1, weighted: the feet's toe and heel points (:data:`FOOT_WEIGHT`), the pelvis,
+    the torso's and pelvis's turn, the limb points and head, the previous frame's pose
+    (:data:`REST_WEIGHT`); ``extra`` as given.
+    """
     b = plan_.bodies
     goals: list[G.Goal] = []
+    fields: list[str] = []
+    targets: list[Array] = []
+
+    def add(goal: G.Goal, field: str, target: Array) -> None:
+        goals.append(replace(goal, **{field: target[0]}) if field else goal)
+        fields.append(field)
+        targets.append(target)
+
     for i, s in enumerate(SIDES):
-        T = plan_.feet[i, f]
+        T = plan_.feet[i]
         for point in sole_points(tree, b[f"{s}_ankle"]):
-            goals.append(G.Position(b[f"{s}_ankle"], T[:3, :3] @ point + T[:3, 3], kind="body",
-                                    offset=tuple(point)))
-    goals.append(G.Position(b["pelvis"], plan_.points["pelvis"][f], kind="body", priority=1))
-    goals.append(G.Orientation(b["pelvis"], plan_.rotations["pelvis"][f], kind="body", priority=1, weight=0.3))
-    goals.append(G.Orientation(b["torso"], plan_.rotations["torso"][f], kind="body", priority=1, weight=0.3))
+            foot = G.Position(b[f"{s}_ankle"], kind="body", offset=tuple(point), priority=1, weight=FOOT_WEIGHT)
+            add(foot, "xyz", T[:, :3, :3] @ point + T[:, :3, 3])
+    add(G.Position(b["pelvis"], kind="body", priority=1), "xyz", plan_.points["pelvis"])
+    for r in ("pelvis", "torso"):
+        add(G.Orientation(b[r], kind="body", priority=1, weight=0.3), "quat", plan_.rotations[r])
     for r in ("head", *(f"{s}_{p}" for s in SIDES for p in ("knee", "shoulder", "elbow", "wrist"))):
         off = plan_.offsets[r]
-        goals.append(G.Position(b[r], plan_.points[r][f], kind="body", priority=1,
-                                offset=tuple(off) if np.any(off) else None, weight=1.0 if "wrist" in r else 0.5))
-    goals.append(G.Rest(q_rest=q_prev, weight=0.05, priority=1))  # one level for the body: each costs a projection
-    return goals
+        add(G.Position(b[r], kind="body", priority=1, offset=tuple(off) if np.any(off) else None,
+                       weight=1.0 if "wrist" in r else 0.5), "xyz", plan_.points[r])
+    for g in extra:
+        add(g, "", np.empty(0))
+    rest = G.Rest(q_rest=tree.qpos0, weight=REST_WEIGHT, priority=1)
+    return FrameGoals(tuple(goals), tuple(fields), tuple(targets), rest)
 
 
-def solve_frames(tree: Tree, plan_: Retarget, tol: float) -> tuple[Array, float]:
-    """Joint values ``(F, nq)``, frame by frame, each warm-started from (and resting toward) the previous one.
+def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal] = ()) -> tuple[Array, float]:
+    """Joint values ``(F, nq)``, frame by frame through one :class:`~mjkin.Problem`.
 
-    Also returns the seconds the first frame took (it may include compiling the solver).
+    Each frame is warm-started from (and rests toward) the previous frame's pose; ``extra``
+    goals join every frame's. Also returns the seconds the first frame took (it may include compiling the solver).
     """
     F = len(plan_.points["pelvis"])
     q = tree.qpos0.copy()
     free = tree.layout.free_q[0]
     q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
     out = np.empty((F, tree.nq))
-    t_first = 0.0
+    layout = frame_goals(tree, plan_, extra)
+    t = time.perf_counter()
+    problem = Problem(tree, layout.at(0, q), tol=tol, restarts=0, max_iters=MAX_ITERS)
     for f in range(F):
-        t = time.perf_counter()
-        q = solve(tree, frame_goals(tree, plan_, f, q), q0=q, tol=tol, restarts=0, max_iters=MAX_ITERS).q
-        out[f] = q
-        t_first = time.perf_counter() - t if f == 0 else t_first
+        q = out[f] = problem.solve(q, layout.at(f, q)).q
+        if f == 0:
+            t_first = time.perf_counter() - t
     return out, t_first
 
 

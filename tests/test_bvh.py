@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from mjkin import bvh
+from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.errors import InputError, MjkinError
 
-MOCAP = Path(__file__).resolve().parents[2] / "shared" / "mocap"
+MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)
 need_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"the shared clips are not here ({MOCAP})")
 
 # root at (1, 2, 3) turned 90 deg about z; child offset (0, 10, 0) turned 90 deg about x; an End Site (0, 0, 5)

@@ -43,4 +43,4 @@ def test_warmup_compiles_every_kernel_mjkin_runs():
     from mjkin.kinematics.fk import fk_kernel
 
     assert warmup() > 0
-    assert kernels().solve_batch.signatures and fk_kernel.signatures
+    assert kernels().solve_packed.signatures and fk_kernel.signatures

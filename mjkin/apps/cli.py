@@ -25,7 +25,7 @@ from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load, source_of
-from . import bench, retarget_cli
+from . import bench, placement_cli, retarget_cli
 from .argtypes import Once, nonnegative_int, positive_float, positive_int
 
 if TYPE_CHECKING:
@@ -39,7 +39,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_SIDE = 8192  # largest --width/--height: MuJoCo's offscreen buffer is raised to it, GL allows 16384 at least
 SIGPIPE_EXIT = 128 + 13  # what a shell reports for a tool that SIGPIPE ended (``set -o pipefail`` sees it)
 UNIT_TOL = 1e-3  # a command-line quaternion whose norm is further from 1 (not rounding: a mistake) gets a warning
-VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points")
+VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points", "--region")
 NEGATIVE_NUMBER = re.compile(r"-\.?\d")  # how a value such as "-20,5,0" starts (argparse takes it for an option)
 
 
@@ -238,12 +238,14 @@ def cmd_ik(args: argparse.Namespace) -> int:
     q = display_q(tree, res.q)
     report = {"q": q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
-              "method": res.method}
+              "method": res.method, "reason": str(res.reason)}
     if args.json:
         print(strict_json(report))
     else:
+        why = {"out_of_reach": "; proven out of reach", "limits": "; proven blocked by the joint limits",
+               "not_found": "; not proven unreachable"}.get(str(res.reason), "")
         print(f"{'success' if res.success else 'failed'}: {res.status} after {report['iterations']} iterations, "
-              f"{report['restarts']} restarts ({res.method})")
+              f"{report['restarts']} restarts ({res.method}){why}")
         print(f"position error {res.error[0]:.3g} m, rotation error {res.error[1]:.3g} rad"
               + ("" if args.quat is not None else " (not a goal)"))
         print("q " + fixed(q))
@@ -620,6 +622,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--samples", type=positive_int, default=100_000, help="random configurations (default 100000)")
     s.add_argument("-o", "--output", default="workspace.png", help="image file (default workspace.png)")
     s.set_defaults(run=cmd_workspace)
+
+    s = sub.add_parser("reachability", help="a frame's capability map (share of orientations IK reaches per voxel), "
+                                            "one slice plotted (.png)")
+    placement_cli.reachability_arguments(s)
+    s.set_defaults(run=placement_cli.run_reachability)
+
+    s = sub.add_parser("place-base", help="where to put the base so a frame reaches the poses: ranked on the "
+                                          "capability map, verified by IK, heat map (.png)")
+    placement_cli.place_base_arguments(s)
+    s.set_defaults(run=placement_cli.run_place_base)
 
     s = sub.add_parser("bench", help="benchmarks: mjkin beside its baseline, as ratios")
     bench.add_arguments(s)

@@ -12,6 +12,7 @@ import numpy as np
 from ..checks import check_count
 from ..errors import GoalError, UnknownNameError
 from ..jit import njit, njit_inline
+from ..kinematics.distance import pair_distance, pair_distance_jacobian
 from ..kinematics.geoms import (
     BOX,
     CAPSULE,
@@ -21,8 +22,6 @@ from ..kinematics.geoms import (
     contact_pairs,
     native_pairs,
     near_pairs,
-    pair_distance,
-    pair_distance_jacobian,
 )
 from .base import METRES, Array, Goal, Units
 

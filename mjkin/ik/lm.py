@@ -6,6 +6,7 @@ level's step is solved (see :mod:`mjkin.ik.kernel`) and in their defaults.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
@@ -17,7 +18,8 @@ from ..parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
 from .method import Array, Method, Problem
-from .result import History, Result, package
+from .packed import Packed, pack
+from .result import History, Result, result_of
 
 if TYPE_CHECKING:
     from ..goals import Program
@@ -87,8 +89,7 @@ class Jacobian(Method):
 
     def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
         """The compiled loop with this problem's settings, made once."""
-        st, code, max_iters = self.settings(problem), self.code, int(self.max_iters)
-        return lambda prog, q: run_loop(problem, prog, q, code, st, max_iters)
+        return Loop(problem, self.code, self.settings(problem), int(self.max_iters))
 
 
 @dataclass(frozen=True)
@@ -153,30 +154,84 @@ class Auto(LM):
         return TIMED_RESTARTS if timed else AUTO_RESTARTS
 
 
-def run_loop(problem: Problem, prog: Program, q: Array, code: int, st: kernel.Settings, max_iters: int) -> Result:
-    """Run the compiled loop on every target from ``q (B, nq)`` (overwritten) and package the result.
+class Loop:
+    """The compiled loop run for one problem: every target of a program from the starts ``q (B, nq)`` (overwritten).
 
-    The restart starts are shared by all targets (C-contiguous, as every other
-    array here, so one compiled specialisation serves every batch size).
+    Each call packs its arrays for the compiled code (:mod:`mjkin.ik.packed`), all
+    C-contiguous as every array here, so one compiled specialisation serves every batch
+    size. A single target reuses the arrays packed at its first solve: only its targets
+    and start are copied in, and the answers out (a call made while another thread runs
+    one packs its own).
     """
-    B, nq = prog.B, problem.tree.nq
-    H = max_iters + 1 if problem.history else 0
-    hist_q = np.full((B, H, nq), np.nan)
-    hist_err = np.zeros((B, H, 2))
-    iters, status, used = np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64)
-    binding = np.zeros(B, np.int64)
-    err = np.zeros((B, len(prog.goals), 2))
-    kin, ga, solve_batch = problem.tree.kin, prog.arrays, kernels().solve_batch
-    starts, restart_q, active = problem.starts, problem.restart_q, problem.active
 
-    def run(lo: int, hi: int) -> None:  # targets lo..hi-1; the compiled code releases the GIL
-        solve_batch(kin, ga, q, code, st, max_iters, starts, restart_q, active, iters, status, used, binding, err,
-                    hist_q, hist_err, lo, hi)
+    def __init__(self, problem: Problem, code: int, st: kernel.Settings, max_iters: int) -> None:
+        self.problem, self.code, self.st, self.max_iters = problem, code, st, max_iters
+        self.H = max_iters + 1 if problem.history else 0
+        self.one: tuple | None = None  # (packed, its arrays) of single targets
+        self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
+        self.solve_packed: Callable[[Packed, int, int], None] | None = None
+        self.lock = threading.Lock()
 
-    parallel_chunks(run, B)
-    history = None
-    if problem.history:
-        hist_err[np.arange(H)[None, :] > iters[:, None]] = np.nan
-        history = History(hist_q, hist_err)
-    return package(prog, q, err, iters, status, used, problem.tol, problem.rot_tol, problem.method_name, history,
-                   problem.tree, binding)
+    def arrays(self, prog: Program, q: Array) -> tuple:
+        """Fresh arrays of a call: the goal arrays, the starts, the restart starts, and the outputs."""
+        B, G, nq, H = prog.B, len(prog.goals), self.problem.tree.nq, self.H
+        return (prog.arrays, q, np.array(self.problem.starts), np.zeros(B, np.int64), np.zeros(B, np.int64),
+                np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros((B, G, 2)), np.full((B, H, nq), np.nan),
+                np.zeros((B, H, 2)), np.empty((B, 2)), np.empty(B, dtype=bool))
+
+    def pack(self, arrays: tuple) -> Packed:
+        """:func:`mjkin.ik.packed.pack` of ``arrays`` (:meth:`arrays`) with the problem's constants."""
+        ga, q, starts, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
+        p = self.problem
+        return pack(p.tree.kin, ga, self.st, self.code, self.max_iters, starts, p.restart_q, p.active, q, iters,
+                    status, used, binding, err, hist_q, hist_err, worst, success)
+
+    def __call__(self, prog: Program, q: Array) -> Result:
+        """Solve every target of ``prog`` from ``q (B, nq)`` (overwritten; the result's ``q`` is a view of it)."""
+        if prog.B == 1 and self.lock.acquire(blocking=False):
+            try:
+                return self.single(prog, q)
+            finally:
+                self.lock.release()
+        arrays = self.arrays(prog, q)
+        packed, solve_packed = self.pack(arrays), kernels().solve_packed
+        # the compiled code releases the GIL
+        parallel_chunks(lambda lo, hi: solve_packed(packed, lo, hi), prog.B)
+        return self.result(prog, arrays)
+
+    def single(self, prog: Program, q: Array) -> Result:
+        """One target through the arrays packed once (:meth:`__call__` holds the lock)."""
+        if self.one is None or self.solve_packed is None:
+            arrays = self.arrays(prog, q.copy())
+            self.one, self.starts_in_one = (self.pack(arrays), arrays), self.problem.starts
+            self.solve_packed = kernels().solve_packed
+        packed, arrays = self.one
+        ga, q_in, starts = arrays[:3]
+        ga.data[...] = prog.arrays.data
+        if prog.structure.joint_targets:
+            ga.rest_q[...] = prog.arrays.rest_q
+        q_in[...] = q
+        if self.problem.starts is not self.starts_in_one:  # new restart starts each solve (seed=None)
+            starts[...] = self.starts_in_one = self.problem.starts
+        if self.H:
+            arrays[8].fill(np.nan)
+            arrays[9].fill(0.0)
+        self.solve_packed(packed, 0, 1)
+        q[...] = q_in
+        if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
+            return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))
+        ga, _, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
+        history = None if not self.H else History(hist_q.copy(), hist_err.copy())
+        return self.result(prog, (ga, q, None, iters, status, used, binding, err.copy(), None, None, worst.copy(),
+                                  success), history)
+
+    def result(self, prog: Program, arrays: tuple, history: History | None = None) -> Result:
+        """The :class:`Result` of a call's ``arrays``; they become the result's (unbatched: its numbers)."""
+        _, q, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
+        p = self.problem
+        if self.H and history is None:
+            history = History(hist_q, hist_err)
+        if history is not None:
+            history.error[np.arange(self.H)[None, :] > iters[:, None]] = np.nan
+        return result_of(prog, q, worst, success, err, iters, status, used, p.method_name, history, p.tree,
+                         binding)

@@ -5,6 +5,8 @@ This file is a template: :mod:`mjkin.ik.compiled` writes a copy with
 (:mod:`mjkin.goals.registry`) and imports that copy. A solve of one target runs
 entirely inside :func:`solve_one`; :func:`solve_batch` runs a range of targets
 (the caller splits large batches across threads: the compiled code releases the GIL).
+Python calls :func:`solve_packed`, which takes all the arrays as one packed argument
+(:mod:`mjkin.ik.packed`); the other two are inlined into it.
 """
 
 from __future__ import annotations
@@ -40,7 +42,9 @@ from mjkin.ik.kernel import (
     _step,
     _violation,
     step_scratch,
+    summarise,
 )
+from mjkin.ik.packed import Packed
 from mjkin.jit import monotonic_ns, njit, njit_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
@@ -73,7 +77,7 @@ def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array,
 # END evaluate_goals
 
 
-@njit
+@njit_inline
 def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st: Settings, max_iters: int,
               restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], err_out: Array,
               hist_q: Array, hist_err: Array) -> tuple:
@@ -309,7 +313,7 @@ def _stack_active(s: Array, Js: Array, on: NDArray[np.bool_], g: Array, J: Array
     return k
 
 
-@njit
+@njit_inline
 def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Settings, max_iters: int,
                 restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], iters: Index,
                 status: Index, used: Index, binding: Index, err: Array, hist_q: Array, hist_err: Array, lo: int,
@@ -322,6 +326,15 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
         status[b] = code
         used[b] = u
         binding[b] = bind
+
+
+@njit
+def solve_packed(pk: Packed, lo: int, hi: int) -> None:
+    """Solve targets ``lo <= b < hi`` of a packed problem (:mod:`mjkin.ik.packed`) and summarise their errors."""
+    solve_batch(pk.kin, pk.ga, pk.q, pk.method, pk.settings, pk.max_iters, pk.starts, pk.restart_q, pk.active, pk.iters,
+                pk.status, pk.used, pk.binding, pk.err, pk.hist_q, pk.hist_err, lo, hi)
+    summarise(pk.err[lo:hi], pk.ga.counted, pk.ga.hard, pk.settings.tol, pk.settings.rot_tol, pk.worst[lo:hi],
+              pk.success[lo:hi])
 
 
 

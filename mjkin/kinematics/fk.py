@@ -17,10 +17,12 @@ sets the body's world pose directly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import mujoco
 import numpy as np
+from numba import types
+from numba.experimental import structref
 from numpy.typing import NDArray
 
 from ..jit import axis_angle, njit, njit_inline, quat_to_mat
@@ -294,21 +296,77 @@ def fk_scratch(parent: Index, jnt_inner: Index) -> tuple[Array, Array, Array, Ar
     return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
 
 
-@njit
-def frame_pose_one(q: Array, body: int, local: Array, T: Array, parent: Index, fixed_rot: Array, fixed_pos: Array,
-                   jnt_start: Index, jnt_count: Index, jnt_inner: Index, fixed_plain: NDArray[np.bool_],
-                   hinge_coord: Index, anchor_zero: NDArray[np.bool_], jnt_type: Index, jnt_qadr: Index,
-                   jnt_axis: Array, jnt_pos: Array, qpos0: Array) -> None:
-    """World pose ``T (4, 4)`` of the frame ``local (4, 4)`` fixed in ``body``, for one ``q (1, nq)``.
+@structref.register
+class PackedKinematicsType(types.StructRef):
+    """The numba type of :class:`PackedKinematics`."""
 
-    The short path of :meth:`mjkin.Tree.pose` for a single configuration: one
-    compiled call taking the FK arrays one by one (numba passes separate arrays
-    faster than a tuple of them), no per-body output.
+
+class PackedKinematics(structref.StructRefProxy):
+    """A tree's :class:`Kinematics` as one compiled object: one pointer to pass instead of 28 arrays.
+
+    numba unboxes every array of a call's arguments on every call (~0.1-0.2 µs each), more
+    than a 7-DoF arm's FK takes; a ``StructRef`` crosses as one pointer.
     """
-    rot, pos, irot, ipos = fk_scratch(parent, jnt_inner)
-    fk_kernel(q, parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
-              anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, irot, ipos)
+
+    if TYPE_CHECKING:
+        kin: Kinematics
+
+
+structref.define_proxy(PackedKinematics, PackedKinematicsType, ["kin"])
+
+
+@njit
+def pack_kinematics(kin: Kinematics) -> PackedKinematics:
+    """The :class:`PackedKinematics` of ``kin`` (made once per tree: ``Tree.packed``)."""
+    return PackedKinematics(kin)
+
+
+@njit_inline
+def _fk_one(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> bool:
+    """:func:`fk_kernel` for one ``q (nq,)`` into :func:`fk_scratch`'s arrays, if ``q`` is a valid configuration.
+
+    Returns False (nothing written) for a NaN or inf or a zero quaternion, the cases
+    :func:`mjkin.kinematics.qspace.check` refuses (the caller's full check says why).
+    """
+    for a in range(q.shape[0]):
+        if not np.isfinite(q[a]):
+            return False
+    for j in range(kin.jnt_type.shape[0]):
+        if kin.jnt_type[j] == BALL or kin.jnt_type[j] == FREE:
+            a = kin.jnt_qadr[j] + (3 if kin.jnt_type[j] == FREE else 0)
+            if q[a] ** 2 + q[a + 1] ** 2 + q[a + 2] ** 2 + q[a + 3] ** 2 < 1e-18:
+                return False
+    fk_kernel(q.reshape(1, q.shape[0]), kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count,
+              kin.jnt_inner, kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr,
+              kin.jnt_axis, kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
+    return True
+
+
+@njit
+def frame_pose_one(pk: PackedKinematics, q: Array, body: int, local: Array, T: Array) -> bool:
+    """World pose ``T (4, 4)`` of the frame ``local (4, 4)`` fixed in ``body``, for one ``q (nq,)``.
+
+    The short path of :meth:`mjkin.Tree.pose` for a single configuration: one compiled
+    call, no per-body output. False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
+    """
+    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
+    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
+        return False
     frame_world(rot, pos, 0, body, local, T)
+    return True
+
+
+@njit
+def body_poses_one(pk: PackedKinematics, q: Array, T: Array) -> bool:
+    """World pose of every body ``T (nbody, 4, 4)`` for one ``q (nq,)``: the short path of :meth:`mjkin.Tree.fk`.
+
+    False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
+    """
+    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
+    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
+        return False
+    _poses_kernel(rot[0], pos[0], T)
+    return True
 
 
 @njit_inline

@@ -6,7 +6,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeGuard
 
 import mujoco
 import numpy as np
@@ -16,9 +16,19 @@ from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
 from .com import com_many
-from .fk import Kinematics, Plan, frame_pose_one, kinematic_arrays, moved
+from .distance import distances
+from .fk import (
+    Kinematics,
+    PackedKinematics,
+    Plan,
+    body_poses_one,
+    frame_pose_one,
+    kinematic_arrays,
+    moved,
+    pack_kinematics,
+)
 from .frames import Frames, forward
-from .geoms import Geoms, distances, geom_arrays
+from .geoms import Geoms, geom_arrays
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
@@ -62,6 +72,7 @@ class Tree:
     plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
     body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
+    packed: PackedKinematics = field(init=False, repr=False)  # kin as one compiled object (not pickled)
     geoms: Geoms = field(init=False, repr=False)  # the geoms, for the compiled distances
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
@@ -84,6 +95,7 @@ class Tree:
         put("body_dofs", tuple(_ro(d, np.int64) for d in dofs))
         k = kinematic_arrays(self)
         put("kin", k)
+        put("packed", pack_kinematics(k))
         put("geoms", geom_arrays(m))
         put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                         k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
@@ -93,6 +105,13 @@ class Tree:
             T = spatial.make_transform(self.site_rot[i], self.site_pos[i])
             frames["site", i] = (int(self.site_body[i]), _ro(T))
         put("frames", frames)
+
+    def __getstate__(self) -> dict:
+        """Pickle the tree without :attr:`packed` (compiled memory; packed again on arrival)."""
+        return {k: v for k, v in self.__dict__.items() if k != "packed"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, packed=pack_kinematics(state["kin"]))
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
@@ -212,22 +231,39 @@ class Tree:
         return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
+    def _one_q(self, q: ArrayLike) -> TypeGuard[Array]:
+        """Whether ``q`` is one configuration ready for the single-q compiled paths (float64, C-contiguous, ``(nq,)``).
+
+        Its values are checked there; only when they fail does :meth:`check_q` run, to word the error.
+        """
+        return (type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,)
+                and q.flags.c_contiguous)
+
     def kinematics(self, q: ArrayLike) -> Frames:
         """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
         return forward(self, self.check_q(q))
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
+        if self._one_q(q):  # one compiled call, which checks q too
+            T = np.empty((self.nbody, 4, 4))
+            if body_poses_one(self.packed, q, T):
+                return T
         return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
+        if self._one_q(q):  # one compiled call, which checks q too
+            body, local = self.frame_body(name, kind)
+            T = np.empty((4, 4))
+            if frame_pose_one(self.packed, q, body, local, T):
+                return T
         q = self.check_q(q)
         if q.ndim > 1:
             return self.kinematics(q).pose(*self.frame(name, kind))
         body, local = self.frame_body(name, kind)
         T = np.empty((4, 4))
-        frame_pose_one(np.ascontiguousarray(q).reshape(1, -1), body, local, T, *self.fk_args)
+        frame_pose_one(self.packed, np.ascontiguousarray(q).reshape(-1), body, local, T)
         return T
 
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
@@ -257,7 +293,8 @@ class Tree:
     def distances(self, q: ArrayLike, pairs: ArrayLike | None = None) -> Array:
         """Signed distances ``(..., P)`` (m, < 0 = penetration) of geom pairs ``(P, 2)`` at ``q (..., nq)``.
 
-        Default pairs: those MuJoCo's collision tests (:func:`mjkin.kinematics.geoms.contact_pairs`).
+        Default pairs: those MuJoCo's collision tests (:func:`mjkin.kinematics.geoms.contact_pairs`);
+        see :mod:`mjkin.kinematics.distance`.
         """
         return distances(self, q, pairs)
 

@@ -21,7 +21,7 @@ ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True,
-                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,constraints,all}",
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,solutions,constraints,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -81,6 +81,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     s = sub.add_parser("retarget", help="the shared BVH clips onto the primate and the G1: skate, floor, speed")
     s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
+    common(s)
+
+    s = sub.add_parser("solutions", help="all IK solutions against closed forms (UR-type and spherical-wrist arms), "
+                                         "the Panda's capability map against brute-force IK, a shelf base placement")
+    s.add_argument("--poses", type=positive_int, default=1000, help="random poses per arm (default 1000)")
+    s.add_argument("--checks", type=positive_int, default=1000,
+                   help="map entries checked by brute-force IK (default 1000)")
     common(s)
 
     s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "

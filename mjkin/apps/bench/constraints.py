@@ -15,7 +15,8 @@ import numpy as np
 
 from ... import goals as G
 from ...ik import Problem
-from ...kinematics.geoms import contact_pairs, fallback_distance
+from ...kinematics.distance import fallback_distance
+from ...kinematics.geoms import contact_pairs
 from ...kinematics.tree import Tree, bundled_models, load
 from .report import Report, Row, gc_paused
 

@@ -373,6 +373,7 @@ def row(arm: Arm, solver: str, run: Run, targets: Array, tol: float, rot_tol: fl
               "single_per_s": None if ms is None else run.per_s,
               "batched_per_s": None if batched is None else batched.per_s,
               "cpu_mean_ms": None if run.cpu is None else 1e3 * float(run.cpu.mean()),
+              "cpu_median_ms": None if run.cpu is None else 1e3 * float(np.median(run.cpu)),
               "iterations_mean": float(run.iterations.mean()), "restarts_mean": float(run.restarts.mean())}
     if batched is not None:
         r["batched_success"] = 100.0 * float(success(arm, batched.q, targets, tol, rot_tol).mean())
@@ -458,7 +459,7 @@ def peers_beside(mine: list[Row], arm: Arm, names: Sequence[str], skipped: list[
         except peers.Unavailable as e:
             skipped.append({"model": arm.name, "solver": name, "reason": str(e)})
     for r in rows:  # > 1: mjkin faster
-        for stat in ("median", "mean"):
+        for stat in ("median", "mean", "cpu_median"):
             theirs, ours = r.get(f"{stat}_ms"), mine[0].get(f"{stat}_ms")
             r[f"{stat}_ratio"] = None if theirs is None or not ours else float(theirs) / float(ours)  # type: ignore
     return rows
@@ -497,7 +498,8 @@ def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: floa
                 "trac-ik budget": f"its own time limit, {time_limit:g} s", **PEER_NOTES,
                 "times": "wall clock per target, one call each; cpu_mean_ms: the calling thread's CPU time "
                          "(the solve's own work, without waits for a shared machine's cores)",
-                "ratios": "median_ratio / mean_ratio: the row's time over mjkin's in the same run (> 1: mjkin faster)",
+                "ratios": "median_ratio / mean_ratio / cpu_median_ratio: the row's time over mjkin's in the same run "
+                          "(> 1: mjkin faster)",
                 "gc": GC_NOTE}
     title = (f"{targets} random reachable 6-D poses per model from the home keyframe; success at {tol:g} m / "
              f"{rot_tol:g} rad re-checked by mj_kinematics; times per target, one call each")
@@ -536,7 +538,8 @@ def bench_trac_ik(models: Sequence[str] | None = None, targets: int = 10_000, to
                 "rtb-ik_LM budget": f"{RTB_ILIMIT} iterations x {1 + TIMED_RESTARTS} searches; it has no time limit "
                                     "of its own: a solve over the limit counts as failed (column timeouts)",
                 "trac-ik budget": f"its own time limit, {time_limit:g} s", **PEER_NOTES,
-                "ratios": "median_ratio / mean_ratio: the row's time over mjkin single's (> 1: mjkin faster)",
+                "ratios": "median_ratio / mean_ratio / cpu_median_ratio: the row's time over mjkin single's (> 1: "
+                          "mjkin faster)",
                 "published": TRAC_IK_SOURCE}
     tables = {f"TRAC-IK protocol: {targets} random in-limit configurations -> FK poses, start mid-range, "
               f"{tol:g} m / {rot_tol:g} rad, {1e3 * time_limit:g} ms per solve": rows, **peer_tables(skipped)}

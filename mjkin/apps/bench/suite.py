@@ -356,6 +356,10 @@ def run(args: argparse.Namespace) -> Report:
         from .retarget import bench_retarget
 
         return bench_retarget(args.repeat)
+    if args.which == "solutions":
+        from .solutions import bench_solutions
+
+        return bench_solutions(args.poses, args.checks, args.seed)
     if args.which == "render":
         return bench_render(args.frames, args.width, args.height, args.seed)
     if args.which == "env":

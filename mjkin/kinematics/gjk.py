@@ -1,0 +1,236 @@
+"""Distance between two convex primitives from their support points (Gilbert–Johnson–Keerthi).
+
+For the pairs without a closed form in :mod:`mjkin.kinematics.distance`:
+ellipsoids, cylinder–cylinder, cylinder–box. GJK walks a simplex of support
+points of the Minkowski difference towards the origin; apart shapes get their
+distance to :data:`GJK_TOL` with the closest points. Overlapping shapes get the
+deepest separation over their axes and the axes' cross products, an estimate at
+least as deep as the true penetration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..jit import njit
+from .geoms import BOX, CAPSULE, CYLINDER, SPHERE
+
+Array = NDArray[np.float64]
+
+GJK_STEPS = 100  # support-point iterations, at most
+GJK_TOL = 1e-10  # m: GJK stops when the distance is known to this
+
+
+@njit
+def support(kind: int, size: Array, R: Array, c: Array, v: Array, z: Array) -> None:
+    """The point ``z`` of a sphere, capsule, ellipsoid, cylinder or box farthest along ``v`` (unit, world)."""
+    for i in range(3):
+        z[i] = c[i]
+    if kind == SPHERE:
+        for i in range(3):
+            z[i] += size[0] * v[i]
+    elif kind == CAPSULE or kind == CYLINDER:
+        k = R[0, 2] * v[0] + R[1, 2] * v[1] + R[2, 2] * v[2]
+        sg = 1.0 if k >= 0.0 else -1.0
+        for i in range(3):
+            z[i] += sg * size[1] * R[i, 2]
+        if kind == CAPSULE:
+            for i in range(3):
+                z[i] += size[0] * v[i]
+        else:  # the rim, along v's part across the axis
+            wn = np.sqrt(max(1.0 - k * k, 0.0))
+            if wn > 1e-12:
+                for i in range(3):
+                    z[i] += size[0] * (v[i] - k * R[i, 2]) / wn
+    elif kind == BOX:
+        for j in range(3):
+            sg = 1.0 if R[0, j] * v[0] + R[1, j] * v[1] + R[2, j] * v[2] >= 0.0 else -1.0
+            for i in range(3):
+                z[i] += sg * size[j] * R[i, j]
+    else:  # ellipsoid: c + R S² Rᵀv / |S Rᵀv|
+        sv = np.empty(3)
+        norm = 0.0
+        for j in range(3):
+            sv[j] = size[j] * (R[0, j] * v[0] + R[1, j] * v[1] + R[2, j] * v[2])
+            norm += sv[j] * sv[j]
+        norm = np.sqrt(norm)
+        for j in range(3):
+            for i in range(3):
+                z[i] += R[i, j] * size[j] * sv[j] / norm
+
+
+@njit
+def _solve_small(G: Array, r: Array, m: int, out: Array) -> bool:
+    """Solve the ``m x m`` (``m <= 3``) system ``G out = r`` by Cramer's rule; False when it is singular."""
+    if m == 0:
+        return True
+    if m == 1:
+        if G[0, 0] <= 1e-300:
+            return False
+        out[0] = r[0] / G[0, 0]
+        return True
+    if m == 2:
+        det = G[0, 0] * G[1, 1] - G[0, 1] * G[1, 0]
+        if abs(det) <= 1e-14 * G[0, 0] * G[1, 1]:
+            return False
+        out[0] = (r[0] * G[1, 1] - G[0, 1] * r[1]) / det
+        out[1] = (G[0, 0] * r[1] - r[0] * G[1, 0]) / det
+        return True
+    det = (G[0, 0] * (G[1, 1] * G[2, 2] - G[1, 2] * G[2, 1]) - G[0, 1] * (G[1, 0] * G[2, 2] - G[1, 2] * G[2, 0])
+           + G[0, 2] * (G[1, 0] * G[2, 1] - G[1, 1] * G[2, 0]))
+    if abs(det) <= 1e-14 * G[0, 0] * G[1, 1] * G[2, 2]:
+        return False
+    for k in range(3):  # column k replaced by r
+        M00, M10, M20 = (r[0], r[1], r[2]) if k == 0 else (G[0, 0], G[1, 0], G[2, 0])
+        M01, M11, M21 = (r[0], r[1], r[2]) if k == 1 else (G[0, 1], G[1, 1], G[2, 1])
+        M02, M12, M22 = (r[0], r[1], r[2]) if k == 2 else (G[0, 2], G[1, 2], G[2, 2])
+        out[k] = (M00 * (M11 * M22 - M12 * M21) - M01 * (M10 * M22 - M12 * M20)
+                  + M02 * (M10 * M21 - M11 * M20)) / det
+    return True
+
+
+@njit
+def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array) -> int:
+    """Reduce the simplex ``W[:k]`` (its support points ``A``, ``B``) to the face nearest the origin.
+
+    Every face is tried (at most 15): the nearest point of its affine hull, kept if its
+    barycentric weights are all non-negative; the nearest kept point is the simplex's
+    (Gilbert, Johnson and Keerthi's sub-algorithm, by enumeration). Writes it to ``v``
+    and its weights to ``lam``, keeps only the face's rows; returns the face's size.
+    """
+    best, best_mask = np.inf, 1
+    G, r = np.empty((3, 3)), np.empty(3)
+    mu, weights, x = np.empty(3), np.empty(4), np.empty(3)
+    idx = np.empty(4, np.int64)
+    for mask in range(1, 1 << k):
+        m = 0
+        for i in range(k):
+            if (mask >> i) & 1:
+                idx[m] = i
+                m += 1
+        o = idx[0]
+        for i in range(1, m):  # weights mu of the edges from the face's first point
+            for j in range(1, m):
+                G[i - 1, j - 1] = ((W[idx[i], 0] - W[o, 0]) * (W[idx[j], 0] - W[o, 0])
+                                   + (W[idx[i], 1] - W[o, 1]) * (W[idx[j], 1] - W[o, 1])
+                                   + (W[idx[i], 2] - W[o, 2]) * (W[idx[j], 2] - W[o, 2]))
+            r[i - 1] = -(W[o, 0] * (W[idx[i], 0] - W[o, 0]) + W[o, 1] * (W[idx[i], 1] - W[o, 1])
+                         + W[o, 2] * (W[idx[i], 2] - W[o, 2]))
+        if not _solve_small(G, r, m - 1, mu):
+            continue
+        inside = True
+        w0 = 1.0
+        for i in range(m - 1):
+            w0 -= mu[i]
+            inside = inside and mu[i] >= 0.0
+        if not inside or w0 < 0.0:
+            continue
+        for c in range(3):
+            x[c] = W[o, c]
+            for i in range(1, m):
+                x[c] += mu[i - 1] * (W[idx[i], c] - W[o, c])
+        dist = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+        if dist < best:
+            best, best_mask = dist, mask
+            weights[0] = w0
+            for i in range(m - 1):
+                weights[i + 1] = mu[i]
+    m = 0
+    for i in range(k):
+        if (best_mask >> i) & 1:
+            for c in range(3):
+                W[m, c], A[m, c], B[m, c] = W[i, c], A[i, c], B[i, c]
+            lam[m] = weights[m]
+            m += 1
+    for c in range(3):
+        v[c] = 0.0
+        for i in range(m):
+            v[c] += lam[i] * W[i, c]
+    return m
+
+
+@njit
+def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array,
+             p2: Array, n: Array) -> float:
+    """Signed distance of two overlapping convex geoms, estimated by separating axes (their own and crosses).
+
+    The largest separation ``n·(p2 - p1)`` over the candidate axes, with ``p1``, ``p2`` the
+    supports along ``±n``: negative, and at least as deep as the true penetration.
+    """
+    best = -np.inf
+    ax, u, m, za, zb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for k in range(16):
+        if k < 3:
+            for i in range(3):
+                ax[i] = Ra[i, k]
+        elif k < 6:
+            for i in range(3):
+                ax[i] = Rb[i, k - 3]
+        elif k < 15:
+            ia, ib = (k - 6) // 3, (k - 6) % 3
+            ax[0] = Ra[1, ia] * Rb[2, ib] - Ra[2, ia] * Rb[1, ib]
+            ax[1] = Ra[2, ia] * Rb[0, ib] - Ra[0, ia] * Rb[2, ib]
+            ax[2] = Ra[0, ia] * Rb[1, ib] - Ra[1, ia] * Rb[0, ib]
+        else:
+            for i in range(3):
+                ax[i] = cb[i] - ca[i]
+        norm = np.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+        if norm < 1e-9:
+            continue
+        for sg in (1.0, -1.0):  # both ways along the axis: u = sg ax / |ax|, m = -u
+            for i in range(3):
+                u[i] = sg * ax[i] / norm
+                m[i] = -u[i]
+            support(ta, sa, Ra, ca, u, za)
+            support(tb, sb, Rb, cb, m, zb)
+            sep = u[0] * (zb[0] - za[0]) + u[1] * (zb[1] - za[1]) + u[2] * (zb[2] - za[2])
+            if sep > best:
+                best = sep
+                for i in range(3):
+                    p1[i], p2[i], n[i] = za[i], zb[i], u[i]
+    return best
+
+
+@njit
+def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array, p2: Array,
+        n: Array) -> float:
+    """Signed distance of two convex geoms (sphere, capsule, ellipsoid, cylinder, box) by their support points.
+
+    Gilbert–Johnson–Keerthi on the Minkowski difference: separated geoms get their distance
+    (to :data:`GJK_TOL`) with the closest points ``p1``, ``p2``; overlapping ones
+    :func:`_overlap`'s estimate.
+    """
+    W, A, B = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
+    lam, v, dir_a, dir_b = np.empty(4), np.empty(3), np.empty(3), np.empty(3)
+    for i in range(3):
+        v[i] = ca[i] - cb[i]
+    vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if vv == 0.0:
+        v[0], vv = 1.0, 1.0
+    k = 0
+    for _ in range(GJK_STEPS):
+        norm = np.sqrt(vv)
+        for i in range(3):
+            dir_a[i], dir_b[i] = -v[i] / norm, v[i] / norm
+        support(ta, sa, Ra, ca, dir_a, A[k])
+        support(tb, sb, Rb, cb, dir_b, B[k])
+        vw = 0.0
+        for i in range(3):
+            W[k, i] = A[k, i] - B[k, i]
+            vw += v[i] * W[k, i]
+        if k > 0 and vv - vw <= GJK_TOL * norm:  # the support no nearer: |v| is within GJK_TOL of the distance
+            break
+        k = _simplex_closest(W, A, B, lam, k + 1, v)
+        vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+        if k == 4 or vv <= 1e-24:
+            return _overlap(ta, sa, Ra, ca, tb, sb, Rb, cb, p1, p2, n)
+    for i in range(3):
+        p1[i] = p2[i] = 0.0
+        for j in range(k):
+            p1[i] += lam[j] * A[j, i]
+            p2[i] += lam[j] * B[j, i]
+    d = np.sqrt(vv)
+    for i in range(3):
+        n[i] = (p2[i] - p1[i]) / d
+    return d
