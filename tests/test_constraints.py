@@ -272,13 +272,15 @@ def cluttered(name="arm7"):
 
 def mujoco_clearance(tree, q):
     """The least signed distance over MuJoCo's contact pairs by ``mujoco.mj_geomDistance`` (the oracle)."""
-    from mjkin.kinematics.geoms import contact_pairs, fallback_distance
+    from mjkin.kinematics.distance import fallback_distance
+    from mjkin.kinematics.geoms import contact_pairs
 
     return min(fallback_distance(tree, q, int(a), int(b))[0] for a, b in contact_pairs(tree))
 
 
 def test_clearance_rows_are_the_closest_pairs_with_their_gradients(rng):
-    from mjkin.kinematics.geoms import contact_pairs, distance_jacobians, native_pairs
+    from mjkin.kinematics.distance import distance_jacobians
+    from mjkin.kinematics.geoms import contact_pairs, native_pairs
 
     tree = cluttered()
     pairs = contact_pairs(tree)
