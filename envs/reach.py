@@ -110,12 +110,16 @@ class ReachEnv(gym.Env):
     | ``table`` | ``None`` | height (world z, m) of a table top added under the arm |
     | ``target_region`` | anywhere | ``(low, high)`` box the targets are drawn in |
     | ``start_noise`` | 0.1 | start noise around the keyframe |
+    | ``max_joint_speed`` | ``None`` | cartesian actions: joint speed limit (rad/s, m/s; per joint or one) per step |
     | ``render_mode`` | ``None`` | ``"rgb_array"``; ``"human"``: a window where a display exists (else a warning) |
     | ``width``, ``height`` | 480, 360 | frame size |
 
     Every argument is checked when the env is made: a bad one raises a one-line :class:`mjkin.InputError`
     naming it (numbers finite, sizes and tolerances positive, ``target_region`` low < high on every axis,
     the ``table`` no higher than the arm's lowest moving body at home nor than the top of ``target_region``).
+
+    ``max_joint_speed`` is a hard :class:`mjkin.goals.StepLimit` of ``max_joint_speed / render_fps``
+    in each cartesian step's IK: no joint changes more than that from one step to the next.
 
     ## Version history
     v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).
@@ -132,7 +136,8 @@ class ReachEnv(gym.Env):
                  success_bonus: float = 1.0, sparse: bool = False, collision_penalty: float = 0.0,
                  obstacles: Sequence[tuple[ArrayLike, float]] | None = None, table: float | None = None,
                  target_region: tuple[ArrayLike, ArrayLike] | None = None, start_noise: float = 0.1,
-                 render_mode: str | None = None, width: int = 480, height: int = 360, site: str | None = None) -> None:
+                 render_mode: str | None = None, width: int = 480, height: int = 360, site: str | None = None,
+                 max_joint_speed: ArrayLike | None = None) -> None:
         if site is not None:  # the name before 0.2
             warnings.warn("ReachEnv(site=...) is now frame=...", DeprecationWarning, stacklevel=2)
             frame = site
@@ -140,7 +145,7 @@ class ReachEnv(gym.Env):
         width, height = check_count(width, "width"), check_count(height, "height")
         self.task = ReachTask(model, frame, action_type, goal_type, step_size, rot_step, success_tol, rot_tol,
                               success_bonus, sparse, collision_penalty, obstacles, table, target_region, start_noise,
-                              goal_conditioned)
+                              goal_conditioned, max_joint_speed, 1.0 / ReachEnv.metadata["render_fps"])
         t = self.task
         self.tree, self.frame, self.scene, self.home = t.tree, frame, t.scene, t.home
         self.action_type, self.goal_type, self.goal_conditioned = t.action_type, t.goal_type, t.goal_conditioned

@@ -26,6 +26,7 @@ from mjkin.checks import check_choice, check_flag, check_number, shown
 from mjkin.jit import njit
 from mjkin.kinematics.frames import Frames
 from mjkin.kinematics.tree import bundled_models
+from mjkin.motion.follow import speed_step
 from mjkin.scene import Scene
 
 Array = NDArray[np.float64]
@@ -111,7 +112,7 @@ class ReachTask:
                  rot_step: float, success_tol: float | None, rot_tol: float, success_bonus: float, sparse: bool,
                  collision_penalty: float, obstacles: Sequence[tuple[ArrayLike, float]] | None,
                  table: float | None, target_region: tuple[ArrayLike, ArrayLike] | None, start_noise: float,
-                 goal_conditioned: bool) -> None:
+                 goal_conditioned: bool, max_joint_speed: ArrayLike | None = None, dt: float = 1.0 / 30) -> None:
         self.action_type = check_choice(action_type, "action_type", ("joint", "cartesian"))
         self.goal_type = check_choice(goal_type, "goal_type", ("position", "pose"))
         self.goal_conditioned = check_flag(goal_conditioned, "goal_conditioned")
@@ -142,6 +143,8 @@ class ReachTask:
         body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
         self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
         self._move: mjkin.Problem | None = None  # the cartesian step's IK, made at the first step
+        # the largest joint change per step (njnt,) at max_joint_speed, or None
+        self.max_step = None if max_joint_speed is None else speed_step(self.tree, max_joint_speed, 1.0 / dt)
         self._expert: mjkin.Problem | None = None
         self.extent = extent
         self.step_size = float(step_size if step_size is not None else
@@ -249,9 +252,10 @@ class ReachTask:
             T[:, :3, :3] = spatial.rotvec_to_mat(a[:, 3:] * self.rot_step) @ R
             T[:, :3, 3], T[:, 3, 3] = p, 1.0
             goal = G.Pose(self.frame, T)
+        goals = [goal] if self.max_step is None else [goal, G.StepLimit(q, self.max_step)]
         if self._move is None:
-            self._move = mjkin.Problem(self.tree, goal, max_iters=30, restarts=0)
-        return self.tidy(self._move.solve(q, [goal]).q.reshape(q.shape))
+            self._move = mjkin.Problem(self.tree, goals, max_iters=30, restarts=0)
+        return self.tidy(self._move.solve(q, goals).q.reshape(q.shape))
 
     def expert_problem(self, goal: G.Goal) -> mjkin.Problem:
         """The IK problem of the expert's target pose (made once, for its goal kind)."""

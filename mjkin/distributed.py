@@ -195,7 +195,8 @@ def concatenate(parts: Sequence[Result], tree: Tree | None = None) -> Result:
     return Result(q=cat("q"), success=cat("success"), error=cat("error"), iterations=cat("iterations"),
                   status=cat("status"), goal_errors=cat("goal_errors"), goals=goals,
                   method=first.method, restarts=cat("restarts"), history=history,
-                  reason=None if first.reason is None else cat("reason"), tree=tree)
+                  reason=None if first.reason is None else cat("reason"),
+                  binding=None if first.binding is None else cat("binding"), tree=tree)
 
 
 def _check_q0(tree: Tree, q0: ArrayLike | None, B: int) -> NDArray | None:

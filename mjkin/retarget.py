@@ -20,8 +20,10 @@ solve per frame through one :class:`mjkin.Problem`):
    Swinging feet are lifted so no sole point is below the floor.
 5. Goals, in one priority level: both feet's toe and heel points weighted far above
    (:data:`FOOT_WEIGHT`) the pelvis, limb points, head, torso/pelvis orientations and the
-   previous frame's pose; each frame is warm-started from the previous one. Afterwards :func:`limit_speed`
-   clamps each frame's change toward the previous one to the joint speed limit.
+   previous frame's pose; each frame is warm-started from the previous one. A hard
+   :class:`~mjkin.goals.StepLimit` keeps each frame's change from the previous one within
+   the joint speed limit, inside the solve (and, with ``clearance``, a hard
+   :class:`~mjkin.goals.Clearance` keeps the figure's bodies apart).
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
 limits, speeds and self-penetration (MuJoCo contacts between non-adjacent bodies).
@@ -42,8 +44,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import bvh, spatial
 from . import goals as G
+from .checks import check_number
 from .errors import InputError, MjkinIOError
 from .ik import Problem
+from .ik.kernel import HARD_TOL
+from .kinematics.geoms import contact_pairs
 from .kinematics.tree import Tree, fingerprint
 from .motion import Trajectory, outside_limits, sole_points
 from .scene import Scene
@@ -387,27 +392,10 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
                     bodies=bodies, offsets=offsets, parents=clip.parents)
 
 
-def limit_speed(tree: Tree, q: Array, max_step: ArrayLike) -> Array:
-    """Frames ``q (T, nq)`` with each frame's change from the previous clamped to ``max_step`` (rad or m, or ``(nv,)``).
-
-    A stand-in for a hard per-joint step limit in the solve: it runs after it.
-    """
-    out = np.array(q)
-    if len(out) < 2:
-        return out
-    step = np.broadcast_to(np.asarray(max_step, float), (tree.nv,))
-    over = np.any(np.abs(tree.difference(out[1:], out[:-1])) > step, axis=-1)
-    for f in range(int(np.argmax(over)) + 1 if over.any() else len(out), len(out)):  # from the first fast frame on
-        d = tree.difference(out[f], out[f - 1])
-        if np.any(np.abs(d) > step):
-            out[f] = tree.integrate(out[f - 1], np.clip(d, -step, step))
-    return out
-
-
 def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
              mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
-             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, extra_goals: Sequence[G.Goal] = (),
-             model_source: str = "") -> Trajectory:
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, clearance: float | None = None,
+             extra_goals: Sequence[G.Goal] = (), model_source: str = "") -> Trajectory:
     """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
 
     Args:
@@ -416,8 +404,12 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         mapping: ``{"source": {role: joint}, "figure": {role: body}}`` (or a JSON file of it);
             by default roles are found by name (:data:`SOURCE_NAMES`, :data:`FIGURES`).
         scale: metres per BVH unit; default from the skeleton's height.
-        max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``.
+        max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``: a hard
+            :class:`~mjkin.goals.StepLimit` of ``max_speed`` times the frame time in every frame's
+            solve (a joint's limit is the least of its dofs').
         tol: IK position tolerance (m).
+        clearance: when given (metres), a hard :class:`~mjkin.goals.Clearance` of that margin between
+            the figure's own geoms (MuJoCo's contact pairs without the world's) in every frame's solve.
         extra_goals: goals added to every frame's as they are (targets that do not change from
             frame to frame, such as a clearance between the figure's bodies); their priority
             decides whether they outrank the feet (0) or join the body's goals (1).
@@ -441,8 +433,10 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale)
-    q, t_first = solve_frames(tree, plan_, tol, tuple(extra_goals))
-    q = limit_speed(tree, q, speed * clip.frame_time)
+    extra = tuple(extra_goals)
+    if clearance is not None:
+        extra += (G.Clearance(check_number(clearance, "clearance (m)"), pairs=self_pairs(tree)),)
+    q, t_first = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
             for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
@@ -514,11 +508,29 @@ def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> Fr
     return FrameGoals(tuple(goals), tuple(fields), tuple(targets), rest)
 
 
-def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal] = ()) -> tuple[Array, float]:
+def step_limit(tree: Tree, max_step: Array) -> G.StepLimit:
+    """A :class:`~mjkin.goals.StepLimit` from per-dof steps ``max_step (nv,)``: each joint takes its dofs' least.
+
+    Aimed ``HARD_TOL`` inside, the tolerance to which the solver keeps a hard constraint, so no step exceeds it.
+    """
+    per_joint = np.minimum.reduceat(max_step, tree.jnt_dofadr) if tree.njnt else np.zeros(0)
+    return G.StepLimit(q_prev=tree.qpos0, max_step=np.maximum(per_joint - HARD_TOL, 0.0))
+
+
+def self_pairs(tree: Tree) -> list[tuple[int, int]]:
+    """The geom pairs ``[(geom1, geom2), ...]`` (ids) MuJoCo would collide between the figure's own bodies."""
+    pairs = contact_pairs(tree)
+    body = tree.model.geom_bodyid
+    return [(int(a), int(b)) for a, b in pairs if body[a] != 0 and body[b] != 0]
+
+
+def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal] = (),
+                 limit: G.StepLimit | None = None) -> tuple[Array, float]:
     """Joint values ``(F, nq)``, frame by frame through one :class:`~mjkin.Problem`.
 
     Each frame is warm-started from (and rests toward) the previous frame's pose; ``extra``
-    goals join every frame's. Also returns the seconds the first frame took (it may include compiling the solver).
+    goals join every frame's; ``limit``, with ``q_prev`` the previous frame's pose, every frame's
+    after the first. Also returns the seconds the first frame took (it may include compiling the solver).
     """
     F = len(plan_.points["pelvis"])
     q = tree.qpos0.copy()
@@ -527,11 +539,16 @@ def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal
     out = np.empty((F, tree.nq))
     layout = frame_goals(tree, plan_, extra)
     t = time.perf_counter()
-    problem = Problem(tree, layout.at(0, q), tol=tol, restarts=0, max_iters=MAX_ITERS)
-    for f in range(F):
-        q = out[f] = problem.solve(q, layout.at(f, q)).q
-        if f == 0:
-            t_first = time.perf_counter() - t
+    first = Problem(tree, layout.at(0, q), tol=tol, restarts=0, max_iters=MAX_ITERS)  # no previous frame to limit
+    q = out[0] = first.solve(q).q
+    t_first = time.perf_counter() - t
+    problem = Problem(tree, layout.at(0, q) + ([] if limit is None else [limit]), tol=tol, restarts=0,
+                      max_iters=MAX_ITERS)
+    for f in range(1, F):
+        goals = layout.at(f, q)
+        if limit is not None:
+            goals.append(replace(limit, q_prev=q))
+        q = out[f] = problem.solve(q, goals).q
     return out, t_first
 
 

@@ -200,7 +200,7 @@ def _errors(problem: Problem, given: tuple[Goal, ...], q: Array) -> tuple[Array,
     prog = encode(tree, problem.structure, tuple(_repeated(g, k) for g in given))
     _, _, err = evaluate_program(tree, prog, np.ascontiguousarray(q))
     worst, met = np.empty((k, 2)), np.empty(k, dtype=bool)
-    summarise(err, prog.counted, problem.tol, problem.rot_tol, worst, met)
+    summarise(err, prog.counted, prog.hard, problem.tol, problem.rot_tol, worst, met)
     return err, worst, met & (joint_distance(tree, q, tree.clip(q)) <= 1e-12)
 
 

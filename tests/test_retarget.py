@@ -113,6 +113,23 @@ def test_extra_goals_join_every_frame(primate: mjkin.Tree) -> None:
     assert rep["skate_per_contact_max"] < 2e-3 and rep["floor_min"] > -5e-3 and rep["limits"] is None
 
 
+def test_speed_limit_holds_inside_the_solve(primate: mjkin.Tree) -> None:
+    clip = bvh.parse(crouch_bvh(20), "crouch.bvh")
+    free = report(primate, mjkin.retarget(clip, primate))
+    slow = free["speed_max"] / 2  # half the speed the clip asks for: the StepLimit binds
+    traj = mjkin.retarget(clip, primate, max_speed=slow)
+    rep = report(primate, traj)
+    assert 0.99 < rep["speed_limit_ratio"] <= 1 + 1e-9
+    assert rep["floor_min"] > -5e-3 and rep["limits"] is None
+
+
+def test_clearance_keeps_the_figure_off_itself(primate: mjkin.Tree) -> None:
+    clip = bvh.parse(crouch_bvh(12), "crouch.bvh")
+    traj = mjkin.retarget(clip, primate, clearance=0.0)
+    rep = report(primate, traj)
+    assert rep["self_contact_frames"] == 0 and rep["limits"] is None and rep["skate_per_contact_max"] < 2e-3
+
+
 def test_roles_by_names_of_the_common_rigs() -> None:
     clip19 = bvh.parse(crouch_bvh(2))
     roles = source_mapping(clip19)

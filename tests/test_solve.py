@@ -51,11 +51,14 @@ def test_lm_follows_a_slowly_converging_run():
 def test_result_summary_takes_the_worst_counted_goal_and_keeps_nan():
     err = np.array([[[1e-7, 2e-6], [5.0, 5.0]], [[np.nan, 0.0], [0.0, 0.0]], [[2e-6, 0.0], [0.0, 0.0]]])
     worst, success = np.empty((3, 2)), np.empty(3, dtype=bool)
-    kernel.summarise(err, np.array([True, False]), 1e-6, 1e-5, worst, success)
+    none = np.array([False, False])  # no hard constraints
+    kernel.summarise(err, np.array([True, False]), none, 1e-6, 1e-5, worst, success)
     np.testing.assert_array_equal(worst, [[1e-7, 2e-6], [np.nan, 0.0], [2e-6, 0.0]])  # goal 1 is not counted
     assert success.tolist() == [True, False, False]
-    kernel.summarise(err, np.array([False, False]), 1e-6, 1e-5, worst, success)
+    kernel.summarise(err, none, none, 1e-6, 1e-5, worst, success)
     assert (worst == 0).all() and success.all()  # nothing counted: nothing missed
+    kernel.summarise(err, none, np.array([False, True]), 1e-6, 1e-5, worst, success)  # goal 1 hard: its violation
+    assert (worst == 0).all() and success.tolist() == [False, True, True]
 
 
 # ------------------------------------------------------------------ timeout

@@ -23,15 +23,25 @@ def positive_int(text: str) -> int:
     return _whole(text, 1)
 
 
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number > 0."""
+def _real(text: str, strict: bool) -> float:
+    bound = "> 0" if strict else ">= 0"
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+        raise argparse.ArgumentTypeError(f"must be a number {bound}, got {text!r}") from None
+    if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
+        raise argparse.ArgumentTypeError(f"must be a finite number {bound}, got {text}")
     return value
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    return _real(text, True)
+
+
+def nonnegative_float(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    return _real(text, False)
 
 
 def nonnegative_int(text: str) -> int:

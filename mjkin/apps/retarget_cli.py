@@ -14,7 +14,7 @@ from ..files import check_writable
 from ..kinematics.tree import load
 from ..motion import retime
 from ..retarget import MAX_SPEED, plan, read_mapping, report, retarget, source_mapping
-from .argtypes import positive_float, positive_int
+from .argtypes import nonnegative_float, positive_float, positive_int
 
 OUTPUTS = (".json", ".mp4", ".gif", ".png")
 BESIDE = np.array([0.0, 1.0, 0.0])  # the source skeleton's shift with --side-by-side (m): to the figure's left
@@ -31,6 +31,8 @@ def arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("--scale", type=positive_float, help="metres per BVH unit (default: from the skeleton's height)")
     s.add_argument("--max-speed", type=positive_float, default=MAX_SPEED,
                    help=f"joint speed limit, rad/s (default {MAX_SPEED:g})")
+    s.add_argument("--clearance", type=nonnegative_float, metavar="M",
+                   help="keep the figure's own geoms at least M metres apart in every frame's solve (default: off)")
     s.add_argument("--retime", action="store_true", help="time-optimal times under --max-speed and --max-acceleration")
     s.add_argument("--max-acceleration", type=positive_float, default=100.0,
                    help="joint acceleration limit for --retime, rad/s^2 (default 100)")
@@ -52,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         render.check_video_size(args.output, args.width, args.height)
     tree = load(args.model)
     clip = bvh.read(args.clip)
-    traj = retarget(clip, tree, args.mapping, scale=args.scale, max_speed=args.max_speed,
-                       model_source=model_source(args.model))
+    traj = retarget(clip, tree, args.mapping, scale=args.scale, max_speed=args.max_speed, clearance=args.clearance,
+                    model_source=model_source(args.model))
     measured = report(tree, traj)
     if args.retime:
         traj = retime(traj, args.max_speed, args.max_acceleration, tree=tree)

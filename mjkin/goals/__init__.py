@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from .aim import Aim
 from .base import DATA, JOINT_UNITS, METRES, METRES_AND_RADIANS, RADIANS, FrameGoal, Goal, concatenate
+from .clearance import Clearance
 from .coupling import Coupling
 from .halfspace import HalfSpace
 from .line import Line
@@ -22,10 +23,11 @@ from .position import Position
 from .program import Program, Structure, compile_goals
 from .registry import KINDS, register
 from .rest import Rest
+from .steplimit import StepLimit
 
-for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling):
+for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling, StepLimit, Clearance):
     register(_kind)
 
-__all__ = ["DATA", "JOINT_UNITS", "KINDS", "METRES", "METRES_AND_RADIANS", "RADIANS", "Aim", "Coupling", "FrameGoal",
-           "Goal", "HalfSpace", "Line", "Orientation", "Plane", "Pose", "Position", "Program", "Rest", "Structure",
-           "compile_goals", "concatenate", "register"]
+__all__ = ["DATA", "JOINT_UNITS", "KINDS", "METRES", "METRES_AND_RADIANS", "RADIANS", "Aim", "Clearance", "Coupling",
+           "FrameGoal", "Goal", "HalfSpace", "Line", "Orientation", "Plane", "Pose", "Position", "Program", "Rest",
+           "StepLimit", "Structure", "compile_goals", "concatenate", "register"]

@@ -104,8 +104,9 @@ class Goal:
     """Base of all goals: a weight (0 = ignored) and a priority (0 = highest).
 
     A kind sets ``rows`` (residual rows; -1 = one per dof), ``units`` (what its
-    error is measured in) and, through :func:`mjkin.goals.registry.register`, its
-    ``code`` and compiled ``residual``.
+    error is measured in), ``hard`` (a constraint, not a cost: its rows are the
+    values ``s`` that must stay ``>= 0``, and its error the violation) and,
+    through :func:`mjkin.goals.registry.register`, its ``code`` and compiled ``residual``.
     """
 
     weight: float = field(default=1.0, kw_only=True)
@@ -114,6 +115,7 @@ class Goal:
     rows: ClassVar[int]
     units: ClassVar[Units]
     counted: ClassVar[bool] = True  # counts for success (a rest pose does not)
+    hard: ClassVar[bool] = False  # a constraint: its rows are values s (unweighted, want s >= 0) and ds/dv
     joint_target: ClassVar[bool] = False  # encodes a configuration (a rest pose) as its target
     _batched: ClassVar[tuple[str, ...]] = ()  # fields that may carry the leading batch axis
     _cores: ClassVar[tuple[int, ...]] = ()  # number of non-batch axes of each target of targets()

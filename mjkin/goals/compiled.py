@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics
+from ..kinematics.geoms import Geoms
 from ..kinematics.jacobian import jacobian_kernel
 
 Array = NDArray[np.float64]
@@ -41,6 +42,10 @@ class GoalArrays(NamedTuple):
     joint_row: Array  # (G, nv) a goal's per-dof numbers (stiffness, coefficients), else unused
     level_rows: Index  # (L + 1,)
     counted: NDArray[np.bool_]  # (G,)
+    hard: NDArray[np.bool_]  # (G,) a hard constraint (its rows, first of all, are values s >= 0 and ds/dv)
+    geoms: Geoms  # the model's geoms, for distances
+    bounded: Geoms  # the same, geoms mjkin cannot measure against a partner as bounding spheres
+    pairs: Index  # (P, 4) geom pairs [geom1, geom2, goal, bounded] that goals keep apart (each goal's contiguous)
 
 
 @njit
@@ -67,6 +72,18 @@ def goal_frame(kin: Kinematics, ga: GoalArrays, i: int, rot: Array, pos: Array, 
     J6[:] = 0.0
     jacobian_kernel(rot, pos, irot, ipos, kin.body_dof_idx[kin.body_dof_ptr[bd]:kin.body_dof_ptr[bd + 1]],
                     kin.dof_body, kin.dof_inner, kin.dof_axis, kin.dof_world, kin.dof_rot, kin.dof_anchor, pt, J6)
+
+
+@njit
+def hard_error(ga: GoalArrays, i: int, g: Array, err: Array) -> None:
+    """A hard goal's error: how far its lowest row ``s`` is below zero (0 when it holds), in its column."""
+    v = 0.0
+    for r in range(ga.row[i], ga.row[i + 1]):
+        if not -g[r] <= v:  # NaN is infinitely violated
+            v = -g[r] if g[r] == g[r] else np.inf
+    err[i, 0] = 0.0
+    err[i, 1] = 0.0
+    err[i, ga.column[i]] = v
 
 
 @njit

@@ -1,13 +1,13 @@
-"""HalfSpace: stay on one side of a wall."""
+"""HalfSpace: stay on one side of a wall (a hard constraint)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from ..jit import njit_inline
 from .base import Array
-from .plane import Plane, distance_row, signed_distance
+from .plane import Plane, signed_distance
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -16,17 +16,19 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class HalfSpace(Plane):
-    """Stay on the side of a wall that ``normal`` points to: ``g = min(0, n·(p - point))``."""
+    """Keep the frame origin on the side of a wall that ``normal`` points to: ``s = n·(p - point) >= 0``.
+
+    Hard: a solve succeeds only with ``s >= -1e-6`` m; the weight only switches it on (> 0) or off.
+    """
+
+    hard: ClassVar[bool] = True
 
 
 @njit_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
-    """One row: the signed distance where it is negative (behind the wall), else zero."""
-    s = signed_distance(ga, ws, i, b)
-    if s < 0.0:
-        distance_row(ga, ws, i, b, s, g, J, r0, err)
-        return
-    g[r0] = 0.0
+    """One row: the signed distance ``s`` from the wall (unweighted) and the normal's part of the point Jacobian."""
+    J6, d = ws[0], ga.data[b, i]
+    g[r0] = signed_distance(ga, ws, i, b)
     for j in range(J.shape[1]):
-        J[r0, j] = 0.0
+        J[r0, j] = d[3] * J6[0, 0, j] + d[4] * J6[0, 1, j] + d[5] * J6[0, 2, j]

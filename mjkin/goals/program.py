@@ -10,7 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
+from ..kinematics.geoms import Geoms, native_pairs
 from .base import DATA, Array, Goal, broadcast
+from .clearance import bounded_geoms
 from .compiled import GoalArrays
 
 if TYPE_CHECKING:
@@ -19,9 +21,11 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True, eq=False)
 class Structure:
-    """What a set of goals compiles to besides its targets, sorted by priority level.
+    """What a set of goals compiles to besides its targets: hard constraints first, then by priority level.
 
-    ``order[k]`` is the index, among the goals as given, of the ``k``-th goal as solved.
+    The rows of the hard goals (``hard``, see :attr:`mjkin.goals.Goal.hard`) come
+    first, before ``level_rows[0]``, outside every priority level. ``order[k]`` is
+    the index, among the goals as given, of the ``k``-th goal as solved.
     ``key`` tells goals of the same structure (same kinds, frames, weights, priorities).
     """
 
@@ -38,6 +42,9 @@ class Structure:
     joint_row: Array
     level_rows: NDArray[np.int64]
     counted: NDArray[np.bool_]
+    hard: NDArray[np.bool_]
+    pairs: NDArray[np.int64]  # (P, 4) geom pairs [geom1, geom2, goal, bounded] of the goals that keep geoms apart
+    bounded: Geoms  # the geoms for the bounded pairs (see mjkin.goals.clearance.bounded_geoms)
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
 
@@ -96,7 +103,8 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         UnknownNameError: a frame or joint name the model does not have.
     """
     given = as_goals(goals)
-    order = tuple(sorted(range(len(given)), key=lambda i: given[i].priority))  # stable within a level
+    # hard constraints first, then by priority (stable within a level)
+    order = tuple(sorted(range(len(given)), key=lambda i: (not given[i].hard, given[i].priority)))
     gs = [given[i] for i in order]
     G = len(gs)
     body = np.full(G, -1, dtype=np.int64)
@@ -109,14 +117,19 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         if jr is not None:
             joint_row[i] = jr
     row = np.concatenate([[0], np.cumsum([g.nrows(tree) for g in gs])]).astype(np.int64)
-    priorities = [g.priority for g in gs]  # sorted: each level's rows are contiguous
-    level_rows = np.array([row[i] for i in range(G) if i == 0 or priorities[i] != priorities[i - 1]] + [row[-1]],
-                          dtype=np.int64)
+    pairs = [np.column_stack([p, np.full(len(p), i), ~native_pairs(tree.geoms, p)]) for i, g in enumerate(gs)
+             if (p := getattr(g, "geom_pairs", lambda _: None)(tree)) is not None and len(p)]
+    all_pairs = np.ascontiguousarray(np.concatenate(pairs) if pairs else np.zeros((0, 4)), dtype=np.int64)
+    soft = [i for i in range(G) if not gs[i].hard]  # sorted: each level's rows are contiguous
+    level_rows = np.array([row[i] for k, i in enumerate(soft) if k == 0 or gs[i].priority != gs[soft[k - 1]].priority]
+                          + [row[-1]], dtype=np.int64)
     return Structure(
         key=key_of(given), order=order, kind=np.array([g.code for g in gs], dtype=np.int64), body=body, lrot=lrot,
         lpos=lpos, aux=aux, column=np.array([g.column(tree) for g in gs], dtype=np.int64),
         sqrt_w=np.sqrt([float(g.weight) for g in gs]), row=row, joint_row=joint_row, level_rows=level_rows,
-        counted=np.array([g.weight > 0 and g.counted for g in gs]),
+        counted=np.array([g.weight > 0 and g.counted and not g.hard for g in gs]),
+        hard=np.array([g.weight > 0 and g.hard for g in gs], dtype=np.bool_),
+        pairs=all_pairs, bounded=bounded_geoms(tree.geoms, all_pairs[:, :2]),
         joint_targets=any(g.joint_target for g in gs))
 
 
@@ -142,7 +155,7 @@ def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
     for i, g in enumerate(gs):
         g.encode(tree, data[:, i], rest[i])
     arrays = GoalArrays(st.kind, st.body, st.lrot, st.lpos, data, st.aux, st.column, st.sqrt_w, st.row, rest,
-                        st.joint_row, st.level_rows, st.counted)
+                        st.joint_row, st.level_rows, st.counted, st.hard, tree.geoms, st.bounded, st.pairs)
     return Program(st, gs, batch, arrays)
 
 

@@ -21,11 +21,21 @@ pseudoinverse updates of the lecture notes, with the Finnish thesis's priorities
    raises λ (Levenberg–Marquardt, ``λ² = λ_min² + μ·cost``); ``halving`` instead retracts and halves the way to the goal
    (the Finnish thesis's iterative goal halving).
 
-A solve ends converged (every counted goal within ``tol``/``rot_tol``), or
+Hard constraints (goals with ``hard``, rows ``s >= 0`` before every level) are an
+active set: the rows that are violated, or that the step would push below zero,
+are solved as equalities ``s + J dq = 0`` at a level above every goal (joints are
+locked and rows activated, then the step is recomputed, until neither changes). A
+step that leaves a hard row below ``-HARD_TOL`` when its start did not (or that
+does not reduce the violation of an infeasible start) is rejected and halved; the
+best configuration is the feasible one first, then by levels met and merit.
+
+A solve ends converged (every counted goal within ``tol``/``rot_tol``, every hard row
+``>= -HARD_TOL``), or
 stalled (no progress — an unmet counted goal's error falling by the fraction
 ``progress``, or at all in the last run, which has no restart to go to — for
 ``patience`` iterations: ``unreachable``, or
-``limits`` when a joint limit blocks the way), or at ``max_iters``. A stalled
+``limits`` when a joint limit blocks the way, ``constraint`` when a hard one
+does), or at ``max_iters``. A stalled
 solve restarts from the given random configurations, if any; the best
 configuration seen is returned.
 """
@@ -44,8 +54,11 @@ Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
 DLS, PINV, TRANSPOSE, LM = 0, 1, 2, 3
-CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS, TIMEOUT = 0, 1, 2, 3, 4
-STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits", "timeout")
+CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS, TIMEOUT, CONSTRAINT = 0, 1, 2, 3, 4, 5
+STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits", "timeout", "constraint")
+HARD_TOL = 1e-6  # a hard constraint holds when every row s >= -HARD_TOL (in its kind's units: m or rad)
+BINDING = 1e-5  # a hard row with s below this at the answer binds it (names it in Result.binding)
+HARD_DAMPING2 = 1e-12  # λ² of the active hard rows' level: solved (almost) exactly, whatever the method
 
 
 class Settings(NamedTuple):
@@ -197,11 +210,12 @@ def step_scratch(m: int, nv: int) -> tuple:
 
 @njit_inline
 def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array, alpha: float,
-          scale: float, clamp: float, ws: tuple, dq: Array) -> None:
+          scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool = False) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
 
     Each level aims to remove ``scale`` times its residual, at most ``clamp`` of it in norm.
-    ``ws`` comes from :func:`step_scratch`.
+    ``hard_level``: the first level holds active hard constraints, solved by damped least
+    squares (with ``lam2[0]``) whatever the method. ``ws`` comes from :func:`step_scratch`.
     """
     nv = J.shape[1]
     P, x, basis, e_all = ws
@@ -225,7 +239,7 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
         plain = free and lv == 0  # P is still the identity
         A = Jl if plain else Jl @ P
         last = lv == level_rows.shape[0] - 2
-        rank = _solve_level(A, e, method, lam2[lv], alpha, x, basis, not last)
+        rank = _solve_level(A, e, LM if hard_level and lv == 0 else method, lam2[lv], alpha, x, basis, not last)
         if plain:
             dq += x
         else:
@@ -319,19 +333,34 @@ def _scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
 
 
 @njit
-def _converged(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
+def _converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
+    """Every counted goal within ``tol``/``rot_tol`` and every hard goal's violation within ``HARD_TOL``."""
     for i in range(err.shape[0]):
         if counted[i] and not (err[i, 0] <= tol and err[i, 1] <= rot_tol):  # NaN is never converged
+            return False
+        if hard[i] and not (err[i, 0] <= HARD_TOL and err[i, 1] <= HARD_TOL):
             return False
     return True
 
 
 @njit
-def summarise(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, worst: Array,
-              success: NDArray[np.bool_]) -> None:
+def _violation(g: Array, hard_row: NDArray[np.bool_]) -> float:
+    """How far the hard rows ``g[:h]`` (``hard_row (h,)`` the live ones) fall below zero (0 when all hold)."""
+    v = 0.0
+    for r in range(hard_row.shape[0]):
+        if hard_row[r] and not -g[r] <= v:  # NaN counts as infinitely violated
+            v = -g[r] if g[r] == g[r] else np.inf
+    return v
+
+
+@njit
+def summarise(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], tol: float, rot_tol: float,
+              worst: Array, success: NDArray[np.bool_]) -> None:
     """Worst counted ``[position, rotation]`` error ``worst (B, 2)`` and ``success (B,)`` from ``err (B, G, 2)``.
 
     A NaN error stays NaN (and is no success); with no counted goal the worst is 0.
+    Success also needs every hard goal (``hard (G,)``) within ``HARD_TOL`` of holding
+    (their errors are their violations, not part of ``worst``).
     """
     for b in range(err.shape[0]):
         for c in range(2):
@@ -342,3 +371,6 @@ def summarise(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float
                     w = e
             worst[b, c] = w
         success[b] = worst[b, 0] <= tol and worst[b, 1] <= rot_tol
+        for i in range(err.shape[1]):
+            if hard[i] and not (err[b, i, 0] <= HARD_TOL and err[b, i, 1] <= HARD_TOL):
+                success[b] = False

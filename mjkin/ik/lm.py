@@ -176,15 +176,15 @@ class Loop:
         """Fresh arrays of a call: the goal arrays, the starts, the restart starts, and the outputs."""
         B, G, nq, H = prog.B, len(prog.goals), self.problem.tree.nq, self.H
         return (prog.arrays, q, np.array(self.problem.starts), np.zeros(B, np.int64), np.zeros(B, np.int64),
-                np.zeros(B, np.int64), np.zeros((B, G, 2)), np.full((B, H, nq), np.nan), np.zeros((B, H, 2)),
-                np.empty((B, 2)), np.empty(B, dtype=bool))
+                np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros((B, G, 2)), np.full((B, H, nq), np.nan),
+                np.zeros((B, H, 2)), np.empty((B, 2)), np.empty(B, dtype=bool))
 
     def pack(self, arrays: tuple) -> Packed:
         """:func:`mjkin.ik.packed.pack` of ``arrays`` (:meth:`arrays`) with the problem's constants."""
-        ga, q, starts, iters, status, used, err, hist_q, hist_err, worst, success = arrays
+        ga, q, starts, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
         p = self.problem
         return pack(p.tree.kin, ga, self.st, self.code, self.max_iters, starts, p.restart_q, p.active, q, iters,
-                    status, used, err, hist_q, hist_err, worst, success)
+                    status, used, binding, err, hist_q, hist_err, worst, success)
 
     def __call__(self, prog: Program, q: Array) -> Result:
         """Solve every target of ``prog`` from ``q (B, nq)`` (overwritten; the result's ``q`` is a view of it)."""
@@ -214,23 +214,24 @@ class Loop:
         if self.problem.starts is not self.starts_in_one:  # new restart starts each solve (seed=None)
             starts[...] = self.starts_in_one = self.problem.starts
         if self.H:
-            arrays[7].fill(np.nan)
-            arrays[8].fill(0.0)
+            arrays[8].fill(np.nan)
+            arrays[9].fill(0.0)
         self.solve_packed(packed, 0, 1)
         q[...] = q_in
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))
-        ga, _, _, iters, status, used, err, hist_q, hist_err, worst, success = arrays
+        ga, _, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
         history = None if not self.H else History(hist_q.copy(), hist_err.copy())
-        return self.result(prog, (ga, q, None, iters, status, used, err.copy(), None, None, worst.copy(),
+        return self.result(prog, (ga, q, None, iters, status, used, binding, err.copy(), None, None, worst.copy(),
                                   success), history)
 
     def result(self, prog: Program, arrays: tuple, history: History | None = None) -> Result:
         """The :class:`Result` of a call's ``arrays``; they become the result's (unbatched: its numbers)."""
-        _, q, _, iters, status, used, err, hist_q, hist_err, worst, success = arrays
+        _, q, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
         p = self.problem
         if self.H and history is None:
             history = History(hist_q, hist_err)
         if history is not None:
             history.error[np.arange(self.H)[None, :] > iters[:, None]] = np.nan
-        return result_of(prog, q, worst, success, err, iters, status, used, p.method_name, history, p.tree)
+        return result_of(prog, q, worst, success, err, iters, status, used, p.method_name, history, p.tree,
+                         binding)

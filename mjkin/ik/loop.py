@@ -16,9 +16,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from mjkin.goals.compiled import GoalArrays, goal_frame, scratch
+from mjkin.goals.compiled import GoalArrays, goal_frame, hard_error, scratch
 from mjkin.ik.kernel import (
+    BINDING,
+    CONSTRAINT,
     CONVERGED,
+    HARD_DAMPING2,
+    HARD_TOL,
     LIMITS,
     LM,
     MAX_ITERATIONS,
@@ -27,6 +31,7 @@ from mjkin.ik.kernel import (
     Settings,
     _converged,
     _costs,
+    _damped_solve,
     _finite_row,
     _fk,
     _levels_met,
@@ -35,6 +40,7 @@ from mjkin.ik.kernel import (
     _progressed,
     _scaled_errors,
     _step,
+    _violation,
     step_scratch,
     summarise,
 )
@@ -58,7 +64,7 @@ def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array,
     """Weighted residuals ``g (m,)``, Jacobians ``J (m, nv)``, errors ``err (G, 2)`` at ``q (1, nq)``.
 
     ``rot``/``pos``/``irot``/``ipos`` hold FK at ``q``; ``b`` selects the target; ``ws``
-    comes from :func:`mjkin.goals.compiled.scratch`.
+    comes from :func:`mjkin.goals.compiled.scratch`. A hard goal's error is its violation.
     """
     for i in range(ga.kind.shape[0]):
         err[i, 0] = 0.0
@@ -66,6 +72,8 @@ def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array,
         if ga.body[i] >= 0:
             goal_frame(kin, ga, i, rot, pos, irot, ipos, ws)
         pass  # DISPATCH: mjkin.ik.compiled puts one branch per registered kind here
+        if ga.hard[i]:
+            hard_error(ga, i, g, err)
 # END evaluate_goals
 
 
@@ -78,18 +86,21 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     ``restarts (K, nq)``: starts tried in turn when a run stalls or uses up
     ``max_iters``; only the entries where ``restart_q (nq,)`` is True are taken
     from them, the others keep this target's start values. ``active (nv,)``:
-    dofs allowed to move. Returns (iterations, status, restarts used); the
-    status is ``TIMEOUT`` when ``st.timeout_ns`` ran out first.
+    dofs allowed to move. Returns (iterations, status, restarts used, binding
+    goal); the status is ``TIMEOUT`` when ``st.timeout_ns`` ran out first, and the
+    binding goal the hard goal whose constraint holds the answer back (-1: none).
 
     The loop evaluates one configuration per pass (a start, or a trial step
     from the current one) at a single place, so the inlined kinematics and
-    goal code are compiled once.
+    goal code are compiled once. Hard goals' rows (``g[:h]``, ``h = level_rows[0]``)
+    are constraints ``s >= 0`` (see :mod:`mjkin.ik.kernel`); without any, none of
+    their work is done.
     """
     deadline = monotonic_ns() + st.timeout_ns if st.timeout_ns > 0 else 0
     tol, rot_tol, lam, lm_c, alpha, max_step = st.tol, st.rot_tol, st.damping, st.lm_factor, st.alpha, st.max_step
     halving, patience, goal_step = st.halving, st.patience, st.goal_step
     nv = kin.dof_body.shape[0]
-    level_rows, counted = ga.level_rows, ga.counted
+    level_rows, counted, hard = ga.level_rows, ga.counted, ga.hard
     m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     ws, sws = scratch(nv), step_scratch(m, nv)
@@ -104,46 +115,87 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     q_start = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
+    # hard constraints: rows [0, h); the live ones (hard_row), their values and Jacobian at q, the active set
+    h = level_rows[0]
+    hard_row = np.zeros(h, dtype=np.bool_)
+    for i in range(G):
+        if hard[i]:
+            hard_row[ga.row[i]:ga.row[i + 1]] = True
+    any_hard = hard_row.any()
+    s_h, J_h, best_s = np.zeros(h), np.zeros((h, nv)), np.zeros(h)
+    on = np.zeros(h, dtype=np.bool_)  # rows in the active set of this step
+    levels = np.empty(L + 2, dtype=np.int64)  # [active hard rows | the goal levels]
+    levels[1:] = level_rows
+    lam2h = np.empty(L + 1)
+    lam2h[0] = HARD_DAMPING2
+    viol, violt, infeasible, best_inf, inf_ref = 0.0, 0.0, 0.0, np.inf, 0.0
     best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
     run_ref = np.empty(G)  # each goal's error (in tolerances) at this run's last progress
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
-    scale, fresh, any_locked = 1.0, True, False
+    scale, fresh, any_locked, corrected = 1.0, True, False, False
     while True:
         _fk(kin, qt, rot, pos, irot, ipos)
         evaluate_goals(kin, ga, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
         _costs(gt, level_rows, costt)
-        if (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
-                or _max_abs(dq) < 1e-15):  # accept qt
+        accept = (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
+                  or _max_abs(dq) < 1e-15)
+        if any_hard:  # feasibility first: less violation wins, a new violation loses
+            violt = _violation(gt, hard_row)
+            pt, pc = max(violt - HARD_TOL, 0.0), max(viol - HARD_TOL, 0.0)
+            if accept and not fresh and pt > pc and not corrected:
+                # a good step bent off a curved constraint: pull the trial's violated rows back to zero
+                # from where it landed (a second-order correction), and judge that instead
+                for r in range(h):
+                    on[r] = hard_row[r] and gt[r] < 0.0
+                _correct(gt[:h], Jt[:h], on, locked, qt, kin)
+                clip_kernel(qt, kin.jnt_type, kin.jnt_qadr, lo, hi)
+                corrected = True
+                continue
+            accept = fresh or pt < pc or (pt <= pc and accept)
+        corrected = False
+        if accept:
             q[:] = qt
             g, gt = gt, g
             J, Jt = Jt, J
             err, errt = errt, err
             cost[:] = costt
             merit = _merit(cost)
+            if any_hard:
+                viol = violt
+                infeasible = max(viol - HARD_TOL, 0.0)
+                s_h[:] = g[:h]
+                J_h[:] = J[:h]
             if not fresh:
                 mu = max(mu / 3.0, 1e-9)
+            keep = 1.0 - (st.progress if used < restarts.shape[0] else 1e-9)
             if fresh:
                 since_best = 0
                 _scaled_errors(err, tol, rot_tol, run_ref)
-            elif _progressed(err, counted, tol, rot_tol, run_ref,  # the last run goes on while any error falls
-                             1.0 - (st.progress if used < restarts.shape[0] else 1e-9)):
+                inf_ref = infeasible
+            elif _progressed(err, counted, tol, rot_tol, run_ref, keep):  # the last run goes on while any error falls
                 since_best = 0
+            elif infeasible < keep * inf_ref:  # or while the violation falls
+                since_best = 0
+                inf_ref = infeasible
             else:
                 since_best += 1
             fresh, attempts, scale = False, 0, 1.0
             met = _levels_met(err, counted, ga.row, level_rows, tol, rot_tol)
-            if met > best_met or (met == best_met and merit < best):  # met higher levels first, then merit
-                best, best_met = merit, met
+            if infeasible < best_inf or (infeasible == best_inf and (  # feasible first, then higher levels met,
+                    met > best_met or (met == best_met and merit < best))):  # then merit
+                best, best_met, best_inf = merit, met, infeasible
                 best_q[:] = q
                 err_out[:] = err
+                if any_hard:
+                    best_s[:] = s_h
             if it < hist_q.shape[0]:
                 hist_q[it] = q[0]
                 for i in range(G):
                     if counted[i]:
                         hist_err[it, 0] = max(hist_err[it, 0], err[i, 0])
                         hist_err[it, 1] = max(hist_err[it, 1], err[i, 1])
-            if _converged(err, counted, tol, rot_tol):
+            if _converged(err, counted, hard, tol, rot_tol):
                 status = CONVERGED
                 break
         else:  # rejected: damp harder (LM) or halve the step
@@ -152,7 +204,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 mu *= 10.0
                 for lv in range(L):
                     lam2[lv] = lam * lam + mu * cost[lv]
-            else:
+            if method != LM or any_hard:
                 scale *= 0.5
             if attempts >= 12:  # no attempt helped: count as a stall
                 since_best = patience
@@ -177,8 +229,15 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
         for d in range(nv):
             locked[d] = not active[d]
-        for _ in range(3):  # lock joints the step would push through a limit, then re-solve
-            _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
+        for r in range(h):
+            on[r] = hard_row[r] and s_h[r] < 0.0
+        for _ in range(3 + h):  # lock joints the step would push through a limit, activate hard rows it would
+            if any_hard:        # push below zero, then re-solve
+                levels[0] = _stack_active(s_h, J_h, on, g, J)
+                lam2h[1:] = lam2
+                _step(J, g, levels, locked, method, lam2h, alpha, scale, goal_step, sws, dq[0], True)
+            else:
+                _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
             if not _finite_row(dq):  # beyond floating point (a target ~1e300 m away): no step, the run ends
                 dq[:] = 0.0
                 since_best = patience
@@ -194,6 +253,10 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 if (dq[0, d] < 0 and qd <= lo[jj] + 1e-12) or (dq[0, d] > 0 and qd >= hi[jj] - 1e-12):
                     locked[d] = True  # at the limit and pushing outwards
                     changed = True
+            for r in range(h):
+                if hard_row[r] and not on[r] and s_h[r] + J_h[r] @ dq[0] < 0.0:
+                    on[r] = True  # the linearised constraint would be crossed
+                    changed = True
             if not changed:
                 break
         any_locked = False
@@ -203,28 +266,75 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
         integrate_kernel(qt, dq, kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
         clip_kernel(qt, kin.jnt_type, kin.jnt_qadr, lo, hi)
     q[:] = best_q
-    return it, status, used
+    binding = -1
+    if any_hard and status != CONVERGED:  # the hard goal whose lowest row is at (or below) its bound
+        low = np.inf
+        for i in range(G):
+            if hard[i]:
+                for r in range(ga.row[i], ga.row[i + 1]):
+                    if best_s[r] < BINDING and best_s[r] < low:
+                        low, binding = best_s[r], i
+        if binding >= 0 and status != TIMEOUT and (best_inf > 0.0 or status == UNREACHABLE or status == LIMITS):
+            status = CONSTRAINT
+    return it, status, used, binding
+
+
+@njit
+def _correct(s: Array, Js: Array, on: NDArray[np.bool_], locked: NDArray[np.bool_], q: Array,
+             kin: Kinematics) -> None:
+    """Move ``q (1, nq)`` by the least-norm ``dq`` (free dofs) with ``s + Js dq = 0`` on the rows ``on``.
+
+    ``s``/``Js`` are overwritten.
+    """
+    k = _stack_active(s, Js, on, s, Js)
+    A = Js[k:].copy()
+    for d in range(A.shape[1]):
+        if locked[d]:
+            A[:, d] = 0.0
+    x = np.zeros(A.shape[1])
+    if k < s.shape[0]:
+        _damped_solve(A, -s[k:], HARD_DAMPING2, x)
+    integrate_kernel(q, x.reshape(1, -1), kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
+
+
+@njit
+def _stack_active(s: Array, Js: Array, on: NDArray[np.bool_], g: Array, J: Array) -> int:
+    """Write the active hard rows (``on``) of ``s (h,)``/``Js (h, nv)`` to the end of ``g[:h]``/``J[:h]``.
+
+    Returns where they start: the first row of the step's top level.
+    """
+    h = s.shape[0]
+    k = h
+    for r in range(h - 1, -1, -1):
+        if on[r]:
+            k -= 1
+            g[k] = s[r]
+            J[k] = Js[r]
+    return k
 
 
 @njit_inline
 def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Settings, max_iters: int,
                 restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], iters: Index,
-                status: Index, used: Index, err: Array, hist_q: Array, hist_err: Array, lo: int, hi: int) -> None:
+                status: Index, used: Index, binding: Index, err: Array, hist_q: Array, hist_err: Array, lo: int,
+                hi: int) -> None:
     """Solve targets ``lo <= b < hi`` of ``q (B, nq)`` in place; see :func:`solve_one`."""
     for b in range(lo, hi):
-        it, code, u = solve_one(kin, ga, b, q[b:b + 1], method, st, max_iters, restarts, restart_q, active, err[b],
-                                hist_q[b], hist_err[b])
+        it, code, u, bind = solve_one(kin, ga, b, q[b:b + 1], method, st, max_iters, restarts, restart_q, active,
+                                      err[b], hist_q[b], hist_err[b])
         iters[b] = it
         status[b] = code
         used[b] = u
+        binding[b] = bind
 
 
 @njit
 def solve_packed(pk: Packed, lo: int, hi: int) -> None:
     """Solve targets ``lo <= b < hi`` of a packed problem (:mod:`mjkin.ik.packed`) and summarise their errors."""
     solve_batch(pk.kin, pk.ga, pk.q, pk.method, pk.settings, pk.max_iters, pk.starts, pk.restart_q, pk.active, pk.iters,
-                pk.status, pk.used, pk.err, pk.hist_q, pk.hist_err, lo, hi)
-    summarise(pk.err[lo:hi], pk.ga.counted, pk.settings.tol, pk.settings.rot_tol, pk.worst[lo:hi], pk.success[lo:hi])
+                pk.status, pk.used, pk.binding, pk.err, pk.hist_q, pk.hist_err, lo, hi)
+    summarise(pk.err[lo:hi], pk.ga.counted, pk.ga.hard, pk.settings.tol, pk.settings.rot_tol, pk.worst[lo:hi],
+              pk.success[lo:hi])
 
 
 

@@ -4,7 +4,7 @@ Minimise the goal potentials ``Σ w |g|²`` level by level (lexicographic
 priorities: a level may not raise the cost of the levels above it), subject
 to the joint limits as bounds (ball cones as inequalities, see :func:`_cone_gradient`),
 :class:`~mjkin.goals.Coupling` goals as linear
-equalities and :class:`~mjkin.goals.HalfSpace` goals as inequalities, with
+equalities and hard goals (:class:`~mjkin.goals.HalfSpace`, ...) as inequalities ``s >= 0``, with
 SciPy's SLSQP and analytic gradients ``Jᵀg``. Variables are a velocity ``v``
 in the tangent space at the start (``q = q_start ⊕ v``), re-centred a few times
 so ball and free joints stay exact. A local minimum is accepted; ``restarts``
@@ -29,11 +29,11 @@ from scipy.optimize import minimize
 
 from .. import spatial
 from ..checks import check_count
-from ..goals import Coupling, HalfSpace, Program
+from ..goals import Coupling, Program
 from ..kinematics.qspace import HINGE, SLIDE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
+from .kernel import BINDING, CONSTRAINT, CONVERGED, HARD_TOL, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
 from .method import Method, Problem
 from .result import Result, package
 
@@ -71,7 +71,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
     """
     rows = prog.row
     free = np.flatnonzero(active)
-    constraint_goal = np.isin(prog.kind, (Coupling.code, HalfSpace.code))
+    constraint_goal = (prog.kind == Coupling.code) | prog.hard
     scalar = np.isin(tree.jnt_type[tree.plan.dof_jnt], (HINGE, SLIDE))
     q_start = q0.copy()
     hit_limit = False
@@ -113,12 +113,13 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
                 lo[d], hi[d] = tree.jnt_range[j, 0] - q_start[a], tree.jnt_range[j, 1] - q_start[a]
         bounds = list(zip(np.minimum(lo[free], 0), np.maximum(hi[free], 0), strict=True))
         cons: list[dict] = []
-        for i in np.flatnonzero(constraint_goal & (prog.sqrt_w > 0)):
-            r = rows[i]
-            sign = 1.0  # coupling: g = 0; half-space: g = min(0, s) >= 0 holds exactly on the allowed side
-            cons.append({"type": "eq" if prog.kind[i] == Coupling.code else "ineq",
-                         "fun": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[0][0, r],
-                         "jac": lambda v, r=r, s=sign: s * evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
+        for i in np.flatnonzero((prog.kind == Coupling.code) & (prog.sqrt_w > 0)):
+            cons.append({"type": "eq", "fun": lambda v, r=rows[i]: evaluate_program(tree, prog, at(v)[None])[0][0, r],
+                         "jac": lambda v, r=rows[i]: evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
+        hard = rows_of(prog.hard)  # the hard goals' rows: s >= 0
+        if len(hard):
+            cons.append({"type": "ineq", "fun": lambda v, h=hard: evaluate_program(tree, prog, at(v)[None])[0][0, h],
+                         "jac": lambda v, h=hard: evaluate_program(tree, prog, at(v)[None])[1][0][h][:, free]})
         lay = tree.layout
         for qi, di, limit in zip(lay.ball_q, lay.ball_v, lay.ball_max, strict=True):  # ball cones
             if np.isfinite(limit):
@@ -126,13 +127,13 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
                     spatial.quat_distance(at(v)[qi], [1.0, 0.0, 0.0, 0.0])),
                     "jac": lambda v, qi=qi, di=di: cone_jac(v, qi, di)})
         v = np.zeros(len(free))
-        for lv in range(len(prog.level_rows) - 1):
-            idx = rows_of((level_of == lv) & ~constraint_goal)
-            if len(idx) == 0:
-                continue
+        levels: list[Array | None] = [sel for lv in range(len(prog.level_rows) - 1)
+                                      if len(sel := rows_of((level_of == lv) & ~constraint_goal))]
+        for idx in levels or ([None] if cons else []):  # constraints alone: the smallest move that meets them
             reported = [v]  # the start and SciPy's iterates (its callback comes after each iteration)
+            objective = (lambda x, _: (0.5 * float(x @ x), x)) if idx is None else cost
             try:
-                res = minimize(cost, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                res = minimize(objective, v, args=(idx,), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
                                options={"maxiter": max_iters, "ftol": 1e-16},
                                callback=lambda x, seen=reported: seen.append(x.copy()))
             except _OutOfTime:
@@ -141,8 +142,9 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
             iterations += int(res.nit)
             v = res.x
             achieved = res.fun
-            cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
-                            "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
+            if idx is not None:
+                cons = cons + [{"type": "ineq", "fun": lambda v, idx=idx, c=achieved: c + 1e-12 - cost(v, idx)[0],
+                                "jac": lambda v, idx=idx: -cost(v, idx)[1]}]
         q_new = tree.clip(at(v, False))
         done = np.abs(tree.difference(q_new, q_start)).max() < 1e-12
         q_start = q_new
@@ -169,32 +171,48 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     status = np.zeros(B, np.int64)
     used = np.zeros(B, np.int64)
     iters = np.zeros(B, np.int64)
+    binding = np.full(B, -1, np.int64)
     for b in range(B):
         one = prog.target(b)
         g, _, e = evaluate_program(tree, one, q[b][None])  # the start stands until a run ends with a finite cost
-        best, best_cost, err[b], status[b] = q[b], np.inf, e[0], UNREACHABLE
-        start_cost = float(g[0] @ g[0])  # a run cut short by the clock must also beat the start
+        h = one.level_rows[0]  # the hard rows come first, outside the cost
+        best, best_key, err[b], status[b] = q[b], (np.inf, np.inf), e[0], UNREACHABLE
+        start_cost = float(g[0, h:] @ g[0, h:])  # a run cut short by the clock must also beat the start
         starts = [q[b], *np.where(restart_q, restarts, q[b])]
         deadline = np.inf if timeout is None else time.monotonic() + timeout
         for k, start in enumerate(starts):
             qb, hit, n, late = _solve_one(tree, one, start, max_iters, active, deadline)
             iters[b] += n
             g, _, e = evaluate_program(tree, one, qb[None])
-            c = float(g[0] @ g[0])
-            if c < best_cost and not (late and c >= start_cost):
-                best, best_cost, err[b], used[b] = qb, c, e[0], k
-                ok = np.all((e[0][one.counted, 0] <= tol) & (e[0][one.counted, 1] <= rot_tol))
+            c = float(g[0, h:] @ g[0, h:])
+            key = (max(float(e[0][one.hard].max(initial=0.0)) - HARD_TOL, 0.0), c)  # feasible first, then cost
+            if key < best_key and not (late and c >= start_cost):
+                best, best_key, err[b], used[b] = qb, key, e[0], k
+                ok = key[0] == 0.0 and np.all((e[0][one.counted, 0] <= tol) & (e[0][one.counted, 1] <= rot_tol))
                 lay = tree.layout
                 at_limit = np.any(np.isclose(qb[lay.scalar_q], lay.scalar_lo, atol=1e-9)
                                   | np.isclose(qb[lay.scalar_q], lay.scalar_hi, atol=1e-9))
                 status[b] = CONVERGED if ok else MAX_ITERATIONS if hit else LIMITS if at_limit else UNREACHABLE
+                binding[b] = _binding(one, g[0]) if not ok else -1
+                if binding[b] >= 0 and status[b] in (UNREACHABLE, LIMITS):
+                    status[b] = CONSTRAINT
                 if ok:
                     break
             if late:
                 status[b] = TIMEOUT if status[b] != CONVERGED else CONVERGED
                 break
         out[b] = best
-    return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize", tree=tree)
+    return package(prog, out, err, iters, status, used, tol, rot_tol, "optimize", tree=tree, binding=binding)
+
+
+def _binding(prog: Program, g: Array) -> int:
+    """The hard goal of ``prog`` (one target) with the lowest row below :data:`BINDING` in ``g (m,)``, or -1."""
+    low, found = BINDING, -1
+    for i in np.flatnonzero(prog.hard):
+        s = float(g[prog.row[i]:prog.row[i + 1]].min())
+        if s < low:
+            low, found = s, int(i)
+    return found
 
 
 # optimize's time limit per target when none is given: SciPy's SLSQP has no other bound on its wall time (on the

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 FIELDS = ("kin", "ga", "settings", "method", "max_iters", "starts", "restart_q", "active", "q", "iters", "status",
-          "used", "err", "hist_q", "hist_err", "worst", "success")
+          "used", "binding", "err", "hist_q", "hist_err", "worst", "success")
 
 
 @structref.register
@@ -54,6 +54,7 @@ class Packed(structref.StructRefProxy):
         iters: Index
         status: Index
         used: Index
+        binding: Index
         err: Array
         hist_q: Array
         hist_err: Array
@@ -67,21 +68,23 @@ structref.define_proxy(Packed, PackedType, list(FIELDS))
 @njit
 def _pack(kin: Kinematics, ga: GoalArrays, settings: Settings, method: int, max_iters: int, starts: Array,
           restart_q: NDArray[np.bool_], active: NDArray[np.bool_], q: Array, iters: Index, status: Index, used: Index,
-          err: Array, hist_q: Array, hist_err: Array, worst: Array, success: NDArray[np.bool_]) -> Packed:
-    return Packed(kin, ga, settings, method, max_iters, starts, restart_q, active, q, iters, status, used, err, hist_q,
-                  hist_err, worst, success)
+          binding: Index, err: Array, hist_q: Array, hist_err: Array, worst: Array,
+          success: NDArray[np.bool_]) -> Packed:
+    return Packed(kin, ga, settings, method, max_iters, starts, restart_q, active, q, iters, status, used, binding, err,
+                  hist_q, hist_err, worst, success)
 
 
 def pack(kin: Kinematics, ga: GoalArrays, st: Settings, method: int, max_iters: int, starts: Array,
          restart_q: NDArray[np.bool_], active: NDArray[np.bool_], q: Array, iters: Index, status: Index, used: Index,
-         err: Array, hist_q: Array, hist_err: Array, worst: Array, success: NDArray[np.bool_]) -> Packed:
+         binding: Index, err: Array, hist_q: Array, hist_err: Array, worst: Array,
+         success: NDArray[np.bool_]) -> Packed:
     """Pack a solve's arrays (shared, not copied) for :func:`mjkin.ik.loop.solve_packed`.
 
     ``B`` targets of ``G`` goals: ``q (B, nq)`` the starts, overwritten with the answers;
-    outputs ``iters``, ``status``, ``used (B,)``, ``err (B, G, 2)``, ``worst (B, 2)``,
+    outputs ``iters``, ``status``, ``used``, ``binding (B,)``, ``err (B, G, 2)``, ``worst (B, 2)``,
     ``success (B,)``; history ``hist_q (B, H, nq)``, ``hist_err (B, H, 2)`` (``H = 0``: none).
     The rest as :func:`mjkin.ik.loop.solve_one` takes them. Scalars are fixed to one type,
     so every problem shares one compiled specialisation.
     """
-    return _pack(kin, ga, st, int(method), int(max_iters), starts, restart_q, active, q, iters, status, used, err,
-                 hist_q, hist_err, worst, success)
+    return _pack(kin, ga, st, int(method), int(max_iters), starts, restart_q, active, q, iters, status, used, binding,
+                 err, hist_q, hist_err, worst, success)

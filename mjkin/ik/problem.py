@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..checks import check_count, check_flag, check_number
 from ..errors import GoalError, InputError
-from ..goals import Coupling, Goal, Pose, Program
+from ..goals import Clearance, Coupling, Goal, Pose, Program
 from ..goals.program import as_goals, encode, key_of, structure
 from ..kinematics import qspace
 from ..kinematics.qspace import FREE, NQ, NV, clip_kernel
@@ -31,6 +31,8 @@ from .result import History, Result, package
 
 Array = NDArray[np.float64]
 Runner = Callable[[Program, Array], Result]
+# avoid_collisions' clearance (m): past the hard constraints' tolerance (1e-6), so MuJoCo finds no contact
+AVOID_MARGIN = 1e-5
 
 
 def method_of(method: str | Method, options: dict) -> Method:
@@ -68,12 +70,13 @@ class Problem:
             holds it at its pose in each solve's ``q0`` while the free root joint moves the rest.
         history: keep every iterate (``Result.history``).
         seed: seeds the restarts, so solves are reproducible (None: new ones each solve).
-        avoid_collisions: reject solutions where MuJoCo finds contacts (between non-adjacent
-            bodies, or with the world): re-solve from seeded random starts (the method's
-            restarts, at least 8); if none is free of contact, ``status`` is ``"collision"``.
+        avoid_collisions: keep every geom pair MuJoCo would collide apart: a hard
+            :class:`~mjkin.goals.Clearance` of 10 µm (:data:`AVOID_MARGIN`) is added (first in
+            ``Result.goals``, as hard goals are); a solve that cannot keep it ends with ``status``
+            ``"constraint"``. Only the joints that move the goal frames move.
         **options: the named method's options (``max_iters``, ``damping``, ``restarts``, ...).
 
-    Restarts (and collision retries) randomise only the joints that move a goal frame
+    Restarts randomise only the joints that move a goal frame
     and may move; every other joint keeps its ``q0`` value, and with ``root`` so does the
     free joint. When nothing may move (no joints, ``joints=[]``, ``base=`` the goals' own
     body) every method returns the start after 0 iterations: ``"converged"`` if the goals
@@ -107,6 +110,8 @@ class Problem:
             self.root_body = tree.id(root, "body")
             low = min(g.priority for g in user)
             user = (Pose(root, kind="body"),) + tuple(replace(g, priority=g.priority + 1 - low) for g in user)
+        if self.avoid_collisions:  # clearance from every pair MuJoCo would collide, as a hard constraint
+            user = user + (Clearance(AVOID_MARGIN),)
         self.structure = structure(tree, user)
         self.wrap = self._wrapped_hinges()
         self.active = self._active_dofs()
@@ -116,14 +121,13 @@ class Problem:
         self.starts = self._random_starts(self.n_restarts) if self.seed is not None else np.zeros((0, tree.nq))
         self.goals = user  # as given (with the root's pose goal first); a solve's goals replace their targets
         self._run: Runner = self.method.prepare(self)
-        self._retry: Problem | None = None
 
     def __getstate__(self) -> dict:
         """Pickle the problem without its compiled runner (made again on arrival)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_run", "_retry")}
+        return {k: v for k, v in self.__dict__.items() if k != "_run"}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, _retry=None)
+        self.__dict__.update(state)
         self._run = self.method.prepare(self)
 
     # ------------------------------------------------------------------ solve
@@ -148,6 +152,8 @@ class Problem:
                                 "make a new mjkin.Problem for them")
             if self.root is not None:
                 given = (self.goals[0],) + given
+            if self.avoid_collisions:
+                given = given + (self.goals[-1],)
         q_start = tree.qpos0 if q0 is None else q0
         if self.root is not None:
             pose = tree.kinematics(tree.check_q(q_start, "q0")).pose("body", self.root_body)
@@ -161,9 +167,7 @@ class Problem:
         if not self.mobile:  # nothing may move: the start is the answer, whatever the method
             result = self._immobile(prog, q)
         else:
-            result = self._run(prog, q.copy() if self.avoid_collisions else q)  # the run overwrites its starts
-        if self.avoid_collisions:
-            result = self._collision_free(prog, result, q)
+            result = self._run(prog, q)  # the run overwrites its starts
         ok = result.success  # np.all of one target's np.bool_ costs ~1 µs, a tenth of a solve's Python
         if not (ok if isinstance(ok, np.bool_) else np.all(ok)):  # only a failure pays for telling a proof from a miss
             reason = certify(self, prog, q, np.reshape(result.success, -1))
@@ -187,7 +191,11 @@ class Problem:
         return hinges[~np.isin(hinges, coupled)]
 
     def _active_dofs(self) -> NDArray[np.bool_]:
-        """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies."""
+        """Dofs allowed to move: those of ``joints``, or of the chains between ``base`` and the goal bodies.
+
+        With ``avoid_collisions``, only dofs that move a goal frame (an object's joints are not
+        pushed aside to make room).
+        """
         tree = self.tree
         active = np.ones(tree.nv, dtype=bool)
         if self.joints is not None:
@@ -202,6 +210,12 @@ class Problem:
                 chain = set(tree.body_dofs[body].tolist()) - set(tree.body_dofs[b].tolist())
                 below[list(chain)] = True
             active &= below
+        bodies = {int(x) for x in self.structure.body if x >= 0}
+        if self.avoid_collisions and bodies:  # keeping clear moves only the joints that move the goal frames
+            moving = np.zeros(tree.nv, dtype=bool)
+            for body in bodies:
+                moving[tree.body_dofs[body]] = True
+            active &= moving
         return active
 
     def _restart_q(self) -> NDArray[np.bool_]:
@@ -253,48 +267,9 @@ class Problem:
         """The result when no dof may move: the starts ``q (B, nq)`` as they are, met or not, after 0 iterations."""
         _, _, err = evaluate_program(self.tree, prog, q)
         worst, met = np.empty((prog.B, 2)), np.empty(prog.B, dtype=bool)
-        summarise(err, prog.counted, self.tol, self.rot_tol, worst, met)
+        summarise(err, prog.counted, prog.hard, self.tol, self.rot_tol, worst, met)
         zeros = np.zeros(prog.B, np.int64)
         status = np.where(met, CONVERGED, UNREACHABLE)
         history = History(q[:, None].copy(), worst[:, None].copy()) if self.history else None
         return package(prog, q, err, zeros, status, zeros, self.tol, self.rot_tol, self.method_name, history,
                        self.tree)
-
-    def _collision_free(self, prog: Program, result: Result, q0: Array) -> Result:
-        """Re-solve the targets whose solution is in contact, from retry starts, until one is free.
-
-        A retry start takes a seeded random configuration where a restart may
-        randomise and the target's ``q0`` elsewhere, as restarts do.
-        """
-        from ..scene import Scene  # MuJoCo's collision code, only when asked for (Clearance replaces this)
-
-        tree = self.tree
-        scene = Scene(tree)
-        retries = self._random_starts(max(8, self.n_restarts))
-        q = np.array(result.q).reshape(-1, tree.nq)
-        error = np.array(result.error).reshape(-1, 2)
-        goal_errors = np.array(result.goal_errors).reshape(len(q), -1, 2)
-        success = np.array(result.success).reshape(-1).copy()
-        status = np.array(result.status).reshape(-1).astype("<U14")
-        for b in range(len(q)):
-            if not scene.in_collision(q[b]):
-                continue
-            one = [g.take(b, b + 1) for g in prog.goals]
-            if self._retry is None:
-                self._retry = Problem(tree, one, method=replace(self.method, restarts=0), tol=self.tol,
-                                      rot_tol=self.rot_tol, timeout=np.inf if self.time_limit is None else
-                                      self.time_limit, base=self.base, joints=self.joints)
-            for start in np.where(self.restart_q, retries, q0[b]):
-                retry = self._retry.solve(start, one)
-                found = np.reshape(retry.q, (tree.nq,))
-                if retry.success.all() and not scene.in_collision(found):
-                    q[b], error[b] = found, np.reshape(retry.error, 2)
-                    goal_errors[b] = retry.goal_errors.reshape(-1, 2)
-                    success[b], status[b] = True, "converged"
-                    break
-            else:
-                success[b], status[b] = False, "collision"
-        shape = np.shape(result.success)
-        return replace(result, q=q.reshape(np.shape(result.q)), error=error.reshape(np.shape(result.error)),
-                       goal_errors=goal_errors.reshape(np.shape(result.goal_errors)), success=success.reshape(shape),
-                       status=status.reshape(shape) if shape else status[0])

@@ -40,14 +40,17 @@ class Result:
 
     Attributes:
         q: ``(..., nq)`` best configuration found, inside the joint limits, a valid ``qpos``.
-        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians).
+        success: ``(...)`` every counted goal within ``tol`` (metres) and ``rot_tol`` (radians),
+            and every hard constraint holding (each row ``>= -1e-6``, :data:`~mjkin.ik.kernel.HARD_TOL`).
         error: ``(..., 2)`` worst ``[position (m), rotation (rad)]`` error over the counted goals.
         iterations: ``(...)`` steps taken (CCD: sweeps).
         status: ``"converged"``, ``"unreachable"`` (stalled away from the goal, or nothing may
             move), ``"limits"`` (stalled with a joint limit blocking the way), ``"max_iterations"``,
-            ``"timeout"`` (the ``timeout`` ran out first) or ``"collision"`` (``avoid_collisions``:
-            every pose found was in contact).
-        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (sorted by priority).
+            ``"timeout"`` (the ``timeout`` ran out first), ``"constraint"`` (stalled with a hard
+            constraint holding the answer back, or no pose found that keeps every hard constraint:
+            :attr:`binding` names it; with ``avoid_collisions``, the contact that could not be avoided).
+        goal_errors: ``(..., G, 2)`` per goal, in :attr:`goals` order (hard constraints first, then by
+            priority); a hard constraint's is its violation (how far its lowest row is below zero).
         goals: the goals as solved.
         method: the method that ran.
         restarts: ``(...)`` random restarts used.
@@ -56,6 +59,8 @@ class Result:
             target lies beyond the chain's reach bound, :func:`mjkin.ik.reasons.reach_bound`),
             ``"limits"`` (proven: reachable only outside the joint limits; checked where it is cheap,
             a single moving joint), ``"not_found"`` (no proof either way); ``""`` for a success.
+        binding: ``(...)`` index in :attr:`goals` of the hard constraint at (or below) its bound at
+            :attr:`q` when the solve did not converge, else -1.
         tree: the tree solved on; not pickled (a result sent to another process travels
             without its ``MjModel``): re-attach it with :meth:`with_tree`.
     """
@@ -71,15 +76,17 @@ class Result:
     restarts: Array
     history: History | None = None
     reason: NDArray[np.str_] | None = None
+    binding: Array | None = None
     tree: Tree | None = field(default=None, repr=False, compare=False)
 
     def __init__(self, q: Array, success: Array, error: Array, iterations: Array, status: Array, goal_errors: Array,
                  goals: tuple[Goal, ...], method: str, restarts: Array, history: History | None = None,
-                 reason: NDArray[np.str_] | None = None, tree: Tree | None = None) -> None:
+                 reason: NDArray[np.str_] | None = None, binding: Array | None = None,
+                 tree: Tree | None = None) -> None:
         # the fields at once: a frozen dataclass's own __init__ sets them one by one (~2 µs of a ~40 µs solve)
         self.__dict__.update(q=q, success=success, error=error, iterations=iterations, status=status,
                              goal_errors=goal_errors, goals=goals, method=method, restarts=restarts, history=history,
-                             reason=reason, tree=tree)
+                             reason=reason, binding=binding, tree=tree)
 
     def __getstate__(self) -> dict:
         """Pickle everything but the tree (its ``MjModel`` is large and the receiver usually has it).
@@ -130,15 +137,17 @@ def _shaped(batch: tuple[int, ...], a: NDArray) -> NDArray:
 
 
 def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
-            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
-    """Build a :class:`Result` from flat per-target arrays."""
+            rot_tol: float, method: str, history: History | None = None, tree: Tree | None = None,
+            binding: NDArray | None = None) -> Result:
+    """Build a :class:`Result` from flat per-target arrays (``binding`` None: no binding constraint)."""
     worst, success = np.empty((len(q), 2)), np.empty(len(q), dtype=bool)
-    summarise(err, prog.counted, float(tol), float(rot_tol), worst, success)
-    return result_of(prog, q, worst, success, err, iters, status, used, method, history, tree)
+    summarise(err, prog.counted, prog.hard, float(tol), float(rot_tol), worst, success)
+    return result_of(prog, q, worst, success, err, iters, status, used, method, history, tree,
+                     np.full(len(q), -1, np.int64) if binding is None else binding)
 
 
 def result_of(prog: Program, q: Array, worst: Array, success: NDArray, err: Array, iters: NDArray, status: NDArray,
-              used: NDArray, method: str, history: History | None = None, tree: Tree | None = None) -> Result:
+              used: NDArray, method: str, history: History | None, tree: Tree | None, binding: NDArray) -> Result:
     """A :class:`Result` from flat per-target arrays, already summarised (``worst (B, 2)``, ``success (B,)``).
 
     The result keeps the arrays (views of them), so they must be the caller's no more.
@@ -148,4 +157,5 @@ def result_of(prog: Program, q: Array, worst: Array, success: NDArray, err: Arra
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, STATUS[status]), goal_errors=_shaped(b, err),
                   goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist,
-                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")) if b else NO_REASON, tree=tree)
+                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")) if b else NO_REASON,
+                  binding=_shaped(b, binding), tree=tree)

@@ -18,7 +18,7 @@ from .trajectory import Trajectory
 
 def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = None, fps: float = 30.0,
            extra: Sequence[G.Goal] = (), tol: float = 1e-4, smooth: float = 0.3,
-           **solve_options: Any) -> Trajectory:
+           max_joint_speed: ArrayLike | None = None, **solve_options: Any) -> Trajectory:
     """IK-driven animation: put ``frame`` on ``targets (T, 3)`` frame by frame, warm-starting from the last pose.
 
     ``extra`` goals (e.g. an orientation, a rest pose at low priority) hold on every
@@ -29,6 +29,12 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
     that fails from the warm start is retried with random restarts; failures are
     recorded in ``success``. Two :class:`~mjkin.Problem` objects (without and with
     restarts) serve every frame; ``solve_options`` go to both.
+
+    ``max_joint_speed`` (rad/s for hinges and ball/free rotations, m/s for slides and
+    free translations; one number or one per joint ``(njnt,)``) becomes a hard
+    :class:`~mjkin.goals.StepLimit` of ``max_joint_speed / fps`` from the previous frame:
+    no frame-to-frame change exceeds it (the first frame's is from ``q0``), and a
+    target further away is followed as far as that allows.
     """
     pts = np.asarray(targets, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
@@ -37,9 +43,11 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
         raise InputError(f"smooth must be a weight >= 0, got {smooth!r}")
     q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
     out, ok = np.empty((len(pts), tree.nq)), np.empty(len(pts), bool)
+    step = None if max_joint_speed is None else speed_step(tree, max_joint_speed, fps)
 
     def goals(k: int) -> list[G.Goal]:
-        return [G.Position(frame, pts[k]), *extra, *([G.Rest(q_rest=q, weight=smooth, priority=1)] if smooth else [])]
+        return [G.Position(frame, pts[k]), *extra, *([G.Rest(q_rest=q, weight=smooth, priority=1)] if smooth else []),
+                *([] if step is None else [G.StepLimit(q, step)])]
 
     warm = Problem(tree, goals(0), tol=tol, **{**solve_options, "restarts": 0})
     retry: Problem | None = None
@@ -56,3 +64,21 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
                       frame=frame, targets=pts[:, None, :], success=ok)
 
 
+
+
+def speed_step(tree: Tree, max_joint_speed: ArrayLike, fps: float) -> np.ndarray:
+    """The largest step per frame ``(njnt,)`` of each joint at ``max_joint_speed`` (one number or ``(njnt,)``).
+
+    Raises:
+        InputError: a speed that is not one number or one per joint, or not > 0; an fps not > 0.
+    """
+    try:
+        speed = np.broadcast_to(np.asarray(max_joint_speed, dtype=np.float64), (tree.njnt,))
+    except (TypeError, ValueError):
+        raise InputError(f"max_joint_speed must be one number or one per joint ({tree.njnt}), got "
+                         f"{max_joint_speed!r}") from None
+    if not np.all(speed > 0):
+        raise InputError(f"max_joint_speed must be > 0 (rad/s, m/s), got {max_joint_speed!r}")
+    if not fps > 0:
+        raise InputError(f"fps must be > 0 with max_joint_speed, got {fps!r}")
+    return speed / float(fps)

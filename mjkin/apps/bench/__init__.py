@@ -21,7 +21,7 @@ ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True,
-                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,solutions,all}",
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,solutions,constraints,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -88,6 +88,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--poses", type=positive_int, default=1000, help="random poses per arm (default 1000)")
     s.add_argument("--checks", type=positive_int, default=1000,
                    help="map entries checked by brute-force IK (default 1000)")
+    common(s)
+
+    s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "
+                                           "(arm7, Panda among obstacles)")
+    s.add_argument("--targets", type=positive_int, default=200, help="targets per model (default 200)")
+    s.add_argument("--margin", type=positive_float, default=0.005,
+                   help="clearance, m (default 0.005: the Panda's link0-link1 pair is never more than 8 mm apart)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")

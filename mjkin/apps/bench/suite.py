@@ -348,6 +348,10 @@ def run(args: argparse.Namespace) -> Report:
         from .realtime import bench_realtime
 
         return bench_realtime(args.dofs, args.frames, args.seed, args.plot)
+    if args.which == "constraints":
+        from .constraints import bench_constraints
+
+        return bench_constraints(args.targets, args.margin, args.seed)
     if args.which == "retarget":
         from .retarget import bench_retarget
 

@@ -1,0 +1,183 @@
+"""Clearance: geoms keep a distance from each other and from the world (a hard constraint)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
+
+import mujoco
+import numpy as np
+
+from ..checks import check_count
+from ..errors import GoalError, UnknownNameError
+from ..jit import njit, njit_inline
+from ..kinematics.distance import pair_distance, pair_distance_jacobian
+from ..kinematics.geoms import (
+    BOX,
+    CAPSULE,
+    PLANE,
+    SPHERE,
+    Geoms,
+    contact_pairs,
+    native_pairs,
+    near_pairs,
+)
+from .base import METRES, Array, Goal, Units
+
+if TYPE_CHECKING:
+    from ..kinematics.fk import Kinematics
+    from ..kinematics.tree import Tree
+    from .compiled import GoalArrays
+
+Index = np.ndarray
+
+
+@dataclass(frozen=True)
+class Clearance(Goal):
+    """Every geom pair keeps a signed distance ``>= margin`` (m): ``s = d - margin >= 0``, hard.
+
+    ``pairs``: the geom pairs ``[(geom1, geom2), ...]`` (names or ids); None: every pair
+    MuJoCo's collision tests would make (:func:`mjkin.kinematics.geoms.contact_pairs`:
+    contype/conaffinity, parent–child and welded bodies, ``<exclude>``, ``<pair>``).
+    Distances and gradients come from mjkin's FK and its own sphere/capsule/box/plane/cylinder
+    primitives (:func:`mjkin.kinematics.geoms.pair_distance`). Each evaluation takes the
+    pairs whose bounding spheres come within ``margin + REACH`` (a broad phase), computes
+    their distances and gives a row to the ``closest`` nearest (a fixed number of rows;
+    spare rows read ``REACH``, inert). In a pair mjkin does not compute (a mesh, an
+    ellipsoid, a cylinder against a box, ...) the geom it cannot take is measured as its
+    bounding sphere (:func:`bounded_geoms`): that pair's clearance kept is a lower bound
+    of the true one.
+    """
+
+    margin: float = 0.0
+    pairs: Sequence[tuple[int | str, int | str]] | None = None
+    closest: int = field(default=8, kw_only=True)
+    rows: ClassVar[int] = -1
+    units: ClassVar[Units] = METRES
+    hard: ClassVar[bool] = True
+    REACH: ClassVar[float] = 0.1  # m past the margin that a pair must come within to be measured
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if isinstance(self.margin, bool) or not isinstance(self.margin, (int, float, np.number)) or not np.isfinite(
+                self.margin):
+            raise GoalError(f"Clearance margin must be a finite number of metres, got {self.margin!r}")
+        check_count(self.closest, "Clearance closest", 1)
+
+    def key(self) -> tuple:  # noqa: D102
+        pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
+        return super().key() + (pairs, int(self.closest))
+
+    def geom_pairs(self, tree: Tree) -> Index:
+        """The geom pairs ``(P, 2)`` this goal keeps apart, checked against ``tree``.
+
+        Raises:
+            GoalError: a malformed pair.
+            UnknownNameError: a geom name the model does not have.
+        """
+        cached = self.__dict__.get("_pairs")
+        if cached is not None and cached[0] is tree:
+            return cached[1]
+        if self.pairs is None:
+            pairs = contact_pairs(tree)
+        else:
+            try:
+                given = [tuple(p) for p in self.pairs]
+            except TypeError:
+                given = [()]
+            if any(len(p) != 2 for p in given):
+                raise GoalError("Clearance pairs must be (geom1, geom2) pairs of geom names or ids")
+            pairs = np.array([[_geom(tree, a), _geom(tree, b)] for a, b in given], dtype=np.int64).reshape(-1, 2)
+        pairs = np.ascontiguousarray(pairs, dtype=np.int64)
+        object.__setattr__(self, "_pairs", (tree, pairs))
+        return pairs
+
+    def nrows(self, tree: Tree) -> int:
+        """``closest`` rows, or one per pair when there are fewer."""
+        return min(int(self.closest), len(self.geom_pairs(tree)))
+
+    def encode(self, tree: Tree, data: Array, rest: Array) -> None:
+        """The margin and the broad phase's reach into ``data``."""
+        data[:, 0] = float(self.margin)
+        data[:, 1] = float(self.margin) + self.REACH
+
+
+def bounded_geoms(geoms: Geoms, pairs: Index) -> Geoms:
+    """``geoms`` with every geom that makes a pair of ``pairs (P, 2)`` mjkin cannot measure turned into its
+    bounding sphere (about its origin, radius ``rbound``), for those pairs only (see :func:`clearance_rows`).
+    """  # noqa: D205
+    bad = pairs[~native_pairs(geoms, pairs)] if len(pairs) else pairs
+    if not len(bad):
+        return geoms
+    kind, size = geoms.type.copy(), geoms.size.copy()
+    for g in np.unique(bad):
+        if kind[g] not in (PLANE, SPHERE, CAPSULE, BOX):
+            kind[g], size[g] = SPHERE, (geoms.rbound[g], 0.0, 0.0)
+    return geoms._replace(type=kind, size=size)
+
+
+def _geom(tree: Tree, g: int | str) -> int:
+    m = tree.model
+    if isinstance(g, (int, np.integer)) and not isinstance(g, bool):
+        if not 0 <= g < m.ngeom:
+            raise GoalError(f"Clearance geom id {g} is not in 0..{m.ngeom - 1}")
+        return int(g)
+    if not isinstance(g, str):
+        raise GoalError(f"Clearance geoms are names or ids, got {g!r}")
+    i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+    if i < 0:
+        raise UnknownNameError("geom", g, [m.geom(k).name for k in range(m.ngeom) if m.geom(k).name])
+    return int(i)
+
+
+def _name(tree: Tree, g: int) -> str:
+    return tree.model.geom(int(g)).name or f"#{int(g)}"
+
+
+@njit
+def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, i: int, rot: Array, pos: Array,
+                   irot: Array, ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> None:
+    """Rows ``r0:r0+k``: ``d - margin`` and ``∂d/∂v`` of the ``k`` closest of goal ``i``'s pairs near the margin.
+
+    ``pairs (P, 4)``: ``[geom1, geom2, goal, bounded]``, each goal's contiguous; a pair marked
+    ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
+    ``reach - margin`` with a zero gradient.
+    """
+    lo, hi = 0, 0
+    for p in range(pairs.shape[0]):
+        if pairs[p, 2] < i:
+            lo = p + 1
+        if pairs[p, 2] <= i:
+            hi = p + 1
+    near = np.empty(hi - lo, dtype=np.int64)
+    n = near_pairs(geoms, rot, pos, pairs[lo:hi, :2], reach, near)
+    best_d, best_p = np.full(k, np.inf), np.full(k, -1)
+    p1, p2 = np.empty(3), np.empty(3)
+    for c in range(n):  # keep the k closest, sorted
+        p = lo + near[c]
+        d = pair_distance(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1], p1, p2)
+        if d < best_d[k - 1]:
+            j = k - 1
+            while j > 0 and best_d[j - 1] > d:
+                best_d[j], best_p[j] = best_d[j - 1], best_p[j - 1]
+                j -= 1
+            best_d[j], best_p[j] = d, p
+    for j in range(k):
+        r = r0 + j
+        if best_p[j] < 0:
+            g[r] = reach - margin
+            for c in range(J.shape[1]):
+                J[r, c] = 0.0
+        else:
+            p = best_p[j]
+            g[r] = pair_distance_jacobian(kin, bounded if pairs[p, 3] else geoms, rot, pos, irot, ipos, pairs[p, 0],
+                                          pairs[p, 1], J[r]) - margin
+
+
+@njit_inline
+def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
+             b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
+    """The ``closest`` nearest pairs' ``d - margin`` (m), unweighted, and their gradients."""
+    clearance_rows(kin, ga.geoms, ga.bounded, ga.pairs, i, rot, pos, irot, ipos, ga.data[b, i, 0], ga.data[b, i, 1],
+                   g, J, r0, ga.row[i + 1] - ga.row[i])
