@@ -83,10 +83,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
     common(s)
 
-    s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "
-                                           "(arm7, Panda among obstacles)")
-    s.add_argument("--targets", type=positive_int, default=200, help="targets per model (default 200)")
-    s.add_argument("--margin", type=positive_float, default=0.01, help="clearance, m (default 0.01)")
+    s = sub.add_parser("constraints", help="Clearance among obstacles beside no clearance, reject-and-retry and "
+                                           "mink; self-clearance and balance of figures; max_joint_speed on a path")
+    s.add_argument("--targets", type=positive_int, default=30,
+                   help="targets per arm (the figures get half; default 30)")
+    s.add_argument("--margin", type=positive_float, default=0.005, help="clearance, m (default 0.005)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
