@@ -278,13 +278,15 @@ def mujoco_clearance(tree, q):
 
 
 def test_clearance_rows_are_the_closest_pairs_with_their_gradients(rng):
-    from mjkin.kinematics.geoms import contact_pairs, distance_jacobians
+    from mjkin.kinematics.geoms import contact_pairs, distance_jacobians, native_pairs
 
     tree = cluttered()
-    goal = G.Clearance(0.02, closest=4)
+    pairs = contact_pairs(tree)
+    measured = pairs[native_pairs(tree.geoms, pairs)]  # (the flange, a cylinder, against the table box is bounded)
+    goal = G.Clearance(0.02, pairs=measured, closest=4)
     for q in tree.random_q(rng, 5):
         g, J, _ = evaluate(tree, goal, q)
-        d, Jd = distance_jacobians(tree, q, contact_pairs(tree))
+        d, Jd = distance_jacobians(tree, q, measured)
         near = np.sort(d)[:4] - 0.02
         live = near < G.Clearance.REACH
         np.testing.assert_allclose(g[0][live], near[live], atol=1e-9)
@@ -292,6 +294,15 @@ def test_clearance_rows_are_the_closest_pairs_with_their_gradients(rng):
         for r in np.flatnonzero(live):
             p = int(np.argmin(np.abs(d - 0.02 - g[0, r])))
             np.testing.assert_allclose(J[0, r], Jd[p], atol=1e-9)
+
+
+def test_a_pair_mjkin_cannot_measure_is_kept_by_its_bounding_sphere(rng):
+    tree = cluttered()
+    flange, table = tree.model.geom("flange").id, tree.model.geom("table").id
+    goal = G.Clearance(0.0, pairs=[("flange", "table")], closest=1)
+    for q in tree.random_q(rng, 20):
+        s = evaluate(tree, goal, q)[0][0, 0]
+        assert s <= tree.distances(q, [[flange, table]])[0] + 1e-12  # a lower bound of MuJoCo's distance
 
 
 @pytest.mark.parametrize("method", ["lm", "auto", "optimize"])
@@ -317,7 +328,7 @@ def test_avoid_collisions_is_a_clearance_that_moves_only_what_it_may():
     q0 = tree.model.key_qpos[0]
     target = tree.pose(tree.random_q(np.random.default_rng(8)), "ee")[:3, 3]
     res = mjkin.solve(tree, G.Position("ee", target), q0=q0, avoid_collisions=True, joints=["j2", "j3", "j4"])
-    assert isinstance(res.goals[-1], G.Clearance)
+    assert isinstance(res.goals[0], G.Clearance)  # hard goals come first
     moved = np.flatnonzero(np.abs(res.q - q0) > 0)
     assert set(moved) <= {int(tree.jnt_qadr[tree.id(j, "joint")]) for j in ("j2", "j3", "j4")}
     if res.success:

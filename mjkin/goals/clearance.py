@@ -45,9 +45,10 @@ class Clearance(Goal):
     primitives (:func:`mjkin.kinematics.geoms.pair_distance`). Each evaluation takes the
     pairs whose bounding spheres come within ``margin + REACH`` (a broad phase), computes
     their distances and gives a row to the ``closest`` nearest (a fixed number of rows;
-    spare rows read ``REACH``, inert). A geom in a pair mjkin does not compute (a mesh,
-    an ellipsoid, a cylinder against a box, ...) is taken as its bounding sphere
-    (:func:`bounded_geoms`): the clearance kept is then a lower bound of the true one.
+    spare rows read ``REACH``, inert). In a pair mjkin does not compute (a mesh, an
+    ellipsoid, a cylinder against a box, ...) the geom it cannot take is measured as its
+    bounding sphere (:func:`bounded_geoms`): that pair's clearance kept is a lower bound
+    of the true one.
     """
 
     margin: float = 0.0
@@ -105,7 +106,7 @@ class Clearance(Goal):
 
 def bounded_geoms(geoms: Geoms, pairs: Index) -> Geoms:
     """``geoms`` with every geom that makes a pair of ``pairs (P, 2)`` mjkin cannot measure turned into its
-    bounding sphere (about its origin, radius ``rbound``), so every pair is measured, none overestimated.
+    bounding sphere (about its origin, radius ``rbound``), for those pairs only (see :func:`clearance_rows`).
     """  # noqa: D205
     bad = pairs[~native_pairs(geoms, pairs)] if len(pairs) else pairs
     if not len(bad):
@@ -136,11 +137,12 @@ def _name(tree: Tree, g: int) -> str:
 
 
 @njit
-def clearance_rows(kin: Kinematics, geoms: Geoms, pairs: Index, i: int, rot: Array, pos: Array, irot: Array,
-                   ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> None:
+def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, i: int, rot: Array, pos: Array,
+                   irot: Array, ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> None:
     """Rows ``r0:r0+k``: ``d - margin`` and ``∂d/∂v`` of the ``k`` closest of goal ``i``'s pairs near the margin.
 
-    ``pairs (P, 3)``: ``[geom1, geom2, goal]``, each goal's contiguous. Spare rows read
+    ``pairs (P, 4)``: ``[geom1, geom2, goal, bounded]``, each goal's contiguous; a pair marked
+    ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
     ``reach - margin`` with a zero gradient.
     """
     lo, hi = 0, 0
@@ -155,7 +157,7 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, pairs: Index, i: int, rot: Arr
     p1, p2 = np.empty(3), np.empty(3)
     for c in range(n):  # keep the k closest, sorted
         p = lo + near[c]
-        d = pair_distance(geoms, rot, pos, pairs[p, 0], pairs[p, 1], p1, p2)
+        d = pair_distance(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1], p1, p2)
         if d < best_d[k - 1]:
             j = k - 1
             while j > 0 and best_d[j - 1] > d:
@@ -170,12 +172,13 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, pairs: Index, i: int, rot: Arr
                 J[r, c] = 0.0
         else:
             p = best_p[j]
-            g[r] = pair_distance_jacobian(kin, geoms, rot, pos, irot, ipos, pairs[p, 0], pairs[p, 1], J[r]) - margin
+            g[r] = pair_distance_jacobian(kin, bounded if pairs[p, 3] else geoms, rot, pos, irot, ipos, pairs[p, 0],
+                                          pairs[p, 1], J[r]) - margin
 
 
 @njit_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """The ``closest`` nearest pairs' ``d - margin`` (m), unweighted, and their gradients."""
-    clearance_rows(kin, ga.geoms, ga.pairs, i, rot, pos, irot, ipos, ga.data[b, i, 0], ga.data[b, i, 1], g, J, r0,
-                   ga.row[i + 1] - ga.row[i])
+    clearance_rows(kin, ga.geoms, ga.bounded, ga.pairs, i, rot, pos, irot, ipos, ga.data[b, i, 0], ga.data[b, i, 1],
+                   g, J, r0, ga.row[i + 1] - ga.row[i])

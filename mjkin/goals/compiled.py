@@ -44,7 +44,8 @@ class GoalArrays(NamedTuple):
     counted: NDArray[np.bool_]  # (G,)
     hard: NDArray[np.bool_]  # (G,) a hard constraint (its rows, first of all, are values s >= 0 and ds/dv)
     geoms: Geoms  # the model's geoms, for distances
-    pairs: Index  # (P, 3) geom pairs [geom1, geom2, goal] that goals keep apart (each goal's contiguous)
+    bounded: Geoms  # the same, geoms mjkin cannot measure against a partner as bounding spheres
+    pairs: Index  # (P, 4) geom pairs [geom1, geom2, goal, bounded] that goals keep apart (each goal's contiguous)
 
 
 @njit

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import GoalError
-from ..kinematics.geoms import Geoms
+from ..kinematics.geoms import Geoms, native_pairs
 from .base import DATA, Array, Goal, broadcast
 from .clearance import bounded_geoms
 from .compiled import GoalArrays
@@ -43,8 +43,8 @@ class Structure:
     level_rows: NDArray[np.int64]
     counted: NDArray[np.bool_]
     hard: NDArray[np.bool_]
-    pairs: NDArray[np.int64]  # (P, 3) geom pairs [geom1, geom2, goal] of the goals that keep geoms apart
-    geoms: Geoms  # the model's geoms as those goals measure them (see mjkin.goals.clearance.bounded_geoms)
+    pairs: NDArray[np.int64]  # (P, 4) geom pairs [geom1, geom2, goal, bounded] of the goals that keep geoms apart
+    bounded: Geoms  # the geoms for the bounded pairs (see mjkin.goals.clearance.bounded_geoms)
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
 
@@ -117,9 +117,9 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         if jr is not None:
             joint_row[i] = jr
     row = np.concatenate([[0], np.cumsum([g.nrows(tree) for g in gs])]).astype(np.int64)
-    pairs = [np.column_stack([p, np.full(len(p), i)]) for i, g in enumerate(gs)
-             if (p := getattr(g, "geom_pairs", lambda _: None)(tree)) is not None]
-    all_pairs = np.ascontiguousarray(np.concatenate(pairs) if pairs else np.zeros((0, 3)), dtype=np.int64)
+    pairs = [np.column_stack([p, np.full(len(p), i), ~native_pairs(tree.geoms, p)]) for i, g in enumerate(gs)
+             if (p := getattr(g, "geom_pairs", lambda _: None)(tree)) is not None and len(p)]
+    all_pairs = np.ascontiguousarray(np.concatenate(pairs) if pairs else np.zeros((0, 4)), dtype=np.int64)
     soft = [i for i in range(G) if not gs[i].hard]  # sorted: each level's rows are contiguous
     level_rows = np.array([row[i] for k, i in enumerate(soft) if k == 0 or gs[i].priority != gs[soft[k - 1]].priority]
                           + [row[-1]], dtype=np.int64)
@@ -129,7 +129,7 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         sqrt_w=np.sqrt([float(g.weight) for g in gs]), row=row, joint_row=joint_row, level_rows=level_rows,
         counted=np.array([g.weight > 0 and g.counted and not g.hard for g in gs]),
         hard=np.array([g.weight > 0 and g.hard for g in gs], dtype=np.bool_),
-        pairs=all_pairs, geoms=bounded_geoms(tree.geoms, all_pairs[:, :2]),
+        pairs=all_pairs, bounded=bounded_geoms(tree.geoms, all_pairs[:, :2]),
         joint_targets=any(g.joint_target for g in gs))
 
 
@@ -155,7 +155,7 @@ def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
     for i, g in enumerate(gs):
         g.encode(tree, data[:, i], rest[i])
     arrays = GoalArrays(st.kind, st.body, st.lrot, st.lpos, data, st.aux, st.column, st.sqrt_w, st.row, rest,
-                        st.joint_row, st.level_rows, st.counted, st.hard, st.geoms, st.pairs)
+                        st.joint_row, st.level_rows, st.counted, st.hard, tree.geoms, st.bounded, st.pairs)
     return Program(st, gs, batch, arrays)
 
 

@@ -70,8 +70,9 @@ class Problem:
         history: keep every iterate (``Result.history``).
         seed: seeds the restarts, so solves are reproducible (None: new ones each solve).
         avoid_collisions: keep every geom pair MuJoCo would collide apart: a hard
-            :class:`~mjkin.goals.Clearance` of 10 µm (:data:`AVOID_MARGIN`) is added (last in ``Result.goals``);
-            a solve that cannot keep it ends with ``status`` ``"constraint"``.
+            :class:`~mjkin.goals.Clearance` of 10 µm (:data:`AVOID_MARGIN`) is added (first in
+            ``Result.goals``, as hard goals are); a solve that cannot keep it ends with ``status``
+            ``"constraint"``. Only the joints that move the goal frames move.
         **options: the named method's options (``max_iters``, ``damping``, ``restarts``, ...).
 
     Restarts randomise only the joints that move a goal frame
