@@ -14,6 +14,10 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
   (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
+- ``POST /constraints`` ``{"clearance"?: bool, "balance"?: bool}``: hard constraints in every solve (a
+  ``Clearance(0)``; the CoM over the feet); ``/state`` reports them (``clearance``, ``balance``), the closest
+  pair (``closest``: ``{"geoms", "distance", "a", "b"}``, witness points) and the support (``support``:
+  ``{"polygon", "com", "inside"}``), both drawn in the frames.
 - ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` writes
   the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
@@ -289,6 +293,15 @@ def _step(pg: Playground, who: str, doc: dict) -> dict:
     return pg.set_step(who, on)
 
 
+def _constraints(pg: Playground, who: str, doc: dict) -> dict:
+    unknown = sorted(set(doc) - {"clearance", "balance"})
+    flags = {k: doc.get(k) for k in ("clearance", "balance")}
+    if unknown or not any(k in doc for k in flags) or any(v is not None and not isinstance(v, bool)
+                                                        for v in flags.values()):
+        raise InputError(f"constraints take \"clearance\" and/or \"balance\": true or false, got {json.dumps(doc)}")
+    return pg.set_constraints(who, flags["clearance"], flags["balance"])
+
+
 # POST /NAME with a JSON body, as a client: the new state (blocking: a solve may run); MjkinError for a bad request
 ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "target": _target,
@@ -299,6 +312,7 @@ ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "frames": _frames,
     "joint": lambda pg, who, doc: pg.set_joint(who, _text(doc, "joint"), _number(doc.get("value"), "value")),
     "step": _step,
+    "constraints": _constraints,
     "reset": lambda pg, who, doc: pg.reset(who),
     "record": lambda pg, who, doc: pg.record(who),
     "stop": lambda pg, who, doc: pg.stop(who),
