@@ -85,8 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     s = sub.add_parser("constraints", help="Clearance among obstacles beside no clearance, reject-and-retry and "
                                            "mink; self-clearance and balance of figures; max_joint_speed on a path")
-    s.add_argument("--targets", type=positive_int, default=30,
-                   help="targets per arm (the figures get half; default 30)")
+    s.add_argument("--targets", type=positive_int, default=100,
+                   help="targets per arm (the figures get half; default 100)")
     s.add_argument("--margin", type=positive_float, default=0.005,
                    help="clearance, m (default 0.005: the Panda's link0-link1 pair is never more than 8 mm apart)")
     common(s)
