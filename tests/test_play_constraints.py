@@ -131,3 +131,34 @@ def test_constraints_route_switches_clearance_and_state_reports_it(served_clutte
     status, state = api.post("/constraints", {"clearance": False})
     assert status == 200 and state["clearance"] is False and state["closest"] is None
     assert mujoco_clearance(cluttered(), np.array(state["q"]))[0] < -0.01  # free again: it goes through
+
+
+def test_a_speed_limit_moves_no_joint_more_than_its_step_per_frame_and_still_arrives():
+    tree = tree_of("arm7")
+    state = core.with_max_step(core.initial_state(tree, ["ee"]), 0.05)
+    target = (0.4, 0.2, 0.5)
+    view = core.View.of(mujoco.MjvCamera(), tree.model, 64, 48)
+    prev, state = state.q, core.apply(tree, view, state, core.Place("ee", target))
+    frames = 1
+    while core.needs_step(state) and frames < 400:
+        assert np.abs(tree.difference(state.q, prev)).max() <= 0.05 + 1e-6
+        prev, state = state.q, core.advance(tree, state)
+        frames += 1
+    assert np.abs(tree.difference(state.q, prev)).max() <= 0.05 + 1e-6
+    assert state.success and frames > 5  # far enough to need several frames
+    np.testing.assert_allclose(tree.pose(state.q, "ee")[:3, 3], target, atol=1e-4)
+    with pytest.raises(InputError, match="positive"):
+        core.with_max_step(state, -1.0)
+
+
+def test_max_joint_speed_over_http(served_cluttered):
+    api = Client.of(served_cluttered)
+    status, state = api.post("/constraints", {"clearance": False, "max_joint_speed": 3.0})
+    assert status == 200 and state["max_joint_speed"] == pytest.approx(3.0)
+    q0 = np.array(state["q"])
+    status, state = api.post("/target", {"frame": "ee", "pos": [0.0, 0.45, 0.6]})
+    assert status == 200 and np.abs(cluttered().difference(np.array(state["q"]), q0)).max() <= 0.1 + 1e-6  # 3/30
+    status, reply = api.post("/constraints", {"max_joint_speed": "fast"})
+    assert status == 400 and "max_joint_speed" in reply["error"]
+    status, state = api.post("/constraints", {"max_joint_speed": None})
+    assert status == 200 and state["max_joint_speed"] is None

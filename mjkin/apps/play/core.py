@@ -154,7 +154,10 @@ class State:
     ``targets`` maps a site or body name to ``[x, y, z, qw, qx, qy, qz]`` (world).
     ``error`` is the worst ``[position (m), rotation (rad)]`` error of the last
     solve; ``singular`` the singular values of the goals' Jacobian at ``q``
-    (their product is the manipulability).
+    (their product is the manipulability). ``clearance``, ``balance`` and ``max_step``
+    (the most any joint moves per frame: rad, m) add hard constraints to every solve
+    (:func:`constraint_goals`); with ``max_step`` the figure moves toward a far target
+    frame by frame, as in step mode.
     """
 
     q: Array
@@ -170,6 +173,7 @@ class State:
     stalled: bool = field(default=False, repr=False)
     clearance: bool = False
     balance: bool = False
+    max_step: float | None = None
 
     @property
     def manipulability(self) -> float:
@@ -409,12 +413,25 @@ def balance_available(tree: Tree) -> str | None:
 
 def constraint_goals(tree: Tree, state: State) -> list[G.Goal]:
     """The hard goals the toggles add: ``Clearance(0)`` (every pair MuJoCo would collide) and
-    ``CenterOfMass(support=feet)`` (the CoM over the feet's polygon).
+    ``CenterOfMass(support=feet)`` (the CoM over the feet's polygon); ``StepLimit(q, max_step)`` from this frame.
     """  # noqa: D205
     out: list[G.Goal] = [G.Clearance(0.0)] if state.clearance else []
     if state.balance:
         out.append(G.CenterOfMass(support=support_frames(tree)))  # type: ignore[attr-defined]
+    if state.max_step is not None:
+        out.append(G.StepLimit(state.q, state.max_step))
     return out
+
+
+def with_max_step(state: State, max_step: float | None) -> State:
+    """The state with a per-frame joint step limit (rad, m; None: none).
+
+    Raises:
+        InputError: not a positive finite number.
+    """
+    if max_step is not None and not (isinstance(max_step, (int, float)) and 0 < max_step < math.inf):
+        raise InputError(f"the joint speed limit must be a positive number (or null: none), got {max_step!r}")
+    return replace(state, max_step=None if max_step is None else float(max_step), iterations=0, stalled=False)
 
 
 def with_constraints(tree: Tree, state: State, clearance: bool | None = None, balance: bool | None = None) -> State:
@@ -572,7 +589,8 @@ def solve_state(tree: Tree, state: State, max_iters: int | None = None) -> State
     res = problem_for(tree, goals, method, iters).solve(state.q, goals)
     q = np.asarray(res.q, float)
     stepped = state.iterations + int(res.iterations) if max_iters is not None else int(res.iterations)
-    stalled = max_iters is not None and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12
+    limited = max_iters is not None or state.max_step is not None
+    stalled = limited and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12
     return replace(state, q=q, error=(float(res.error[0]), float(res.error[1])), iterations=stepped,
                    status=str(res.status), success=bool(res.success),
                    singular=tuple(float(s) for s in np.atleast_1d(res.singular_values())), stalled=stalled)
@@ -585,8 +603,13 @@ def apply(tree: Tree, view: View, state: State, event: Event) -> State:
 
 
 def needs_step(state: State) -> bool:
-    """Step mode has work to do: not yet on target and still moving."""
-    return state.step and not state.success and not state.stalled
+    """Step mode (or a joint speed limit) has work to do: not yet on target and still moving."""
+    return (state.step or state.max_step is not None) and not state.success and not state.stalled
+
+
+def advance(tree: Tree, state: State) -> State:
+    """One frame's work: a solver iteration in step mode, else a solve limited to the frame's step."""
+    return solve_state(tree, state, max_iters=1 if state.step else None)
 
 
 def joint_sliders(tree: Tree) -> list[dict]:
