@@ -19,6 +19,8 @@ from mjkin.render import Overlay, Painter, default_camera
 
 from .task import ReachTask
 
+EXPERT_CLEARANCE = 0.005  # m: what the expert keeps between every pair MuJoCo would collide, with obstacles
+
 Array = NDArray[np.float64]
 
 
@@ -271,6 +273,9 @@ def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
     The solution is solved from ``qpos0``, not from the arm's pose, so every step of an episode aims at the
     same one: from a nearly straight arm, solves warm-started at each step can land on alternate elbow branches,
     and moving toward each in turn (the short way round, as solve wraps unlimited hinges) can cycle forever.
+    With obstacles or a table (joint actions), each step is its own IK from the arm's pose instead: the goal
+    with a hard :class:`~mjkin.goals.Clearance` of :data:`EXPERT_CLEARANCE` from every pair MuJoCo would collide
+    and a :class:`~mjkin.goals.StepLimit` of one action, so every pose the expert steps to is clear.
     """
     p, target = env.effector(), env.target
     if env.action_type == "cartesian":
@@ -285,6 +290,10 @@ def ik_expert(env: ReachEnv) -> NDArray[np.float32]:
         goal: G.Goal = G.Pose(env.frame, T)
     else:
         goal = G.Position(env.frame, target)
-    res = env.task.expert_problem(goal).solve(env.tree.qpos0, [goal])
+    if env.task.cluttered:  # a step at a time, each kept clear: a straight line to a far answer may cut an obstacle
+        goals = [goal, G.Clearance(EXPERT_CLEARANCE), G.StepLimit(env.q, env.step_size)]
+        res = env.task.expert_problem(goals).solve(env.q, goals)
+    else:
+        res = env.task.expert_problem([goal]).solve(env.tree.qpos0, [goal])
     step = env.tree.difference(res.q, env.q, periodic=True)  # unlimited hinges the short way round
     return np.clip(step / env.step_size, -1, 1).astype(np.float32)

@@ -145,7 +145,7 @@ class ReachTask:
         self._move: mjkin.Problem | None = None  # the cartesian step's IK, made at the first step
         # the largest joint change per step (njnt,) at max_joint_speed, or None
         self.max_step = None if max_joint_speed is None else speed_step(self.tree, max_joint_speed, 1.0 / dt)
-        self._expert: mjkin.Problem | None = None
+        self._expert: dict[tuple[str, ...], mjkin.Problem] = {}
         self.extent = extent
         self.step_size = float(step_size if step_size is not None else
                                (0.1 if action_type == "joint" else 0.05 * extent))
@@ -257,11 +257,19 @@ class ReachTask:
             self._move = mjkin.Problem(self.tree, goals, max_iters=30, restarts=0)
         return self.tidy(self._move.solve(q, goals).q.reshape(q.shape))
 
-    def expert_problem(self, goal: G.Goal) -> mjkin.Problem:
-        """The IK problem of the expert's target pose (made once, for its goal kind)."""
-        if self._expert is None:
-            self._expert = mjkin.Problem(self.tree, goal, tol=0.1 * self.success_tol, rot_tol=0.1 * self.rot_tol)
-        return self._expert
+    @property
+    def cluttered(self) -> bool:
+        """The world has obstacles or a table."""
+        return bool(self.obstacles) or self.table is not None
+
+    def expert_problem(self, goals: Sequence[G.Goal]) -> mjkin.Problem:
+        """The IK problem of the expert's goals (made once per goal structure; a local one takes no restarts)."""
+        key = tuple(type(g).__name__ for g in goals)
+        if key not in self._expert:
+            local: dict[str, Any] = {"restarts": 0, "max_iters": 30} if len(goals) > 1 else {}
+            self._expert[key] = mjkin.Problem(self.tree, list(goals), tol=0.1 * self.success_tol,
+                                              rot_tol=0.1 * self.rot_tol, **local)
+        return self._expert[key]
 
     # -------------------------------------------------------------- measures
     def measure(self, achieved: Array, desired: Array, hit: Array) -> tuple[Array, Array, NDArray[np.bool_], Array]:

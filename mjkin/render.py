@@ -401,8 +401,10 @@ class Painter:
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
-             caption: str = "") -> NDArray[np.uint8]:
-        """One RGB frame ``(height, width, 3)`` of ``q``: target ``points (n, 3)``, a ``trail (k, 3)``, a caption."""
+             caption: str = "", lines: Sequence[tuple[ArrayLike, Sequence[float]]] = ()) -> NDArray[np.uint8]:
+        """One RGB frame ``(height, width, 3)`` of ``q``: target ``points (n, 3)``, a ``trail (k, 3)``, a caption,
+        and ``lines``: polylines ``(k, 3)`` each with its RGBA.
+        """  # noqa: D205
         ov = overlay or Overlay()
         r = self.renderer
         r.update_scene(self.scene.set(q), camera)
@@ -410,10 +412,11 @@ class Painter:
         first = r.scene.ngeom
         for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
             _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
-        if trail is not None:  # lines: a capsule per segment costs a millisecond each in software GL
-            width = max(1.0, ov.trail_width * max(self.height, 0.75 * self.width) / 480)
-            for a, b in zip(trail[:-1], trail[1:], strict=True):
-                g = _add(r.scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], a, ov.trail_rgba)
+        width = max(1.0, ov.trail_width * max(self.height, 0.75 * self.width) / 480)
+        for path, rgba in ([] if trail is None else [(trail, ov.trail_rgba)]) + list(lines):
+            path = np.asarray(path, dtype=np.float64).reshape(-1, 3)
+            for a, b in zip(path[:-1], path[1:], strict=True):  # lines: a capsule per segment costs ~1 ms (soft GL)
+                g = _add(r.scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], a, rgba)
                 if g is not None:
                     mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, width, a, b)
         self.added = r.scene.ngeom - first

@@ -90,9 +90,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="map entries checked by brute-force IK (default 1000)")
     common(s)
 
-    s = sub.add_parser("constraints", help="Clearance in the solver beside no clearance and reject-and-retry "
-                                           "(arm7, Panda among obstacles)")
-    s.add_argument("--targets", type=positive_int, default=200, help="targets per model (default 200)")
+    s = sub.add_parser("constraints", help="Clearance among obstacles beside no clearance, reject-and-retry and "
+                                           "mink; self-clearance and balance of figures; max_joint_speed on a path")
+    s.add_argument("--targets", type=positive_int, default=100,
+                   help="targets per arm (the figures get half; default 100)")
     s.add_argument("--margin", type=positive_float, default=0.005,
                    help="clearance, m (default 0.005: the Panda's link0-link1 pair is never more than 8 mm apart)")
     common(s)

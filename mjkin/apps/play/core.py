@@ -23,7 +23,11 @@ from numpy.typing import ArrayLike, NDArray
 from ... import goals as G
 from ... import spatial
 from ...errors import InputError
+from ...goals.clearance import bounded_geoms
 from ...ik import METHODS, Problem
+from ...kinematics.distance import pair_distance
+from ...kinematics.frames import forward
+from ...kinematics.geoms import contact_pairs, native_pairs
 from ...kinematics.qspace import FREE, HINGE, SLIDE
 from ...kinematics.tree import Tree
 
@@ -151,7 +155,10 @@ class State:
     ``targets`` maps a site or body name to ``[x, y, z, qw, qx, qy, qz]`` (world).
     ``error`` is the worst ``[position (m), rotation (rad)]`` error of the last
     solve; ``singular`` the singular values of the goals' Jacobian at ``q``
-    (their product is the manipulability).
+    (their product is the manipulability). ``clearance``, ``balance`` and ``max_step``
+    (the most any joint moves per frame: rad, m) add hard constraints to every solve
+    (:func:`constraint_goals`); with ``max_step`` the figure moves toward a far target
+    frame by frame, as in step mode.
     """
 
     q: Array
@@ -165,6 +172,9 @@ class State:
     success: bool = True
     singular: tuple[float, ...] = ()
     stalled: bool = field(default=False, repr=False)
+    clearance: bool = False
+    balance: bool = False
+    max_step: float | None = None
 
     @property
     def manipulability(self) -> float:
@@ -386,6 +396,167 @@ def goals_for(state: State) -> list[G.Goal]:
     return out
 
 
+# ----------------------------------------------------------------- constraints
+def support_frames(tree: Tree) -> list[str]:
+    """The frames balance stands on: the sites named for feet (``*foot*``), else the bodies; none on an arm."""
+    sites = [n for n in tree.names("site") if n and "foot" in n]
+    return sites or [n for n in tree.names("body") if n and "foot" in n]
+
+
+def balance_available(tree: Tree) -> str | None:
+    """Why balance cannot be switched on for ``tree`` (None: it can)."""
+    if len(support_frames(tree)) < 2:
+        return f"balance needs two or more feet (sites or bodies named *foot*); {tree.name!r} has none"
+    if not hasattr(G, "CenterOfMass"):
+        return "balance needs mjkin.goals.CenterOfMass, which this build does not have"
+    return None
+
+
+def constraint_goals(tree: Tree, state: State) -> list[G.Goal]:
+    """The hard goals the toggles add: ``Clearance(0)`` (every pair MuJoCo would collide) and
+    ``CenterOfMass(support=feet)`` (the CoM over the feet's polygon); ``StepLimit(q, max_step)`` from this frame.
+    """  # noqa: D205
+    out: list[G.Goal] = [G.Clearance(0.0)] if state.clearance else []
+    if state.balance:
+        out.append(G.CenterOfMass(support=support_frames(tree)))  # type: ignore[attr-defined]
+    if state.max_step is not None:
+        out.append(G.StepLimit(state.q, state.max_step))
+    return out
+
+
+def with_max_step(state: State, max_step: float | None) -> State:
+    """The state with a per-frame joint step limit (rad, m; None: none).
+
+    Raises:
+        InputError: not a positive finite number.
+    """
+    if max_step is not None and not (isinstance(max_step, (int, float)) and 0 < max_step < math.inf):
+        raise InputError(f"the joint speed limit must be a positive number (or null: none), got {max_step!r}")
+    return replace(state, max_step=None if max_step is None else float(max_step), iterations=0, stalled=False)
+
+
+def with_constraints(tree: Tree, state: State, clearance: bool | None = None, balance: bool | None = None) -> State:
+    """The state with clearance and/or balance switched (None: unchanged).
+
+    Raises:
+        InputError: balance asked of a model without feet (or of a build without CenterOfMass).
+    """
+    if balance and (why := balance_available(tree)) is not None:
+        raise InputError(why)
+    return replace(state, clearance=state.clearance if clearance is None else bool(clearance),
+                   balance=state.balance if balance is None else bool(balance), iterations=0, stalled=False)
+
+
+@dataclass(frozen=True)
+class Closest:
+    """The closest geom pair at a pose: its names, signed distance (m) and witness points ``a``, ``b`` (world)."""
+
+    geoms: tuple[str, str]
+    distance: float
+    a: Array
+    b: Array
+
+
+def closest_pair(tree: Tree, q: Array) -> Closest | None:
+    """The pair of MuJoCo's contact pairs nearest each other at ``q (nq,)``, as Clearance measures it (None: no pairs).
+
+    mjkin's distances and witness points (a pair mjkin cannot measure with its geom's bounding
+    sphere, as :class:`~mjkin.goals.Clearance` takes it).
+    """
+    pairs = contact_pairs(tree)
+    if not len(pairs):
+        return None
+    bounded, native = bounded_geoms(tree.geoms, pairs), native_pairs(tree.geoms, pairs)
+    f = forward(tree, np.asarray(q, float).reshape(1, -1))
+    a, b = np.empty(3), np.empty(3)
+    best, where = np.inf, (np.zeros(3), np.zeros(3), 0)
+    for k, (g1, g2) in enumerate(pairs):
+        d = pair_distance(tree.geoms if native[k] else bounded, f.rot, f.pos, int(g1), int(g2), a, b)
+        if d < best:
+            best, where = d, (a.copy(), b.copy(), k)
+    g1, g2 = (int(g) for g in pairs[where[2]])
+    name = tree.model.geom
+    return Closest((name(g1).name or f"#{g1}", name(g2).name or f"#{g2}"), float(best), where[0], where[1])
+
+
+@dataclass(frozen=True)
+class Support:
+    """Balance at a pose: the support polygon's corners ``(K, 3)`` on the ground (counter-clockwise) and the CoM's
+    ground point ``(3,)``, with whether it lies inside.
+    """  # noqa: D205
+
+    polygon: Array
+    com: Array
+    inside: bool
+
+
+def support(tree: Tree, q: Array, frames: Sequence[str] | None = None) -> Support:
+    """The convex hull of the feet frames' points and the CoM, both dropped to the lowest foot's height (z up)."""
+    feet = support_frames(tree) if frames is None else list(frames)
+    pts = np.array([tree.pose(q, f)[:3, 3] for f in feet]).reshape(-1, 3)
+    com = np.asarray(tree.com(q), float).reshape(3)
+    ground = float(pts[:, 2].min()) if len(pts) else 0.0
+    hull = convex_hull(pts[:, :2])
+    polygon = np.column_stack([hull, np.full(len(hull), ground)])
+    inside = len(hull) >= 3 and bool(np.all(cross2(np.roll(hull, -1, 0) - hull, com[:2] - hull) >= -1e-9))
+    return Support(polygon, np.array([com[0], com[1], ground]), inside)
+
+
+def cross2(a: ArrayLike, b: ArrayLike) -> Array:
+    """The z of the cross product of 2-D vectors ``(..., 2)``: > 0 when ``b`` turns counter-clockwise from ``a``."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def convex_hull(points: Array) -> Array:
+    """The convex hull of ``points (n, 2)``, counter-clockwise (Andrew's monotone chain), ``(k, 2)``."""
+    pts = sorted(map(tuple, np.asarray(points, float).reshape(-1, 2)))
+    if len(pts) < 3:
+        return np.array(pts).reshape(-1, 2)
+
+    def half(seq: list) -> list:
+        out: list = []
+        for p in seq:
+            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
+                                     - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    return np.array(half(pts)[:-1] + half(pts[::-1])[:-1])
+
+
+CLEAR_RGBA = (0.1, 0.8, 0.3, 1.0)  # the closest pair's line when apart; red when touching
+TOUCH_RGBA = (0.95, 0.1, 0.1, 1.0)
+SUPPORT_RGBA = (0.95, 0.75, 0.1, 1.0)
+
+
+def constraint_lines(tree: Tree, state: State) -> list[tuple[Array, tuple[float, float, float, float]]]:
+    """What the toggles draw: the closest pair between its witness points (clearance), the support polygon and a
+    drop line from the CoM to its ground point (balance; green inside, red outside).
+    """  # noqa: D205
+    out: list[tuple[Array, tuple[float, float, float, float]]] = []
+    if state.clearance and (c := closest_pair(tree, state.q)) is not None:
+        out.append((np.array([c.a, c.b]), CLEAR_RGBA if c.distance > 0 else TOUCH_RGBA))
+    if state.balance:
+        s = support(tree, state.q)
+        out.append((np.vstack([s.polygon, s.polygon[:1]]), SUPPORT_RGBA))
+        com = np.asarray(tree.com(state.q), float).reshape(3)
+        out.append((np.array([com, s.com]), CLEAR_RGBA if s.inside else TOUCH_RGBA))
+    return out
+
+
+def constraint_report(tree: Tree, state: State) -> dict:
+    """The toggles and what they measure, for ``/state``: ``closest`` (clearance on) and ``support`` (balance on)."""
+    out: dict[str, Any] = {"clearance": state.clearance, "balance": state.balance, "closest": None, "support": None}
+    if state.clearance and (c := closest_pair(tree, state.q)) is not None:
+        out["closest"] = {"geoms": list(c.geoms), "distance": c.distance, "a": c.a.tolist(), "b": c.b.tolist()}
+    if state.balance:
+        s = support(tree, state.q)
+        out["support"] = {"polygon": s.polygon.tolist(), "com": s.com.tolist(), "inside": s.inside}
+    return out
+
+
 def movable_joints(tree: Tree) -> list[str] | None:
     """Joints IK may move: all but free joints (a free-floating figure keeps its root where it stands)."""
     names = tree.names("joint")
@@ -415,11 +586,12 @@ def solve_state(tree: Tree, state: State, max_iters: int | None = None) -> State
     """Solve the targets from ``state.q`` (warm start, no restarts); ``max_iters=1`` is one step of step mode."""
     method = "lm" if state.method == "auto" and max_iters is not None else state.method
     iters = AUTO_ITERS if state.method == "auto" and max_iters is None else max_iters
-    goals = goals_for(state)
+    goals = goals_for(state) + constraint_goals(tree, state)
     res = problem_for(tree, goals, method, iters).solve(state.q, goals)
     q = np.asarray(res.q, float)
     stepped = state.iterations + int(res.iterations) if max_iters is not None else int(res.iterations)
-    stalled = max_iters is not None and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12
+    limited = max_iters is not None or state.max_step is not None
+    stalled = limited and float(np.abs(q - state.q).max(initial=0.0)) < 1e-12
     return replace(state, q=q, error=(float(res.error[0]), float(res.error[1])), iterations=stepped,
                    status=str(res.status), success=bool(res.success),
                    singular=tuple(float(s) for s in np.atleast_1d(res.singular_values())), stalled=stalled)
@@ -432,8 +604,13 @@ def apply(tree: Tree, view: View, state: State, event: Event) -> State:
 
 
 def needs_step(state: State) -> bool:
-    """Step mode has work to do: not yet on target and still moving."""
-    return state.step and not state.success and not state.stalled
+    """Step mode (or a joint speed limit) has work to do: not yet on target and still moving."""
+    return (state.step or state.max_step is not None) and not state.success and not state.stalled
+
+
+def advance(tree: Tree, state: State) -> State:
+    """One frame's work: a solver iteration in step mode, else a solve limited to the frame's step."""
+    return solve_state(tree, state, max_iters=1 if state.step else None)
 
 
 def joint_sliders(tree: Tree) -> list[dict]:

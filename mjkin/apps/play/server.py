@@ -14,6 +14,11 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
   (the distance times it; below 1: closer) or ``{"reset": true}`` (the initial camera); later drags use the new view.
 - ``POST /method`` ``{"method"}``, ``/goal`` ``{"goal"}``, ``/frames`` ``{"frames": [...]}``,
   ``/joint`` ``{"joint", "value"}``, ``/step`` ``{"on": bool}``, ``/reset`` ``{}``.
+- ``POST /constraints`` ``{"clearance"?: bool, "balance"?: bool, "max_joint_speed"?: rad/s | null}``: hard
+  constraints in every solve (a ``Clearance(0)``; the CoM over the feet; a ``StepLimit`` of the speed over the
+  frame rate, the figure moving toward a far target frame by frame); ``/state`` reports them (``clearance``,
+  ``balance``, ``max_joint_speed``), the closest pair (``closest``: ``{"geoms", "distance", "a", "b"}``, witness
+  points) and the support (``support``: ``{"polygon", "com", "inside"}``), both drawn in the frames.
 - ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` writes
   the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
@@ -289,6 +294,18 @@ def _step(pg: Playground, who: str, doc: dict) -> dict:
     return pg.set_step(who, on)
 
 
+def _constraints(pg: Playground, who: str, doc: dict) -> dict:
+    flags = {k: doc.get(k) for k in ("clearance", "balance")}
+    if set(doc) - {*flags, "max_joint_speed"} or not doc or any(v is not None and not isinstance(v, bool)
+                                                                for v in flags.values()):
+        raise InputError("constraints take \"clearance\" and/or \"balance\": true or false, and/or "
+                         f"\"max_joint_speed\": rad/s or null, got {json.dumps(doc)}")
+    speed = doc.get("max_joint_speed")
+    speed = None if speed is None else _number(speed, "max_joint_speed")
+    reply = pg.set_constraints(who, flags["clearance"], flags["balance"]) if any(k in doc for k in flags) else {}
+    return pg.set_max_joint_speed(who, speed) if "max_joint_speed" in doc else reply
+
+
 # POST /NAME with a JSON body, as a client: the new state (blocking: a solve may run); MjkinError for a bad request
 ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "target": _target,
@@ -299,6 +316,7 @@ ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "frames": _frames,
     "joint": lambda pg, who, doc: pg.set_joint(who, _text(doc, "joint"), _number(doc.get("value"), "value")),
     "step": _step,
+    "constraints": _constraints,
     "reset": lambda pg, who, doc: pg.reset(who),
     "record": lambda pg, who, doc: pg.record(who),
     "stop": lambda pg, who, doc: pg.stop(who),

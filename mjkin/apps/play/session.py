@@ -252,11 +252,21 @@ class Playground:
         """Step mode on (one solver iteration per frame) or off (solve at once)."""
         return self._change(client, lambda s: self._settle(replace(s, step=bool(on), iterations=0, stalled=False)))
 
+    def set_constraints(self, client: str, clearance: bool | None = None, balance: bool | None = None) -> dict:
+        """Switch clearance (a hard Clearance(0)) and/or balance (the CoM over the feet), and re-solve."""
+        return self._change(client, lambda s: self._settle(core.with_constraints(self.tree, s, clearance, balance)))
+
+    def set_max_joint_speed(self, client: str, speed: float | None) -> dict:
+        """Limit every joint's speed (rad/s, m/s; None: no limit): a StepLimit of ``speed / fps`` per frame."""
+        step = None if speed is None else speed / self.fps
+        return self._change(client, lambda s: self._settle(core.with_max_step(s, step)))
+
     def reset(self, client: str) -> dict:
         """Back to the home pose with targets on the effectors (method, goal kind and mode kept)."""
         def home(s: core.State) -> core.State:
             fresh = core.initial_state(self.tree, list(s.targets))
-            return replace(fresh, method=s.method, goal=s.goal, step=s.step)
+            return self._settle(replace(fresh, method=s.method, goal=s.goal, step=s.step, clearance=s.clearance,
+                                        balance=s.balance, max_step=s.max_step))
         return self._change(client, home)
 
     def _settle(self, state: core.State) -> core.State:
@@ -369,7 +379,8 @@ class Playground:
                 "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
                 "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)},
                 "camera": {"lookat": list(camera.lookat), "distance": camera.distance, "azimuth": camera.azimuth,
-                           "elevation": camera.elevation}}
+                           "elevation": camera.elevation}, **core.constraint_report(self.tree, s),
+                "max_joint_speed": None if s.max_step is None else s.max_step * self.fps}
 
     def info(self) -> dict:
         """What the page needs once: methods, goal kinds, frames, sliders, image size."""
@@ -377,7 +388,8 @@ class Playground:
                 "sites": [n for n in self.tree.names("site") if n],
                 "bodies": [n for n in self.tree.names("body")[1:] if n],
                 "joints": core.joint_sliders(self.tree), "width": self.width, "height": self.height,
-                "lease": self.lease, "fps": self.fps}
+                "lease": self.lease, "fps": self.fps, "balance": core.balance_available(self.tree) is None,
+                "support": core.support_frames(self.tree)}
 
     def frame(self, after: int = -1, timeout: float = 5.0) -> tuple[int, bytes]:
         """The first frame numbered above ``after`` that shows the state as of this call: ``(number, jpeg)``.
@@ -420,7 +432,7 @@ class Playground:
                 tick = time.monotonic()
                 with self._lock:
                     if core.needs_step(self.state):
-                        self.state = core.solve_state(self.tree, self.state, max_iters=1)
+                        self.state = core.advance(self.tree, self.state)
                         self._version += 1
                     state, version, camera = self.state, self._version, self.camera
                     if self._recording is not None:
@@ -433,7 +445,7 @@ class Playground:
                     if not trail or np.linalg.norm(tip - trail[-1]) >= TRAIL_STEP:
                         trail.append(tip)
                     image = painter.draw(state.q, camera.mjv(self.tree.model), self._points(state), np.array(trail),
-                                         MARKERS)
+                                         MARKERS, lines=core.constraint_lines(self.tree, state))
                     jpeg = encode_jpeg(image)
                     number += 1
                     with self._frame_ready:
