@@ -13,6 +13,7 @@ from __future__ import annotations
 from .aim import Aim
 from .base import DATA, JOINT_UNITS, METRES, METRES_AND_RADIANS, RADIANS, FrameGoal, Goal, concatenate
 from .clearance import Clearance
+from .com import Balance, CenterOfMass, ComTarget, balance_residual
 from .coupling import Coupling
 from .halfspace import HalfSpace
 from .line import Line
@@ -25,9 +26,12 @@ from .registry import KINDS, register
 from .rest import Rest
 from .steplimit import StepLimit
 
-for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling, StepLimit, Clearance):
+for _kind in (Position, Orientation, Pose, Aim, Line, Plane, HalfSpace, Rest, Coupling, StepLimit, Clearance,
+              ComTarget):
     register(_kind)
+register(Balance, balance_residual)
 
-__all__ = ["DATA", "JOINT_UNITS", "KINDS", "METRES", "METRES_AND_RADIANS", "RADIANS", "Aim", "Clearance", "Coupling",
+__all__ = ["DATA", "JOINT_UNITS", "KINDS", "METRES", "METRES_AND_RADIANS", "RADIANS", "Aim", "Balance",
+           "CenterOfMass", "Clearance", "ComTarget", "Coupling",
            "FrameGoal", "Goal", "HalfSpace", "Line", "Orientation", "Plane", "Pose", "Position", "Program", "Rest",
            "StepLimit", "Structure", "compile_goals", "concatenate", "register"]

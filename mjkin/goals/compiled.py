@@ -46,6 +46,8 @@ class GoalArrays(NamedTuple):
     geoms: Geoms  # the model's geoms, for distances
     bounded: Geoms  # the same, geoms mjkin cannot measure against a partner as bounding spheres
     pairs: Index  # (P, 4) geom pairs [geom1, geom2, goal, bounded] that goals keep apart (each goal's contiguous)
+    support: Index  # (S, 2) [goal, body] of the support points that goals balance over (each goal's contiguous)
+    support_pos: Array  # (S, 3) those points in their bodies
 
 
 @njit

@@ -45,6 +45,8 @@ class Structure:
     hard: NDArray[np.bool_]
     pairs: NDArray[np.int64]  # (P, 4) geom pairs [geom1, geom2, goal, bounded] of the goals that keep geoms apart
     bounded: Geoms  # the geoms for the bounded pairs (see mjkin.goals.clearance.bounded_geoms)
+    support: NDArray[np.int64]  # (S, 2) [goal, body] of the support points of the goals that balance
+    support_pos: Array  # (S, 3) those points in their bodies
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
 
@@ -76,8 +78,10 @@ class Program:
 
 
 def as_goals(goals: Goal | Sequence[Goal]) -> tuple[Goal, ...]:
-    """One goal or several as a tuple, checked to be goals."""
-    out = (goals,) if isinstance(goals, Goal) else tuple(goals) if isinstance(goals, (list, tuple)) else None
+    """One goal or several as a tuple, checked to be goals; lists inside the list are flattened into it."""
+    out = (goals,) if isinstance(goals, Goal) else tuple(
+        h for g in goals for h in (g if isinstance(g, (list, tuple)) else (g,))) if isinstance(
+        goals, (list, tuple)) else None
     if out is None:
         raise GoalError(f"goals must be a mjkin.goals goal or a list of them, got {type(goals).__name__}")
     if not out:
@@ -120,6 +124,9 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
     pairs = [np.column_stack([p, np.full(len(p), i), ~native_pairs(tree.geoms, p)]) for i, g in enumerate(gs)
              if (p := getattr(g, "geom_pairs", lambda _: None)(tree)) is not None and len(p)]
     all_pairs = np.ascontiguousarray(np.concatenate(pairs) if pairs else np.zeros((0, 4)), dtype=np.int64)
+    points = [np.column_stack([np.full(len(p), i), p]) for i, g in enumerate(gs)
+              if (p := getattr(g, "support_points", lambda _: None)(tree)) is not None]
+    support = np.concatenate(points) if points else np.zeros((0, 5))
     soft = [i for i in range(G) if not gs[i].hard]  # sorted: each level's rows are contiguous
     level_rows = np.array([row[i] for k, i in enumerate(soft) if k == 0 or gs[i].priority != gs[soft[k - 1]].priority]
                           + [row[-1]], dtype=np.int64)
@@ -130,6 +137,7 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         counted=np.array([g.weight > 0 and g.counted and not g.hard for g in gs]),
         hard=np.array([g.weight > 0 and g.hard for g in gs], dtype=np.bool_),
         pairs=all_pairs, bounded=bounded_geoms(tree.geoms, all_pairs[:, :2]),
+        support=np.ascontiguousarray(support[:, :2], dtype=np.int64), support_pos=np.ascontiguousarray(support[:, 2:]),
         joint_targets=any(g.joint_target for g in gs))
 
 
@@ -155,7 +163,8 @@ def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
     for i, g in enumerate(gs):
         g.encode(tree, data[:, i], rest[i])
     arrays = GoalArrays(st.kind, st.body, st.lrot, st.lpos, data, st.aux, st.column, st.sqrt_w, st.row, rest,
-                        st.joint_row, st.level_rows, st.counted, st.hard, tree.geoms, st.bounded, st.pairs)
+                        st.joint_row, st.level_rows, st.counted, st.hard, tree.geoms, st.bounded, st.pairs,
+                        st.support, st.support_pos)
     return Program(st, gs, batch, arrays)
 
 
