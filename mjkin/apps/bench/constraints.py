@@ -7,8 +7,8 @@ writes (solve, then re-solve from random starts until MuJoCo finds no pair insid
 margin) and mink's ``CollisionAvoidanceLimit`` (when installed). Every answer is judged
 by MuJoCo: ``mj_collision`` with the margin on every geom proposes the pairs (its own
 filters), ``mj_geomDistance`` measures them. Then two-hand targets near the body of the
-primate (and the G1) with self-clearance (and balance, when
-:class:`~mjkin.goals.CenterOfMass` exists), and a followed path with ``max_joint_speed``.
+primate (and the G1) with self-clearance and balance (:class:`~mjkin.goals.CenterOfMass`), and a
+followed path with ``max_joint_speed``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from ...errors import InputError
 from ...ik import Problem
 from ...kinematics.qspace import FREE
 from ...kinematics.tree import Tree, bundled_models, load
-from ...motion import follow
+from ...motion import follow, sole_points
 from ...progress import track
 from ...spatial import mat_to_rotvec
 from . import peers
@@ -268,24 +268,36 @@ def frame_kind(tree: Tree, frame: str) -> Literal["site", "body"]:
     return "site" if frame in tree.names("site") else "body"
 
 
-def balance_goal(tree: Tree, feet: Sequence[str]) -> G.Goal | None:
-    """``CenterOfMass(support=feet)`` when the goal kind exists (issue 22), else None."""
-    com = getattr(G, "CenterOfMass", None)
-    return None if com is None else com(support=list(feet))
+def sole_support(tree: Tree, feet: Sequence[str]) -> list[tuple[str, tuple[float, ...]]]:
+    """The feet's toe and heel points (:func:`mjkin.motion.sole_points`) as ``(frame, offset)`` support points.
+
+    A foot whose body has no geom to stand on gives its frame's origin alone.
+    """
+    out: list[tuple[str, tuple[float, ...]]] = []
+    for f in feet:
+        body, T = tree.frame_body(f)
+        try:
+            soles = sole_points(tree, tree.model.body(body).name)
+        except InputError:
+            out.append((f, (0.0, 0.0, 0.0)))
+            continue
+        out += [(f, tuple(T[:3, :3].T @ (p - T[:3, 3]))) for p in soles]  # body frame -> the foot frame's
+    return out
 
 
-def com_inside(tree: Tree, q: Array, feet: Sequence[str]) -> bool:
-    """The CoM's ground projection inside the convex hull of the feet frames' ground points (MuJoCo's CoM)."""
+def com_inside(tree: Tree, q: Array, support: Sequence[tuple[str, tuple[float, ...]]]) -> bool:
+    """The CoM's ground projection inside the convex hull of the support points' (MuJoCo's CoM and frames)."""
     d = mujoco.MjData(tree.model)
     d.qpos[:] = q
     mujoco.mj_kinematics(tree.model, d)
     mujoco.mj_comPos(tree.model, d)
     com = d.subtree_com[0, :2]
     pts = []
-    for f in feet:
+    for f, offset in support:
         site = frame_kind(tree, f) == "site"
         i = mujoco.mj_name2id(tree.model, mujoco.mjtObj.mjOBJ_SITE if site else mujoco.mjtObj.mjOBJ_BODY, f)
-        pts.append((d.site_xpos if site else d.xpos)[i, :2])
+        x, R = (d.site_xpos[i], d.site_xmat[i]) if site else (d.xpos[i], d.xmat[i])
+        pts.append((x + R.reshape(3, 3) @ np.asarray(offset))[:2])
     return inside_hull(np.array(pts), com)
 
 
@@ -339,8 +351,9 @@ class Figure:
         row: Row = {"model": self.name, "goals": label, "targets": n, "success_%": 100.0 * float(np.mean(a.said)),
                     "self_penetration_in_successes": int(np.count_nonzero(a.said & pen)),
                     "median_ms": 1e3 * float(np.median(a.seconds))}
-        if any(type(g).__name__ == "CenterOfMass" for g in extra):
-            row["com_outside_in_successes"] = int(sum(not com_inside(self.tree, q, self.feet) for q in a.q[a.said]))
+        if any(isinstance(g, G.Balance) for g in extra):
+            support = sole_support(self.tree, self.feet)
+            row["com_outside_in_successes"] = int(sum(not com_inside(self.tree, q, support) for q in a.q[a.said]))
         return row
 
 
@@ -356,16 +369,14 @@ def figure(name: str, tree: Tree, n: int, seed: int) -> Figure:
 
 
 def bench_figures(n: int, seed: int) -> list[Row]:
-    """Two-hand targets near the body with self-clearance, then with balance too (when CenterOfMass exists)."""
+    """Two-hand targets near the body without and with self-clearance, then with balance too."""
     rows: list[Row] = []
     for name, tree in track(figures(), "bench constraints: figures"):
         fig = figure(name, tree, n, seed)
         rows.append(fig.row("no clearance", []))
         rows.append(fig.row("Clearance(0)", [G.Clearance(0.0)]))
-        balance = balance_goal(tree, fig.feet)
-        label = "Clearance(0) + CenterOfMass(support=feet)"
-        rows.append(fig.row(label, [G.Clearance(0.0), balance]) if balance is not None else
-                    {"model": name, "goals": label, "targets": n, "note": "CenterOfMass not built yet"})
+        rows.append(fig.row("Clearance(0) + CenterOfMass(support=feet)",
+                            [G.Clearance(0.0), G.Balance(sole_support(tree, fig.feet))]))
     return rows
 
 

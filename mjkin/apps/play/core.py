@@ -407,8 +407,6 @@ def balance_available(tree: Tree) -> str | None:
     """Why balance cannot be switched on for ``tree`` (None: it can)."""
     if len(support_frames(tree)) < 2:
         return f"balance needs two or more feet (sites or bodies named *foot*); {tree.name!r} has none"
-    if not hasattr(G, "CenterOfMass"):
-        return "balance needs mjkin.goals.CenterOfMass, which this build does not have"
     return None
 
 
@@ -418,7 +416,7 @@ def constraint_goals(tree: Tree, state: State) -> list[G.Goal]:
     """  # noqa: D205
     out: list[G.Goal] = [G.Clearance(0.0)] if state.clearance else []
     if state.balance:
-        out.append(G.CenterOfMass(support=support_frames(tree)))  # type: ignore[attr-defined]
+        out.append(G.Balance(support_frames(tree)))
     if state.max_step is not None:
         out.append(G.StepLimit(state.q, state.max_step))
     return out
