@@ -312,7 +312,7 @@ def _constraints(pg: Playground, who: str, doc: dict) -> dict:
 def _solutions(pg: Playground, who: str, doc: dict) -> dict:
     if not doc:
         return pg.find_solutions(who)
-    if doc == {"next": True}:
+    if set(doc) == {"next"} and doc["next"] is True:
         return pg.show_solution(who)
     index = doc.get("index")
     if set(doc) != {"index"} or isinstance(index, bool) or not isinstance(index, int):
