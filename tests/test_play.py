@@ -1417,3 +1417,56 @@ def test_browser_shows_numbers_the_server_sends_as_null_as_dashes(served):
     client.post("/reset")
     assert shown == ["-", "-", "-", "-", "-", True, False]  # an unsaved recording: Stop & save writes it again
     assert errors == []
+
+
+# ------------------------------------------------------------------ solutions
+def test_solutions_of_a_two_link_target_are_its_two_elbows_and_next_alternates_them():
+    tree = tree_of("planar_2link")
+    pg = Playground(tree, W, H)  # not started: no frames needed
+    target = np.array([1.2, 0.5, 0.0])
+    pg.apply("t", core.Place("tip", tuple(target)))  # type: ignore[arg-type]
+    found = pg.find_solutions("t")
+    assert found["count"] == 2 and found["index"] == 0 and found["solutions"] == {"count": 2, "index": 0}
+    shown = [np.array(found["q"])]
+    for i in (1, 0, 1):
+        doc = pg.show_solution("t")
+        assert doc["index"] == i and doc["success"]
+        shown.append(np.array(doc["q"]))
+    for q in shown:
+        np.testing.assert_allclose(tree.pose(q, "tip")[:3, 3], target, atol=1e-5)
+    np.testing.assert_allclose(shown[2], shown[0], atol=1e-9)
+    np.testing.assert_allclose(shown[3], shown[1], atol=1e-9)
+    elbows = [np.arctan2(np.sin(q[1]), np.cos(q[1])) for q in shown[:2]]
+    assert elbows[0] * elbows[1] < 0 and abs(elbows[0] + elbows[1]) < 1e-4  # elbow up and elbow down
+    assert pg.show_solution("t", -1)["index"] == 1
+    pg.apply("t", core.Place("tip", (1.0, 0.6, 0.0)))  # a new target drops the list
+    assert "solutions" not in pg.snapshot()
+    with pytest.raises(InputError, match="POST /solutions"):
+        pg.show_solution("t")
+    pg.set_frames("t", ["tip", "link1"])
+    with pytest.raises(InputError, match="solutions take one frame"):
+        pg.find_solutions("t")
+
+
+def test_solutions_routes_find_cycle_and_refuse_bad_requests(api):
+    status, doc = api.post("/solutions")
+    assert status == 200 and doc["count"] >= 2 and doc["index"] == 0, doc
+    tree, target = arm(), np.array(doc["targets"]["ee"])[:3]
+    first = np.array(doc["q"])
+    status, doc = api.post("/solutions", {"next": True})
+    assert status == 200 and doc["index"] == 1 and doc["solutions"] == {"count": doc["count"], "index": 1}
+    assert np.abs(np.array(doc["q"]) - first).max() > 1e-3
+    for q in (first, np.array(doc["q"])):
+        np.testing.assert_allclose(tree.pose(q, "ee")[:3, 3], target, atol=1e-5)
+    assert api.post("/solutions", {"index": doc["count"]})[1]["index"] == 0  # cyclic
+    assert api.get("/state")[1]["solutions"]["index"] == 0
+    for bad in ({"next": 1}, {"index": 1.5}, {"index": True}, {"next": True, "index": 0}, {"other": 1}):
+        status, err = api.post("/solutions", bad)
+        assert status == 400 and "\n" not in err["error"] and "solutions take" in err["error"], (bad, err)
+    assert api.post("/drag", {"frame": "ee", "depth": 0.01})[0] == 200  # a drag drops the list
+    assert "solutions" not in api.get("/state")[1]
+    status, err = api.post("/solutions", {"next": True})
+    assert status == 400 and "POST /solutions {}" in err["error"]
+    api.post("/frames", {"frames": ["ee", "link4"]})
+    status, err = api.post("/solutions")
+    assert status == 400 and err["error"].startswith("solutions take one frame") and "\n" not in err["error"]

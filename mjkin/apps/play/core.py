@@ -30,6 +30,7 @@ from ...kinematics.frames import forward
 from ...kinematics.geoms import contact_pairs, native_pairs
 from ...kinematics.qspace import FREE, HINGE, SLIDE
 from ...kinematics.tree import Tree
+from ...solutions import solutions
 
 Array = NDArray[np.float64]
 
@@ -623,3 +624,42 @@ def joint_sliders(tree: Tree) -> list[dict]:
                                                                else (-extent, extent))
         out.append({"name": name, "qadr": int(tree.jnt_qadr[j]), "min": float(lo), "max": float(hi)})
     return out
+
+
+# ------------------------------------------------------------------- solutions
+MAX_SOLUTIONS = 16  # the most the playground asks :func:`mjkin.solutions` for (a 7-DoF arm's spread is bounded)
+
+
+@dataclass(frozen=True)
+class Solutions:
+    """Every IK solution of one target: ``q (k, nq)``, the one shown, and the target they solve (:func:`target_key`)."""
+
+    key: tuple
+    q: Array
+    index: int = 0
+
+
+def target_key(state: State) -> tuple:
+    """What a solutions list solves: the goal kind and each frame's target (a new target or drag changes it)."""
+    return state.goal, tuple((f, tuple(np.asarray(t, float).tolist())) for f, t in state.targets.items())
+
+
+def find_solutions(tree: Tree, state: State, max_solutions: int = MAX_SOLUTIONS) -> tuple[Solutions, str]:
+    """The distinct solutions of the state's one target (constraints not applied) and, when there are none, why.
+
+    Raises:
+        InputError: several frames are active (solutions take one frame).
+    """
+    if len(state.targets) != 1:
+        raise InputError(f"solutions take one frame; {len(state.targets)} are active ({', '.join(state.targets)}): "
+                         "choose one (POST /frames)")
+    res = solutions(tree, goals_for(state), max_solutions=max_solutions, joints=movable_joints(tree))
+    why = "" if len(res.q) or res.reason is None else str(res.reason)
+    return Solutions(target_key(state), np.asarray(res.q, float).reshape(-1, tree.nq)), why
+
+
+def show_solution(tree: Tree, state: State, held: Solutions, index: int) -> tuple[State, Solutions]:
+    """Solution ``index`` (modulo their number) as the pose, solved from there (its error, singular values)."""
+    i = index % len(held.q)
+    shown = solve_state(tree, replace(state, q=held.q[i].copy(), step=False))
+    return replace(shown, step=state.step), replace(held, index=i)

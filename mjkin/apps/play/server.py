@@ -19,6 +19,9 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
   frame rate, the figure moving toward a far target frame by frame); ``/state`` reports them (``clearance``,
   ``balance``, ``max_joint_speed``), the closest pair (``closest``: ``{"geoms", "distance", "a", "b"}``, witness
   points) and the support (``support``: ``{"polygon", "com", "inside"}``), both drawn in the frames.
+- ``POST /solutions`` ``{}``: every IK solution of the one active frame's target (:func:`mjkin.solutions`, at most
+  16), the first shown → ``{"count", "index", ...state}``; ``{"next": true}`` or ``{"index": i}`` shows another
+  (cyclically); ``/state`` reports ``solutions``: ``{"count", "index"}`` until the target changes.
 - ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` writes
   the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
@@ -306,6 +309,18 @@ def _constraints(pg: Playground, who: str, doc: dict) -> dict:
     return pg.set_max_joint_speed(who, speed) if "max_joint_speed" in doc else reply
 
 
+def _solutions(pg: Playground, who: str, doc: dict) -> dict:
+    if not doc:
+        return pg.find_solutions(who)
+    if set(doc) == {"next"} and doc["next"] is True:
+        return pg.show_solution(who)
+    index = doc.get("index")
+    if set(doc) != {"index"} or isinstance(index, bool) or not isinstance(index, int):
+        raise InputError(f"solutions take {{}} (find them), {{\"next\": true}} or {{\"index\": i}} (an integer), "
+                         f"got {json.dumps(doc)}")
+    return pg.show_solution(who, index)
+
+
 # POST /NAME with a JSON body, as a client: the new state (blocking: a solve may run); MjkinError for a bad request
 ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "target": _target,
@@ -317,6 +332,7 @@ ACTIONS: dict[str, Callable[[Playground, str, dict], dict]] = {
     "joint": lambda pg, who, doc: pg.set_joint(who, _text(doc, "joint"), _number(doc.get("value"), "value")),
     "step": _step,
     "constraints": _constraints,
+    "solutions": _solutions,
     "reset": lambda pg, who, doc: pg.reset(who),
     "record": lambda pg, who, doc: pg.record(who),
     "stop": lambda pg, who, doc: pg.stop(who),

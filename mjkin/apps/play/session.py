@@ -141,6 +141,7 @@ class Playground:
         self._error: BaseException | None = None
         self._export = threading.Lock()  # held while a recording is written; close() waits for it
         self._thread = threading.Thread(target=self._render_loop, name="mjkin-play-render")
+        self._solutions: core.Solutions | None = None  # every IK solution of the target, while it stays the target
 
     # ----------------------------------------------------------- life cycle
     def start(self) -> Playground:
@@ -272,6 +273,36 @@ class Playground:
     def _settle(self, state: core.State) -> core.State:
         return state if state.step else core.solve_state(self.tree, state)
 
+    # ------------------------------------------------------------ solutions
+    def find_solutions(self, client: str) -> dict:
+        """Every IK solution of the one active frame's target (at most :data:`core.MAX_SOLUTIONS`); the first shown.
+
+        Returns the state with ``count`` and ``index`` (0; None when there are none, and ``reason`` says why).
+        """
+        with self._lock:
+            self._claim(client)
+            held, why = core.find_solutions(self.tree, self.state)
+            self._solutions = held if len(held.q) else None
+            reply = self.show_solution(client, 0) if len(held.q) else self.snapshot()
+        return {"count": len(held.q), "index": reply.get("solutions", {}).get("index"), **reply,
+                **({"reason": why} if why else {})}
+
+    def show_solution(self, client: str, index: int | None = None) -> dict:
+        """Show solution ``index`` of the list held (modulo its length; None: the next), with ``count``, ``index``."""
+        def pick(s: core.State) -> core.State:
+            held = self._held(s)
+            if held is None:
+                raise InputError("no solutions of the current target are held; POST /solutions {} finds them")
+            s, self._solutions = core.show_solution(self.tree, s, held, held.index + 1 if index is None else index)
+            return s
+        state = self._change(client, pick)
+        return {"count": state["solutions"]["count"], "index": state["solutions"]["index"], **state}
+
+    def _held(self, state: core.State) -> core.Solutions | None:
+        """The solutions list if it still solves ``state``'s target (a new target, drag or frame drops it)."""
+        held = self._solutions
+        return held if held is not None and held.key == core.target_key(state) else None
+
     # ------------------------------------------------------------ recording
     def record(self, client: str) -> dict:
         """Start recording (the pose and targets at the frame rate), journaled to the recordings folder.
@@ -365,6 +396,7 @@ class Playground:
             s, version, camera = self.state, self._version, self.camera
             recording, unsaved = self._recording is not None, self._unsaved is not None
             controller = self._controller if time.monotonic() < self._lease_until else None
+            held = self._held(s)
         view = core.View.of(camera, self.tree.model, self.width, self.height)
         points = self._points(s)
         screen = view.project(points)
@@ -380,7 +412,8 @@ class Playground:
                 "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)},
                 "camera": {"lookat": list(camera.lookat), "distance": camera.distance, "azimuth": camera.azimuth,
                            "elevation": camera.elevation}, **core.constraint_report(self.tree, s),
-                "max_joint_speed": None if s.max_step is None else s.max_step * self.fps}
+                "max_joint_speed": None if s.max_step is None else s.max_step * self.fps,
+                **({} if held is None else {"solutions": {"count": len(held.q), "index": held.index}})}
 
     def info(self) -> dict:
         """What the page needs once: methods, goal kinds, frames, sliders, image size."""
