@@ -24,6 +24,7 @@ from ..kinematics.geoms import (
     near_pairs,
 )
 from .base import METRES, Array, Goal, Units
+from .compiled import owned
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -144,12 +145,7 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
     ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
     ``reach - margin`` with a zero gradient.
     """
-    lo, hi = 0, 0
-    for p in range(pairs.shape[0]):
-        if pairs[p, 2] < i:
-            lo = p + 1
-        if pairs[p, 2] <= i:
-            hi = p + 1
+    lo, hi = owned(pairs[:, 2], i)
     near = np.empty(hi - lo, dtype=np.int64)
     n = near_pairs(geoms, rot, pos, pairs[lo:hi, :2], reach, near)
     best_d, best_p = np.full(k, np.inf), np.full(k, -1)

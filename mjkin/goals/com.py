@@ -19,6 +19,7 @@ from ..jit import njit, njit_inline
 from ..kinematics.com import com_kernel
 from ..kinematics.jacobian import jacobian_kernel
 from .base import METRES, Array, Goal, Units, array
+from .compiled import owned
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -206,12 +207,7 @@ def balance_rows(kin: Kinematics, support: np.ndarray, support_pos: Array, i: in
     ``support (S, 2)``: ``[goal, body]`` of every support point, each goal's contiguous;
     ``support_pos (S, 3)`` their positions in their bodies.
     """
-    lo, hi = 0, 0
-    for p in range(support.shape[0]):
-        if support[p, 0] < i:
-            lo = p + 1
-        if support[p, 0] <= i:
-            hi = p + 1
+    lo, hi = owned(support[:, 0], i)
     n, nv = hi - lo, J.shape[1]
     c, Jc = np.empty(3), np.empty((3, nv))
     com_kernel(kin, rot, pos, irot, ipos, c, Jc)

@@ -89,6 +89,20 @@ def hard_error(ga: GoalArrays, i: int, g: Array, err: Array) -> None:
 
 
 @njit
+def owned(owner: Index, i: int) -> tuple[int, int]:
+    """The rows ``lo:hi`` of a table that belong to goal ``i``, given each row's goal ``owner (R,)`` (each goal's
+    rows contiguous, goals ascending): Clearance's pairs, CenterOfMass's support points.
+    """  # noqa: D205
+    lo, hi = 0, 0
+    for p in range(owner.shape[0]):
+        if owner[p] < i:
+            lo = p + 1
+        if owner[p] <= i:
+            hi = p + 1
+    return lo, hi
+
+
+@njit
 def skew_times(v: Array, M: Array, out: Array, r0: int) -> None:
     """``out[r0:r0+3] = -[v]x M`` for ``M (3, n)``: the rate of a frame-fixed vector ``v`` is ``ω × v``."""
     for k in range(M.shape[1]):
