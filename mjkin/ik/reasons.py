@@ -28,7 +28,7 @@ from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
 
 if TYPE_CHECKING:
-    from .problem import Problem
+    from .method import Problem
 
 Array = NDArray[np.float64]
 OUT_OF_REACH, LIMITS, NOT_FOUND = "out_of_reach", "limits", "not_found"

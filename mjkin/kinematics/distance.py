@@ -26,14 +26,14 @@ and cylinder–box: :func:`mjkin.kinematics.gjk.gjk`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..jit import njit, njit_inline
-from .fk import Kinematics
+from .fk import Bodies, Kinematics
 from .frames import forward, point_jacobian
 from .geoms import (
     BOX,
@@ -51,11 +51,18 @@ from .geoms import (
 from .gjk import gjk, support
 from .jacobian import jacobian_kernel
 
-if TYPE_CHECKING:
-    from .tree import Tree
-
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
+
+
+class Measured(Bodies, Protocol):
+    """What the batched distance functions read of a tree (a :class:`mjkin.Tree` is one)."""
+
+    @property
+    def geoms(self) -> Geoms: ...  # noqa: D102
+    @property
+    def kin(self) -> Kinematics: ...  # noqa: D102
+    def check_q(self, q: ArrayLike, name: str = "q") -> Array: ...  # noqa: D102
 
 GOLDEN = 0.6180339887498949
 GOLDEN_STEPS = 60  # golden-section steps along a segment: 0.618^60 ≈ 3e-13 of its length
@@ -500,7 +507,7 @@ def _distances(geoms: Geoms, rot: Array, pos: Array, pairs: Index, out: Array) -
             out[b, p] = pair_distance(geoms, rot[b:b + 1], pos[b:b + 1], pairs[p, 0], pairs[p, 1], p1, p2)
 
 
-def geom_frames(tree: Tree, rot: Array, pos: Array, geoms: ArrayLike) -> tuple[Array, Array]:
+def geom_frames(tree: Measured, rot: Array, pos: Array, geoms: ArrayLike) -> tuple[Array, Array]:
     """World axes ``(len(geoms), 3, 3)`` and origins ``(len(geoms), 3)`` of geoms from one FK output."""
     ids = np.asarray(geoms, dtype=np.int64)
     gs = tree.geoms
@@ -510,7 +517,7 @@ def geom_frames(tree: Tree, rot: Array, pos: Array, geoms: ArrayLike) -> tuple[A
     return R, x
 
 
-def fallback_distance(tree: Tree, q: ArrayLike, g1: int, g2: int, distmax: float = FALLBACK_DISTMAX,
+def fallback_distance(tree: Measured, q: ArrayLike, g1: int, g2: int, distmax: float = FALLBACK_DISTMAX,
                       data: mujoco.MjData | None = None) -> tuple[float, Array]:
     """Signed distance of any two geoms by ``mujoco.mj_geomDistance``, and its gradient ``(nv,)``, at ``q (nq,)``.
 
@@ -539,7 +546,7 @@ def fallback_distance(tree: Tree, q: ArrayLike, g1: int, g2: int, distmax: float
     return dist, grad
 
 
-def distances(tree: Tree, q: ArrayLike, pairs: ArrayLike | None = None) -> Array:
+def distances(tree: Measured, q: ArrayLike, pairs: ArrayLike | None = None) -> Array:
     """Signed distances ``(..., P)`` of geom pairs (default :func:`contact_pairs`) at ``q (..., nq)``.
 
     mjkin's own where :func:`native`, else :func:`fallback_distance` (MuJoCo's, from mjkin's FK).
@@ -568,7 +575,7 @@ def _distance_jacobians(kin: Kinematics, geoms: Geoms, rot: Array, pos: Array, i
         d[p] = pair_distance_jacobian(kin, geoms, rot, pos, irot, ipos, pairs[p, 0], pairs[p, 1], J[p])
 
 
-def distance_jacobians(tree: Tree, q: ArrayLike, pairs: ArrayLike | None = None) -> tuple[Array, Array]:
+def distance_jacobians(tree: Measured, q: ArrayLike, pairs: ArrayLike | None = None) -> tuple[Array, Array]:
     """Signed distances ``(P,)`` of geom pairs at one ``q (nq,)`` and their gradients ``(P, nv)``.
 
     As :func:`distances` (mjkin's own where :func:`native`, else :func:`fallback_distance`);

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..jit import njit, njit_inline
 
 if TYPE_CHECKING:
-    from .tree import Tree
+    from .fk import Bodies
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -55,7 +55,7 @@ def geom_arrays(model: mujoco.MjModel) -> Geoms:
                  np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64))
 
 
-def contact_pairs(tree: Tree) -> Index:
+def contact_pairs(tree: Bodies) -> Index:
     """Geom pairs ``(P, 2)`` MuJoCo's collision tests, each once, ``g1 < g2`` for the pairs it makes itself.
 
     As ``mj_collision``: a pair of geoms on bodies that are not welded together
