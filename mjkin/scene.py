@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .jit import njit, njit_inline
+from .kinematics.distance import segments_closest
 from .kinematics.geoms import contact_pairs
 from .kinematics.tree import Tree
 
@@ -196,37 +197,14 @@ class Scene:
 def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int) -> float:
     """Distance between segments ``C[i] ± H[i]`` and ``C[j] ± H[j]`` (centres and half-vectors, rows of ``(n, 3)``).
 
-    The clamped closest-point parameters of Ericson, *Real-Time Collision Detection* §5.1.9,
-    with zero-length segments allowed. Indexed element by element (see :mod:`mjkin.jit`).
+    The closest points from :func:`mjkin.kinematics.distance.segments_closest` (zero-length segments allowed).
     """
-    a = e = b = c = f = 0.0
-    for k in range(3):
-        d1, d2 = 2.0 * H[i, k], 2.0 * H[j, k]
-        r = (C[i, k] - H[i, k]) - (C[j, k] - H[j, k])
-        a += d1 * d1
-        e += d2 * d2
-        b += d1 * d2
-        c += d1 * r
-        f += d2 * r
-    tiny = 1e-300
-    s = t = 0.0
-    if a <= tiny and e <= tiny:
-        s = t = 0.0
-    elif a <= tiny:
-        t = min(max(f / e, 0.0), 1.0)
-    elif e <= tiny:
-        s = min(max(-c / a, 0.0), 1.0)
-    else:
-        denom = a * e - b * b
-        s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
-        t = (b * s + f) / e
-        if t < 0.0:
-            t, s = 0.0, min(max(-c / a, 0.0), 1.0)
-        elif t > 1.0:
-            t, s = 1.0, min(max((b - c) / a, 0.0), 1.0)
+    a, b = C[i] - H[i], C[j] - H[j]
+    u, w = 2.0 * H[i], 2.0 * H[j]
+    s, t = segments_closest(a, u, b, w)
     gap = 0.0
     for k in range(3):
-        g = (C[i, k] + (2.0 * s - 1.0) * H[i, k]) - (C[j, k] + (2.0 * t - 1.0) * H[j, k])
+        g = (a[k] + s * u[k]) - (b[k] + t * w[k])
         gap += g * g
     return float(np.sqrt(gap))
 

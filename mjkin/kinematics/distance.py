@@ -88,7 +88,9 @@ def segments_closest(a: Array, u: Array, b: Array, w: Array) -> tuple[float, flo
     if E <= tiny:
         return min(max(-C / A, 0.0), 1.0), 0.0
     denom = A * E - B * B
-    s = min(max((B * F - C * E) / denom, 0.0), 1.0) if denom > 1e-14 * A * E else 0.0
+    # only exactly parallel segments take s = 0: a cut-off (1e-14 A E) put two segments crossing at a hair's
+    # angle 1e-7 apart, while a near-parallel pair's s, clamped, still gives a closest pair
+    s = min(max((B * F - C * E) / denom, 0.0), 1.0) if denom > 0.0 else 0.0
     t = (B * s + F) / E
     if t < 0.0:
         return min(max(-C / A, 0.0), 1.0), 0.0
