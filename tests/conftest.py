@@ -105,6 +105,18 @@ def mujoco_jacobian(model: mujoco.MjModel, data: mujoco.MjData, kind: str, i: in
     return np.vstack([jp, jr])
 
 
+def assert_goal_jacobian(tree: mjkin.Tree, goal: object, q: np.ndarray, h: float = 1e-6, atol: float = 2e-5) -> None:
+    """A goal's Jacobian at ``q (nq,)`` equals central finite differences of its rows along each dof."""
+    from mjkin.ik import evaluate
+
+    _, J, _ = evaluate(tree, goal, q)
+    for i in range(tree.nv):
+        e = np.zeros(tree.nv)
+        e[i] = h
+        fd = evaluate(tree, goal, tree.integrate(q, e))[0] - evaluate(tree, goal, tree.integrate(q, -e))[0]
+        np.testing.assert_allclose(J[0, :, i], fd[0] / (2 * h), atol=atol, err_msg=type(goal).__name__)
+
+
 def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
     """Angle between rotation matrices (radians)."""
     return mjkin.spatial.quat_distance(mjkin.spatial.mat_to_quat(R1), mjkin.spatial.mat_to_quat(R2))

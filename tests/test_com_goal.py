@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import ConvexHull
 
 import mjkin
-from conftest import tree_of
+from conftest import assert_goal_jacobian, tree_of
 from mjkin import goals as G
 from mjkin.errors import GoalError, UnknownNameError
 from mjkin.ik import evaluate
@@ -37,14 +37,8 @@ def inside(tree, q, support=CORNERS):
                                   G.CenterOfMass(support=list(FEET), margin=-0.05)], ids=["target", "soles", "feet"])
 def test_rows_match_finite_differences(goal, rng):
     tree = tree_of("primate")
-    h = 1e-6
     for q in tree.random_q(rng, 3):
-        _, J, _ = evaluate(tree, goal, q)
-        for i in range(tree.nv):
-            e = np.zeros(tree.nv)
-            e[i] = h
-            fd = evaluate(tree, goal, tree.integrate(q, e))[0] - evaluate(tree, goal, tree.integrate(q, -e))[0]
-            np.testing.assert_allclose(J[0, :, i], fd[0] / (2 * h), atol=2e-5)
+        assert_goal_jacobian(tree, goal, q)
 
 
 def test_balance_rows_are_the_distances_inside_the_hull(rng):

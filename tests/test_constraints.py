@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mjkin
-from conftest import tree_of
+from conftest import assert_goal_jacobian, tree_of
 from mjkin import goals as G
 from mjkin.errors import GoalError, InputError
 from mjkin.ik import evaluate
@@ -48,17 +48,11 @@ def wall_distance(tree, q, frame="ee", point=WALL["point"], normal=WALL["normal"
 def test_hard_rows_match_finite_differences(model, rng):
     tree = tree_of(model)
     frame = "ee" if model == "arm7" else "right_hand"
-    h = 1e-6
     q_prev = tree.random_q(rng)
     goals = [G.HalfSpace(frame, point=[0.1, 0.2, 0.3], normal=[1, 2, 3]), G.StepLimit(q_prev, 0.2)]
     for goal in goals:
         for q in tree.random_q(rng, 3):
-            _, J, _ = evaluate(tree, goal, q)
-            for i in range(tree.nv):
-                e = np.zeros(tree.nv)
-                e[i] = h
-                fd = evaluate(tree, goal, tree.integrate(q, e))[0] - evaluate(tree, goal, tree.integrate(q, -e))[0]
-                np.testing.assert_allclose(J[0, :, i], fd[0] / (2 * h), atol=2e-5, err_msg=type(goal).__name__)
+            assert_goal_jacobian(tree, goal, q)
 
 
 def test_step_limit_rows_are_the_margins_left():
