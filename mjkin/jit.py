@@ -10,7 +10,9 @@ One rule for the hot kernels: in numba every array bound to a variable, sliced,
 or passed across a call costs two atomic reference-count updates (~25 ns
 together on a 2-core VM), more than a 3x3 product. So they index arrays element
 by element instead of taking views, and the kernels other kernels call in their
-loops are inlined at numba's IR level (:data:`njit_inline`).
+loops are inlined at numba's IR level (:data:`njit_inline`). Inlining does not
+save the updates for an inlined kernel's array arguments; the IK loop passes
+:func:`borrowed` views, which carry no count.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import hashlib
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -142,3 +145,42 @@ def _monotonic_ns(typingctx):  # type: ignore[no-untyped-def]
 
 
 monotonic_ns: Callable[[], int] = _monotonic_ns  # type: ignore[assignment]
+
+
+def _without_refcount(context, builder, ty, value):  # type: ignore[no-untyped-def]
+    """``value`` of type ``ty`` with every array's meminfo set to null (tuples member by member)."""
+    if isinstance(ty, types.Array):
+        arr = cgutils.create_struct_proxy(ty)(context, builder, value=value)
+        arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
+        return arr._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        for i, member in enumerate(ty.types):
+            value = builder.insert_value(value, _without_refcount(context, builder, member,
+                                                                  builder.extract_value(value, i)), i)
+    return value
+
+
+@intrinsic
+def _borrowed(typingctx, x):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return _without_refcount(context, builder, signature.args[0], args[0])
+
+    return x(x), codegen
+
+
+@intrinsic
+def _keep_alive(typingctx, x):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return context.get_dummy_value()
+
+    return types.none(x), codegen
+
+
+# ``borrowed(x)``: the arrays of ``x`` (an array, or a tuple of arrays and numbers, nested) as views that
+# carry no reference count. Every array bound to a variable or passed into an inlined kernel costs an atomic
+# increment and decrement of its count (~5 ns each); the IK loop passes dozens of arrays into its kernels each
+# iteration (FK alone: 22), which took half of an iteration's time. The views skip those updates, so they must
+# not outlive their arrays: borrow what the caller owns (the packed problem's arrays), or keep a local owner
+# alive past the last use of its views with ``keep_alive(owner)``.
+borrowed: Callable[[Any], Any] = _borrowed  # type: ignore[assignment]
+keep_alive: Callable[[Any], None] = _keep_alive  # type: ignore[assignment]

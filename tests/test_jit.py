@@ -1,6 +1,9 @@
-"""The numba cache guard: caches go when any source changes, and only then."""
+"""The numba set-up: the cache guard (caches go when any source changes, and only then), borrowed views."""
 
-from mjkin.jit import drop_stale_caches
+import numba
+import numpy as np
+
+from mjkin.jit import borrowed, drop_stale_caches, keep_alive
 
 
 def test_caches_are_dropped_when_any_source_changes(tmp_path):
@@ -44,3 +47,22 @@ def test_warmup_compiles_every_kernel_mjkin_runs():
 
     assert warmup() > 0
     assert kernels().solve_packed.signatures and fk_kernel.signatures
+
+
+def test_borrowed_views_read_and_write_their_owners():
+    """``borrowed`` views (no reference counts) see and change the arrays they were made from, nested tuples too."""
+    @numba.njit
+    def fill(a):
+        own = (np.zeros(3), (np.ones((2, 2)), 7))
+        z, (o, k) = borrowed(own)
+        b = borrowed(a)
+        for i in range(3):
+            z[i] = b[i] * k
+            b[i] += o[0, 0]
+        total = z.sum() + o.sum()
+        keep_alive(own)
+        return total
+
+    a = np.arange(3.0)
+    assert fill(a) == 3 * 7 + 4.0
+    assert np.array_equal(a, np.arange(3.0) + 1.0)

@@ -161,12 +161,16 @@ class Goal:
         return []
 
     def batch(self) -> tuple[int, ...]:
-        """Leading batch shape shared by the targets: ``()`` or ``(B,)``."""
-        shapes = [t.shape[: t.ndim - core] for t, core in zip(self.targets(), self._cores, strict=False)]
-        try:
-            return broadcast(shapes)
-        except ValueError:
-            raise GoalError(f"{type(self).__name__}: targets have different batch sizes {shapes}") from None
+        """Leading batch shape shared by the targets: ``()`` or ``(B,)`` (worked out once per goal object)."""
+        cached = self.__dict__.get("_batch")
+        if cached is None:
+            shapes = [t.shape[: t.ndim - core] for t, core in zip(self.targets(), self._cores, strict=False)]
+            try:
+                cached = broadcast(shapes)
+            except ValueError:
+                raise GoalError(f"{type(self).__name__}: targets have different batch sizes {shapes}") from None
+            object.__setattr__(self, "_batch", cached)
+        return cached
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:
         """Write the target numbers into ``data (B, DATA)`` (and a rest pose into ``rest (B, nq)``)."""

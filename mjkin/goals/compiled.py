@@ -76,7 +76,7 @@ def goal_frame(kin: Kinematics, ga: GoalArrays, i: int, rot: Array, pos: Array, 
                     kin.dof_body, kin.dof_inner, kin.dof_axis, kin.dof_world, kin.dof_rot, kin.dof_anchor, pt, J6)
 
 
-@njit
+@njit_inline
 def hard_error(ga: GoalArrays, i: int, g: Array, err: Array) -> None:
     """A hard goal's error: how far its lowest row ``s`` is below zero (0 when it holds), in its column."""
     v = 0.0
@@ -111,7 +111,7 @@ def skew_times(v: Array, M: Array, out: Array, r0: int) -> None:
         out[r0 + 2, k] = -(v[0] * M[1, k] - v[1] * M[0, k])
 
 
-@njit
+@njit_inline
 def log_rotation(E: Array, out: Array) -> float:
     """Rotation vector of ``E (3, 3)`` into ``out (3,)``; returns its angle in ``[0, π]``."""
     tr = E[0, 0] + E[1, 1] + E[2, 2]
@@ -137,7 +137,7 @@ def log_rotation(E: Array, out: Array) -> float:
     return angle
 
 
-@njit
+@njit_inline
 def left_jacobian_inverse(phi: Array, theta: float, out: Array) -> None:
     """``J_l⁻¹(φ) = I - ½[φ]x + c [φ]x²``, the map from world angular velocity to ``dφ/dt``."""
     if theta < 1e-4:

@@ -249,7 +249,7 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
 
 
 # ----------------------------------------------------------------------- solve
-@njit
+@njit_inline
 def _costs(g: Array, level_rows: Index, out: Array) -> None:
     for lv in range(level_rows.shape[0] - 1):
         out[lv] = 0.0
@@ -260,7 +260,7 @@ def _costs(g: Array, level_rows: Index, out: Array) -> None:
 PRIORITY_WEIGHT = 1e4  # merit weight of a level relative to the next one down
 
 
-@njit
+@njit_inline
 def _merit(cost: Array) -> float:
     """One number to compare configurations: level costs weighted ``PRIORITY_WEIGHT`` apart.
 
@@ -275,7 +275,7 @@ def _merit(cost: Array) -> float:
     return m
 
 
-@njit
+@njit_inline
 def _max_abs(x: Array) -> float:
     """``max |x|`` over a ``(1, n)`` row, without the temporary ``np.abs`` would allocate."""
     m = 0.0
@@ -284,7 +284,7 @@ def _max_abs(x: Array) -> float:
     return m
 
 
-@njit
+@njit_inline
 def _finite_row(x: Array) -> bool:
     """Whether every entry of a ``(1, n)`` row is finite (no NaN, no inf)."""
     for j in range(x.shape[1]):
@@ -293,7 +293,7 @@ def _finite_row(x: Array) -> bool:
     return True
 
 
-@njit
+@njit_inline
 def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: Index, tol: float,
                 rot_tol: float) -> int:
     """How many levels, from the top, have every counted goal within tolerance."""
@@ -307,7 +307,7 @@ def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: 
     return met
 
 
-@njit
+@njit_inline
 def _progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, ref: Array,
                 keep: float) -> bool:
     """Whether a counted goal outside tolerance has fallen below ``keep`` times its error in ``ref (G,)``.
@@ -326,13 +326,13 @@ def _progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: flo
     return hit
 
 
-@njit
+@njit_inline
 def _scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
     for i in range(err.shape[0]):
         out[i] = max(err[i, 0] / tol, err[i, 1] / rot_tol)
 
 
-@njit
+@njit_inline
 def _converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
     """Every counted goal within ``tol``/``rot_tol`` and every hard goal's violation within ``HARD_TOL``."""
     for i in range(err.shape[0]):
@@ -343,7 +343,7 @@ def _converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], 
     return True
 
 
-@njit
+@njit_inline
 def _violation(g: Array, hard_row: NDArray[np.bool_]) -> float:
     """How far the hard rows ``g[:h]`` (``hard_row (h,)`` the live ones) fall below zero (0 when all hold)."""
     v = 0.0

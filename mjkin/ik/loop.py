@@ -45,7 +45,7 @@ from mjkin.ik.kernel import (
     summarise,
 )
 from mjkin.ik.packed import Packed
-from mjkin.jit import monotonic_ns, njit, njit_inline
+from mjkin.jit import borrowed, keep_alive, monotonic_ns, njit, njit_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
 
@@ -131,6 +131,15 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     viol, violt, infeasible, best_inf, inf_ref = 0.0, 0.0, 0.0, np.inf, 0.0
     best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
     run_ref = np.empty(G)  # each goal's error (in tolerances) at this run's last progress
+    # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns its arguments,
+    # and the local arrays are kept alive to the end (keep_alive)
+    own = (rot, pos, irot, ipos, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start, locked,
+           hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
+    (rot, pos, irot, ipos, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start, locked,
+     hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
+    kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
+        (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
+    level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     scale, fresh, any_locked, corrected = 1.0, True, False, False
@@ -276,6 +285,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                         low, binding = best_s[r], i
         if binding >= 0 and status != TIMEOUT and (best_inf > 0.0 or status == UNREACHABLE or status == LIMITS):
             status = CONSTRAINT
+    keep_alive(own)
     return it, status, used, binding
 
 
