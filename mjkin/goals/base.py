@@ -92,7 +92,11 @@ def rotation(value: ArrayLike, what: str) -> Array:
         if np.any(n < 1e-12):
             raise GoalError(f"{what} is a zero quaternion")
         return spatial.quat_to_mat(q / n)
-    R = array(a, (3, 3), what)
+    return rotation_matrix(array(a, (3, 3), what), what)
+
+
+def rotation_matrix(R: Array, what: str) -> Array:
+    """Finite float64 matrices ``R (..., 3, 3)`` checked to be rotations (orthonormalised when within 1e-6)."""
     drift, det = _rotation_defect(np.ascontiguousarray(R).reshape(-1, 3, 3))
     if drift > 1e-6 or det < 0:
         raise GoalError(f"{what} is not a rotation matrix (orthonormal, det +1)")

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..jit import njit_inline
-from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation
+from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation_matrix
 from .compiled import orientation_rows, position_rows
 
 if TYPE_CHECKING:
@@ -30,7 +30,7 @@ class Pose(FrameGoal):
 
     def _validate(self) -> list[Array]:
         T = array(self.T, (4, 4), "Pose T")
-        return [rotation(T[..., :3, :3], "Pose T rotation"), T[..., :3, 3]]
+        return [rotation_matrix(T[..., :3, :3], "Pose T rotation"), T[..., :3, 3]]
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:  # noqa: D102
         R, p = self.targets()

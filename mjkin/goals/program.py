@@ -141,13 +141,12 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
         joint_targets=any(g.joint_target for g in gs))
 
 
-def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
-    """The targets of ``goals`` (of structure ``st``, in the order given) on top of ``st``.
+def encode(tree: Tree, st: Structure, given: tuple[Goal, ...]) -> Program:
+    """The targets of the goals ``given`` (structure ``st``, in the order given; see :func:`as_goals`) on top of ``st``.
 
     Raises:
         GoalError: malformed targets, batches that disagree, or goals of another structure.
     """
-    given = as_goals(goals)
     if len(given) != len(st.order):
         raise GoalError(f"expected {len(st.order)} goals of the problem's structure, got {len(given)}")
     gs = tuple(given[i] for i in st.order)
@@ -170,4 +169,5 @@ def encode(tree: Tree, st: Structure, goals: Goal | Sequence[Goal]) -> Program:
 
 def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:
     """Validate and encode goals at once (a :class:`~mjkin.Problem` keeps the structure between solves)."""
-    return encode(tree, structure(tree, goals), goals)
+    given = as_goals(goals)
+    return encode(tree, structure(tree, given), given)
