@@ -111,7 +111,10 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     reason = np.where(success, "", NOT_FOUND).astype("<U12")
     failed = ~success
     goals = _positions(tree, prog)
+    free = active & (tree.jnt_type[tree.plan.dof_jnt] == FREE)  # dofs of free joints that may move
     for _, body, point, target in goals:
+        if free[tree.body_dofs[body]].any():  # a free joint carries it: reach_bound's bound is infinite, no FK
+            continue
         anchor, bound = reach_bound(tree, body, point, active, q0)
         far = np.linalg.norm(target - anchor, axis=-1) > bound + problem.tol
         reason[failed & far] = OUT_OF_REACH
