@@ -112,13 +112,15 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     failed = ~success
     goals = _positions(tree, prog)
     free = active & (tree.jnt_type[tree.plan.dof_jnt] == FREE)  # dofs of free joints that may move
+    carried = False  # a free joint carries a goal frame: no reach bound (infinite), not one limited joint either
     for _, body, point, target in goals:
-        if free[tree.body_dofs[body]].any():  # a free joint carries it: reach_bound's bound is infinite, no FK
+        if free[tree.body_dofs[body]].any():
+            carried = True
             continue
         anchor, bound = reach_bound(tree, body, point, active, q0)
         far = np.linalg.norm(target - anchor, axis=-1) > bound + problem.tol
         reason[failed & far] = OUT_OF_REACH
-    if goals:
+    if goals and not carried:
         blocked = _limits(problem, prog, q0, goals[0])
         reason[failed & (reason == NOT_FOUND) & blocked] = LIMITS
     return reason
