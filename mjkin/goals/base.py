@@ -181,6 +181,28 @@ class Goal:
         changes: dict[str, Any] = {name: np.asarray(getattr(self, name))[lo:hi] for name in self._batch_fields()}
         return replace(self, **changes)
 
+    def unbatch(self) -> list[Goal]:
+        """Each target of a batched goal as an unbatched goal, ``[target 0, ..., target B-1]``; ``[self]`` unbatched.
+
+        The targets are checked once, for the whole batch, not once per goal: for stepping
+        through a batch one solve at a time (a clip's frames, each warm-started from the last).
+        """
+        batch = self.batch()
+        if batch == ():
+            return [self]
+        fields = {name: np.asarray(getattr(self, name)) for name in self._batch_fields()}
+        checked = [np.broadcast_to(t, batch + t.shape[t.ndim - core:]) if t.ndim > core else t
+                   for t, core in zip(self.targets(), self._cores, strict=False)]
+        out = []
+        for b in range(batch[0]):
+            goal = object.__new__(type(self))  # a copy without __init__: its fields were checked above
+            goal.__dict__.update(self.__dict__)
+            goal.__dict__.update({name: value[b] for name, value in fields.items()})
+            goal.__dict__["_checked"] = [t[b] if t.ndim > core else t
+                                         for t, core in zip(checked, self._cores, strict=False)]
+            out.append(goal)
+        return out
+
     def _batch_fields(self) -> list[str]:
         """The fields whose value carries the leading batch axis."""
         out = []
