@@ -190,16 +190,20 @@ class Goal:
         batch = self.batch()
         if batch == ():
             return [self]
-        fields = {name: np.asarray(getattr(self, name)) for name in self._batch_fields()}
-        checked = [np.broadcast_to(t, batch + t.shape[t.ndim - core:]) if t.ndim > core else t
-                   for t, core in zip(self.targets(), self._cores, strict=False)]
+        B = batch[0]
+        fields = self._batch_fields()
+        columns = [list(np.broadcast_to(a, batch + a.shape[1:]))  # rows as views
+                   for a in (np.asarray(getattr(self, name)) for name in fields)]
+        columns += [list(np.broadcast_to(t, batch + t.shape[t.ndim - core:])) if t.ndim > core else [t] * B
+                    for t, core in zip(self.targets(), self._cores, strict=False)]
+        n, cls, state = len(fields), type(self), self.__dict__
         out = []
-        for b in range(batch[0]):
-            goal = object.__new__(type(self))  # a copy without __init__: its fields were checked above
-            goal.__dict__.update(self.__dict__)
-            goal.__dict__.update({name: value[b] for name, value in fields.items()})
-            goal.__dict__["_checked"] = [t[b] if t.ndim > core else t
-                                         for t, core in zip(checked, self._cores, strict=False)]
+        for row in zip(*columns, strict=True):
+            goal = object.__new__(cls)  # a copy without __init__: its fields were checked above
+            d = goal.__dict__
+            d.update(state)
+            d.update(zip(fields, row[:n], strict=True))
+            d["_checked"] = list(row[n:])
             out.append(goal)
         return out
 
