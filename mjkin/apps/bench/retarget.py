@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ...errors import MjkinIOError
@@ -49,5 +50,6 @@ def bench_retarget(repeat: int = 3) -> Report:
                          "limits_ok": m["limits"] is None, "speed_ratio": round(m["speed_limit_ratio"], 3),
                          "self_contact_frames": m["self_contact_frames"],
                          "deepest_mm": round(1000 * m["self_contact_deepest"], 1)})
+    busy = ", ".join(f"{x:.2f}" for x in os.getloadavg())  # other work on the machine lowers frames/s
     return Report({"retarget (frames/s: best of runs after a warm-up, one thread)": rows},
-                  {"repeat": repeat, "clips": str(folder)})
+                  {"repeat": repeat, "clips": str(folder), "load average (1, 5, 15 min) after": busy})
