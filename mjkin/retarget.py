@@ -454,58 +454,46 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
 class FrameGoals:
     """Every frame's goals, laid out once for the clip: frame ``f``'s goals are :meth:`at` ``(f, q_prev)``.
 
-    ``goals`` are frame 0's (their kinds, frames, weights and priorities are every frame's);
-    goal ``k`` takes field ``fields[k]`` from ``targets[k][f]`` (``(F, 3)`` points,
-    ``(F, 3, 3)`` rotations), or keeps its target when ``fields[k]`` is empty (``extra``
-    goals). ``rest`` pulls toward the previous frame's pose; it comes last.
+    ``frames[f]`` are frame ``f``'s goals but the rest pose, every frame's of the same kinds,
+    frames, weights and priorities, their targets checked once for the clip
+    (:meth:`mjkin.goals.Goal.unbatch`); ``extra`` goals are the same object in every frame.
+    ``rest`` pulls toward the previous frame's pose; it comes last.
     """
 
-    goals: tuple[G.Goal, ...]
-    fields: tuple[str, ...]
-    targets: tuple[Array, ...]
+    frames: tuple[tuple[G.Goal, ...], ...]
     rest: G.Rest
 
     def at(self, f: int, q_prev: Array) -> list[G.Goal]:
         """Frame ``f``'s goals, resting toward ``q_prev (nq,)``."""
-        out = [replace(g, **{k: a[f]}) if k else g for g, k, a in zip(self.goals, self.fields, self.targets,
-                                                                          strict=True)]
-        out.append(replace(self.rest, q_rest=q_prev))
-        return out
+        return [*self.frames[f], replace(self.rest, q_rest=q_prev)]
 
 
 def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> FrameGoals:
-    """Every frame's goals (see :class:`FrameGoals`), their targets as arrays over the clip.
+    """Every frame's goals (see :class:`FrameGoals`), made from targets laid out as arrays over the clip.
 
     At priority 1, weighted: the feet's toe and heel points (:data:`FOOT_WEIGHT`), the pelvis,
     the torso's and pelvis's turn, the limb points and head, the previous frame's pose
     (:data:`REST_WEIGHT`); ``extra`` as given.
     """
     b = plan_.bodies
-    goals: list[G.Goal] = []
-    fields: list[str] = []
-    targets: list[Array] = []
-
-    def add(goal: G.Goal, field: str, target: Array) -> None:
-        goals.append(replace(goal, **{field: target[0]}) if field else goal)
-        fields.append(field)
-        targets.append(target)
-
+    F = len(plan_.points["pelvis"])
+    per_goal: list[list[G.Goal]] = []  # each goal's F frames
     for i, s in enumerate(SIDES):
         T = plan_.feet[i]
         for point in sole_points(tree, b[f"{s}_ankle"]):
-            foot = G.Position(b[f"{s}_ankle"], kind="body", offset=tuple(point), priority=1, weight=FOOT_WEIGHT)
-            add(foot, "xyz", T[:, :3, :3] @ point + T[:, :3, 3])
-    add(G.Position(b["pelvis"], kind="body", priority=1), "xyz", plan_.points["pelvis"])
+            per_goal.append(G.Position(b[f"{s}_ankle"], T[:, :3, :3] @ point + T[:, :3, 3], kind="body",
+                                       offset=tuple(point), priority=1, weight=FOOT_WEIGHT).unbatch())
+    per_goal.append(G.Position(b["pelvis"], plan_.points["pelvis"], kind="body", priority=1).unbatch())
     for r in ("pelvis", "torso"):
-        add(G.Orientation(b[r], kind="body", priority=1, weight=0.3), "quat", plan_.rotations[r])
+        per_goal.append(G.Orientation(b[r], plan_.rotations[r], kind="body", priority=1, weight=0.3).unbatch())
     for r in ("head", *(f"{s}_{p}" for s in SIDES for p in ("knee", "shoulder", "elbow", "wrist"))):
         off = plan_.offsets[r]
-        add(G.Position(b[r], kind="body", priority=1, offset=tuple(off) if np.any(off) else None,
-                       weight=1.0 if "wrist" in r else 0.5), "xyz", plan_.points[r])
-    for g in extra:
-        add(g, "", np.empty(0))
+        per_goal.append(G.Position(b[r], plan_.points[r], kind="body", priority=1,
+                                   offset=tuple(off) if np.any(off) else None,
+                                   weight=1.0 if "wrist" in r else 0.5).unbatch())
+    per_goal.extend([g] * F for g in extra)
     rest = G.Rest(q_rest=tree.qpos0, weight=REST_WEIGHT, priority=1)
-    return FrameGoals(tuple(goals), tuple(fields), tuple(targets), rest)
+    return FrameGoals(tuple(zip(*per_goal, strict=True)), rest)
 
 
 def step_limit(tree: Tree, max_step: Array) -> G.StepLimit:

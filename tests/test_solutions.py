@@ -190,6 +190,17 @@ def test_far_targets_are_proven_out_of_reach(arm7):
     assert res.reason.shape == res.status.shape
 
 
+def test_a_free_joint_carries_any_target_so_nothing_is_proven_out_of_reach():
+    """A figure on a free joint reaches anywhere: its far targets are not_found, the bound never claimed."""
+    tree = mjkin.load("primate")
+    res = mjkin.solve(tree, [G.Position("head", [100.0, 0, 0], kind="body"), G.Position("left_hand", [0, -50.0, 0],
+                                                                                         kind="body")],
+                      method="lm", max_iters=0, restarts=0)
+    assert not res.success and str(res.reason) == "not_found"
+    body = tree.id("head", "body")
+    assert np.isinf(reach_bound(tree, body, np.zeros(3), np.ones(tree.nv, bool), tree.qpos0[None])[1]).all()
+
+
 def test_success_costs_nothing_and_reason_is_empty(arm7):
     res = mjkin.solve(arm7, G.Position("ee", arm7.pose(arm7.random_q(np.random.default_rng(1)), "ee")[:3, 3]))
     assert res.success and str(res.reason) == ""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import os
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin import goals as G
+from mjkin.goals.program import compile_goals
 from mjkin.ik import kernel
 from mjkin.ik.compiled import kernels
 from mjkin.ik.lm import AUTO_RESTARTS
@@ -316,6 +318,30 @@ def test_goal_concatenate_undoes_take(cuts):
         for name in g._batched:
             np.testing.assert_array_equal(np.asarray(getattr(back, name)), np.asarray(getattr(g, name)))
         assert (back.weight, back.priority) == (g.weight, g.priority)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 5))
+def test_goal_unbatch_gives_each_target_as_built_alone(seed, n):
+    """Each piece of unbatch() encodes as the goal built with that target alone (quaternions and matrices alike)."""
+    tree = tree_of("arm7")
+    rng = np.random.default_rng(seed)
+    T = pose_targets(tree, "ee", rng, n)
+    quat = rng.normal(size=(n, 4))
+    goals = [(G.Pose("ee", T=T), "T"), (G.Position("ee", T[:, :3, 3], offset=(0.0, 0.0, 0.1), weight=2.0), "xyz"),
+             (G.Orientation("ee", quat=quat, axes="z"), "quat"), (G.Orientation("ee", quat=T[:, :3, :3]), "quat"),
+             (G.Aim("ee", point=rng.normal(size=(n, 3))), "point"),
+             (G.Rest(tree.random_q(rng, n), priority=1), "q_rest")]
+    for g, field in goals:
+        pieces = g.unbatch()
+        assert len(pieces) == n
+        for b, piece in enumerate(pieces):
+            alone = replace(g, **{field: np.asarray(getattr(g, field))[b]})
+            assert piece.batch() == () and piece.key() == alone.key()
+            np.testing.assert_array_equal(compile_goals(tree, piece).data, compile_goals(tree, alone).data)
+            np.testing.assert_array_equal(compile_goals(tree, piece).rest_q, compile_goals(tree, alone).rest_q)
+    one = G.Position("ee", (0.1, 0.2, 0.3))
+    assert one.unbatch() == [one]
 
 
 def test_goal_concatenate_rejects_pieces_of_different_goals():

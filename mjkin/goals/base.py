@@ -189,6 +189,32 @@ class Goal:
         changes: dict[str, Any] = {name: np.asarray(getattr(self, name))[lo:hi] for name in self._batch_fields()}
         return replace(self, **changes)
 
+    def unbatch(self) -> list[Goal]:
+        """Each target of a batched goal as an unbatched goal, ``[target 0, ..., target B-1]``; ``[self]`` unbatched.
+
+        The targets are checked once, for the whole batch, not once per goal: for stepping
+        through a batch one solve at a time (a clip's frames, each warm-started from the last).
+        """
+        batch = self.batch()
+        if batch == ():
+            return [self]
+        B = batch[0]
+        fields = self._batch_fields()
+        columns = [list(np.broadcast_to(a, batch + a.shape[1:]))  # rows as views
+                   for a in (np.asarray(getattr(self, name)) for name in fields)]
+        columns += [list(np.broadcast_to(t, batch + t.shape[t.ndim - core:])) if t.ndim > core else [t] * B
+                    for t, core in zip(self.targets(), self._cores, strict=False)]
+        n, cls, state = len(fields), type(self), self.__dict__
+        out = []
+        for row in zip(*columns, strict=True):
+            goal = object.__new__(cls)  # a copy without __init__: its fields were checked above
+            d = goal.__dict__
+            d.update(state)
+            d.update(zip(fields, row[:n], strict=True))
+            d["_checked"] = list(row[n:])
+            out.append(goal)
+        return out
+
     def _batch_fields(self) -> list[str]:
         """The fields whose value carries the leading batch axis."""
         out = []

@@ -91,12 +91,15 @@ def reach_bound(tree: Tree, body: int, point: Array, active: NDArray[np.bool_], 
     return anchor, bound + np.linalg.norm(tip - last, axis=-1)
 
 
-def _positions(tree: Tree, prog: Program) -> list[tuple[int, int, Array, Array]]:
-    """The counted position targets: ``(goal index, body, point in the body (3,), targets (B, 3))``."""
+def _positions(tree: Tree, prog: Program, skip: set[int]) -> list[tuple[int, int, Array, Array]]:
+    """The counted position targets on bodies not in ``skip``.
+
+    Each as ``(goal index, body, point in the body (3,), targets (B, 3))``.
+    """
     out = []
     st = prog.structure
     for i, g in enumerate(prog.goals):
-        if st.counted[i] and isinstance(g, (Position, Pose)) and float(g.weight) > 0:
+        if st.counted[i] and isinstance(g, (Position, Pose)) and float(g.weight) > 0 and int(st.body[i]) not in skip:
             target = g.targets()[0] if isinstance(g, Position) else g.targets()[1]
             out.append((i, int(st.body[i]), st.lpos[i], np.broadcast_to(target, (prog.B, 3))))
     return out
@@ -110,12 +113,17 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     tree, active = problem.tree, problem.active
     reason = np.where(success, "", NOT_FOUND).astype("<U12")
     failed = ~success
-    goals = _positions(tree, prog)
+    st = prog.structure
+    free = active & (tree.jnt_type[tree.plan.dof_jnt] == FREE)  # dofs of free joints that may move
+    # goal frames a free joint carries: their reach bound is infinite (no FK for it) and more than one joint moves
+    carried = {b for b in {int(b) for b in st.body[st.counted]} if b >= 0 and free[tree.body_dofs[b]].any()} \
+        if free.any() else set()
+    goals = _positions(tree, prog, carried)
     for _, body, point, target in goals:
         anchor, bound = reach_bound(tree, body, point, active, q0)
         far = np.linalg.norm(target - anchor, axis=-1) > bound + problem.tol
         reason[failed & far] = OUT_OF_REACH
-    if goals:
+    if goals and not carried:
         blocked = _limits(problem, prog, q0, goals[0])
         reason[failed & (reason == NOT_FOUND) & blocked] = LIMITS
     return reason
