@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 import mujoco
 import numpy as np
@@ -120,6 +123,40 @@ def assert_goal_jacobian(tree: mjkin.Tree, goal: object, q: np.ndarray, h: float
 def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
     """Angle between rotation matrices (radians)."""
     return mjkin.spatial.quat_distance(mjkin.spatial.mat_to_quat(R1), mjkin.spatial.mat_to_quat(R2))
+
+
+# Checks that run in a process of their own and compile numba kernels of their own (minutes on 2 cores): a test
+# module names the command in BACKGROUND; it starts when collection is done (if a test of that module was selected),
+# so it runs beside the other tests, and the module's test waits for it with background(__name__).
+_BACKGROUND: dict[str, tuple[subprocess.Popen, IO[str]]] = {}
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    if session.config.option.collectonly:
+        return
+    modules = {item.module for item in session.items if isinstance(item, pytest.Function)}
+    for module in sorted(modules, key=lambda m: m.__name__):
+        command = getattr(module, "BACKGROUND", None)
+        if command:
+            out = tempfile.TemporaryFile("w+")
+            proc = subprocess.Popen(command, cwd=Path(module.__file__).parent, stdout=out, stderr=subprocess.STDOUT)
+            _BACKGROUND[module.__name__] = proc, out
+
+
+def background(module: str, timeout: float) -> tuple[int, str]:
+    """Wait for the BACKGROUND command of the test module ``module``: its return code and the end of its output."""
+    proc, out = _BACKGROUND[module]
+    proc.wait(timeout)
+    out.seek(0)
+    return proc.returncode, out.read()[-3000:]
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    for proc, out in _BACKGROUND.values():  # a run stopped early (-x, Ctrl-C) leaves no process behind
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        out.close()
 
 
 def pytest_report_header(config: pytest.Config) -> str:

@@ -36,6 +36,7 @@ def _steps(chain: Tree, figure: Tree) -> list[tuple[str, Callable[[], object]]]:
             solve(chain, G.Pose("ee", T=T)), solve(chain, G.Pose("ee", T=T[0]), timeout=1.0, history=True),
             solve(figure, [G.Position("left_hand", (0.2, 0.3, 1.2)), G.Rest(figure.qpos0, weight=0.1, priority=1)]))),
         ("CCD", lambda: solve(chain, G.Position("ee", T[0, :3, 3]), method="ccd")),
+        ("goal evaluation (optimize)", lambda: solve(chain, G.Position("ee", T[0, :3, 3]), method="optimize")),
     ]
 
 
