@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .chain import Chain, ancestors, chain_of, chain_pose, chain_poses
+from .chain import ancestors, chain_of, chain_pose, chain_poses
 from .com import com_many
 from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
@@ -45,8 +45,8 @@ class Tree:
     world. Ids equal MuJoCo's, so results index like ``MjData.xpos``.
 
     One field is a cache: ``chains`` maps a frame ``(name, kind)`` given to
-    :meth:`pose` to the :class:`mjkin.kinematics.chain.Chain` of its body's
-    ancestors, made by :meth:`pose` the first time the frame is asked for (only
+    :meth:`pose` to the chain of its body's ancestors
+    (:mod:`mjkin.kinematics.chain`), made by :meth:`pose` the first time the frame is asked for (only
     :meth:`pose` writes it; it is not pickled). Everything else is fixed at construction.
     """
 
@@ -71,8 +71,8 @@ class Tree:
     plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
     body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
-    bodies_chain: Chain = field(init=False, repr=False)  # every body as one chain: the one-q path of fk
-    chains: dict[tuple[str, str | None], Chain] = field(init=False, repr=False)  # the one-q path of pose, see below
+    bodies_chain: Array = field(init=False, repr=False)  # every body as one chain: the one-q path of fk
+    chains: dict[tuple[str, str | None], Array] = field(init=False, repr=False)  # the one-q path of pose, see below
     geoms: Geoms = field(init=False, repr=False)  # the geoms, for the compiled distances
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
@@ -241,7 +241,7 @@ class Tree:
         if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1:  # one compiled call, which checks q too
             T = np.empty((len(self.body_parent), 4, 4))
             try:
-                if chain_poses(*self.bodies_chain, q, T):
+                if chain_poses(self.bodies_chain, q, T):
                     return T
             except TypeError:  # not float64 and C-contiguous: the checked path below
                 pass
@@ -252,19 +252,19 @@ class Tree:
         try:  # a frame seen before and one float64 C-contiguous q: one compiled call, which checks q too
             chain = self.chains[name, kind]
             if (type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
-                    and chain_pose(*chain, q, T := np.empty((4, 4)))):
+                    and chain_pose(chain, q, T := np.empty((4, 4)))):
                 return T
         except (KeyError, TypeError):  # a new frame, or a q of another dtype or layout (chain_pose's signatures)
             pass
         q = self.check_q(q)
         if q.ndim == 1:
             T = np.empty((4, 4))
-            if chain_pose(*self._chain(name, kind), np.ascontiguousarray(q), T):
+            if chain_pose(self._chain(name, kind), np.ascontiguousarray(q), T):
                 return T
         return self.kinematics(q).pose(*self.frame(name, kind))  # a batch (or a chain too long for chain_pose)
 
-    def _chain(self, name: str, kind: Kind | None) -> Chain:
-        """The :class:`~mjkin.kinematics.chain.Chain` of a frame's body, from :attr:`chains` (made there once)."""
+    def _chain(self, name: str, kind: Kind | None) -> Array:
+        """The chain of a frame (:mod:`mjkin.kinematics.chain`), from :attr:`chains` (made there once)."""
         if (name, kind) not in self.chains:
             body, local = self.frame_body(name, kind)
             self.chains[name, kind] = chain_of(self, ancestors(self, body), local)
