@@ -233,7 +233,7 @@ def to_poses(R: Array, x: Array) -> Array:
     """4x4 poses ``(..., 4, 4)`` from rotations ``(..., 3, 3)`` and origins ``(..., 3)``."""
     T = np.empty(R.shape[:-2] + (4, 4))
     poses_kernel(np.ascontiguousarray(R).reshape(-1, 3, 3), np.ascontiguousarray(x).reshape(-1, 3),
-                  T.reshape(-1, 4, 4))
+                 T.reshape(-1, 4, 4))
     return T
 
 

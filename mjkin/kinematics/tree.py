@@ -45,9 +45,10 @@ class Tree:
     world. Ids equal MuJoCo's, so results index like ``MjData.xpos``.
 
     One field is a cache: ``chains`` maps a frame ``(name, kind)`` given to
-    :meth:`pose` to the chain of its body's ancestors
-    (:mod:`mjkin.kinematics.chain`), made by :meth:`pose` the first time the frame is asked for (only
-    :meth:`pose` writes it; it is not pickled). Everything else is fixed at construction.
+    :meth:`pose` to the chain of its body's ancestors (:mod:`mjkin.kinematics.chain`),
+    made by :meth:`pose` the first time the frame is asked for; only :meth:`pose`
+    writes it, and it is not pickled. Everything else is fixed at construction
+    (the chains, like ``bodies_chain``, are left writable only for numba's sake).
     """
 
     model: mujoco.MjModel
