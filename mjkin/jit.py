@@ -78,6 +78,17 @@ njit = numba.njit(cache=True, nogil=True, fastmath=False)
 njit_inline = numba.njit(cache=True, nogil=True, fastmath=False, inline="always")
 
 
+def njit_eager(signatures: list) -> Callable:
+    """``njit`` compiled for these signatures only, at import (from the disk cache after the first run).
+
+    For short entries called from Python once per configuration: an argument of another
+    type raises :class:`TypeError` (numba's "No matching definition") instead of compiling
+    another version, so the caller can take its checked path. They keep the GIL: releasing
+    and taking it back costs ~0.1 µs a call, a third of a 7-DoF pose.
+    """
+    return numba.njit(signatures, cache=True, nogil=False, fastmath=False)
+
+
 @njit
 def quat_to_mat(w: float, x: float, y: float, z: float, out: np.ndarray) -> None:
     """Write the rotation matrix of the quaternion ``(w, x, y, z)``, normalised, into ``out (3, 3)``."""
@@ -184,3 +195,72 @@ def _keep_alive(typingctx, x):  # type: ignore[no-untyped-def]
 # alive past the last use of its views with ``keep_alive(owner)``.
 borrowed: Callable[[Any], Any] = _borrowed  # type: ignore[assignment]
 keep_alive: Callable[[Any], None] = _keep_alive  # type: ignore[assignment]
+
+
+# ``unshared``: the same kind of view (no reference count), cut straight out of one flat buffer: the
+# one-configuration FK entries unpack a chain's arrays this way without numba's reshape helper.
+@intrinsic
+def _element_pointer(typingctx, arr, i):  # type: ignore[no-untyped-def]
+    """Pointer to ``arr[i]`` of a 1-D C-contiguous array (no bounds check)."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and isinstance(i, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        return builder.gep(data, [args[1]])
+
+    return types.CPointer(arr.dtype)(arr, i), codegen
+
+
+@intrinsic
+def _int64_pointer(typingctx, arr, i):  # type: ignore[no-untyped-def]
+    """Pointer to ``arr[i]`` of a 1-D C-contiguous array of 8-byte items, read as int64 (the bits, not the value)."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and arr.dtype.bitwidth == 64
+            and isinstance(i, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        return builder.bitcast(builder.gep(data, [args[1]]), ir.IntType(64).as_pointer())
+
+    return types.CPointer(types.int64)(arr, i), codegen
+
+
+@intrinsic
+def _stack_floats(typingctx, n):  # type: ignore[no-untyped-def]
+    """Pointer to ``n`` float64 on the stack of the compiled function this is inlined into."""
+    if not isinstance(n, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.alloca(context.get_value_type(types.float64), size=args[0])
+
+    return types.CPointer(types.float64)(n), codegen
+
+
+@njit_inline
+def unshared(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.ndarray:
+    """``buf[start:start + prod(shape)].reshape(shape)`` of a 1-D C-contiguous ``buf``, with no reference count.
+
+    A view of this kind carries no owner: numba neither counts its references
+    (two atomic updates per view, ~25 ns) nor calls its reshape helper (~30 ns), so
+    a kernel can unpack a dozen arrays from one buffer for free. It must not
+    outlive ``buf``, which the caller keeps alive (an argument of the compiled call).
+    """
+    return numba.carray(_element_pointer(buf, start), shape)  # type: ignore[call-arg]  # typed by numba
+
+
+@njit_inline
+def unshared_int64(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.ndarray:
+    """:func:`unshared` of int64 stored bit for bit in a float64 ``buf`` (``ints.view(np.float64)``)."""
+    return numba.carray(_int64_pointer(buf, start), shape)  # type: ignore[call-arg]  # typed by numba
+
+
+@njit_inline
+def on_stack(n: int) -> np.ndarray:
+    """``np.empty(n)`` on the stack of the compiled call, not the heap: no allocation, no reference count.
+
+    Only for scratch of a few KB in an entry called from Python (not in a loop: the
+    space is given back when the entry returns); nothing may keep it past that.
+    """
+    return numba.carray(_stack_floats(n), (n,))  # type: ignore[call-arg]  # typed by numba

@@ -17,12 +17,10 @@ sets the body's world pose directly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import mujoco
 import numpy as np
-from numba import types
-from numba.experimental import structref
 from numpy.typing import NDArray
 
 from ..jit import axis_angle, njit, njit_inline, quat_to_mat
@@ -136,9 +134,20 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
     axis (only two columns change), a joint anchored at the body origin.
     Arrays are indexed element by element, never sliced (see :mod:`mjkin.jit`).
     """
-    A = np.empty((3, 3))  # a joint's articulation: rotation A, translation t
-    t = np.empty(3)
-    R = np.empty((3, 3))
+    fk_kernel_in(q, parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
+                 anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, inner_rot, inner_pos,
+                 np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
+
+
+@njit_inline
+def fk_kernel_in(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_start: Index, jnt_count: Index,
+                 jnt_inner: Index, fixed_plain: NDArray[np.bool_], hinge_coord: Index, anchor_zero: NDArray[np.bool_],
+                 jnt_type: Index, jnt_qadr: Index, jnt_axis: Array, jnt_pos: Array, qpos0: Array,
+                 rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, A: Array, t: Array, R: Array) -> None:
+    """:func:`fk_kernel` with its scratch given (no allocation): ``A (3, 3)``, ``t (3,)``, ``R (3, 3)``.
+
+    ``A`` and ``t`` hold a joint's articulation (rotation, translation), ``R`` a product.
+    """
     for b in range(q.shape[0]):
         for i in range(3):
             pos[b, 0, i] = 0.0
@@ -209,7 +218,8 @@ def moved(local: Array, offset: Array) -> Array:
 
 
 @njit
-def _poses_kernel(R: Array, x: Array, T: Array) -> None:
+def poses_kernel(R: Array, x: Array, T: Array) -> None:
+    """4x4 poses ``T (N, 4, 4)`` from rotations ``R (N, 3, 3)`` and origins ``x (N, 3)``."""
     for n in range(R.shape[0]):
         for i in range(3):
             for k in range(3):
@@ -222,8 +232,8 @@ def _poses_kernel(R: Array, x: Array, T: Array) -> None:
 def to_poses(R: Array, x: Array) -> Array:
     """4x4 poses ``(..., 4, 4)`` from rotations ``(..., 3, 3)`` and origins ``(..., 3)``."""
     T = np.empty(R.shape[:-2] + (4, 4))
-    _poses_kernel(np.ascontiguousarray(R).reshape(-1, 3, 3), np.ascontiguousarray(x).reshape(-1, 3),
-                  T.reshape(-1, 4, 4))
+    poses_kernel(np.ascontiguousarray(R).reshape(-1, 3, 3), np.ascontiguousarray(x).reshape(-1, 3),
+                 T.reshape(-1, 4, 4))
     return T
 
 
@@ -294,79 +304,6 @@ def fk_scratch(parent: Index, jnt_inner: Index) -> tuple[Array, Array, Array, Ar
         n_inner += jnt_inner[j] >= 0
     nbody = parent.shape[0]
     return np.empty((1, nbody, 3, 3)), np.empty((1, nbody, 3)), np.empty((1, n_inner, 3, 3)), np.empty((1, n_inner, 3))
-
-
-@structref.register
-class PackedKinematicsType(types.StructRef):
-    """The numba type of :class:`PackedKinematics`."""
-
-
-class PackedKinematics(structref.StructRefProxy):
-    """A tree's :class:`Kinematics` as one compiled object: one pointer to pass instead of 28 arrays.
-
-    numba unboxes every array of a call's arguments on every call (~0.1-0.2 µs each), more
-    than a 7-DoF arm's FK takes; a ``StructRef`` crosses as one pointer.
-    """
-
-    if TYPE_CHECKING:
-        kin: Kinematics
-
-
-structref.define_proxy(PackedKinematics, PackedKinematicsType, ["kin"])
-
-
-@njit
-def pack_kinematics(kin: Kinematics) -> PackedKinematics:
-    """The :class:`PackedKinematics` of ``kin`` (made once per tree: ``Tree.packed``)."""
-    return PackedKinematics(kin)
-
-
-@njit_inline
-def _fk_one(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> bool:
-    """:func:`fk_kernel` for one ``q (nq,)`` into :func:`fk_scratch`'s arrays, if ``q`` is a valid configuration.
-
-    Returns False (nothing written) for a NaN or inf or a zero quaternion, the cases
-    :func:`mjkin.kinematics.qspace.check` refuses (the caller's full check says why).
-    """
-    for a in range(q.shape[0]):
-        if not np.isfinite(q[a]):
-            return False
-    for j in range(kin.jnt_type.shape[0]):
-        if kin.jnt_type[j] == BALL or kin.jnt_type[j] == FREE:
-            a = kin.jnt_qadr[j] + (3 if kin.jnt_type[j] == FREE else 0)
-            if q[a] ** 2 + q[a + 1] ** 2 + q[a + 2] ** 2 + q[a + 3] ** 2 < 1e-18:
-                return False
-    fk_kernel(q.reshape(1, q.shape[0]), kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count,
-              kin.jnt_inner, kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr,
-              kin.jnt_axis, kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
-    return True
-
-
-@njit
-def frame_pose_one(pk: PackedKinematics, q: Array, body: int, local: Array, T: Array) -> bool:
-    """World pose ``T (4, 4)`` of the frame ``local (4, 4)`` fixed in ``body``, for one ``q (nq,)``.
-
-    The short path of :meth:`mjkin.Tree.pose` for a single configuration: one compiled
-    call, no per-body output. False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
-    """
-    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
-    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
-        return False
-    frame_world(rot, pos, 0, body, local, T)
-    return True
-
-
-@njit
-def body_poses_one(pk: PackedKinematics, q: Array, T: Array) -> bool:
-    """World pose of every body ``T (nbody, 4, 4)`` for one ``q (nq,)``: the short path of :meth:`mjkin.Tree.fk`.
-
-    False (``T`` unwritten) when ``q`` is not valid (see :func:`_fk_one`).
-    """
-    rot, pos, irot, ipos = fk_scratch(pk.kin.parent, pk.kin.jnt_inner)
-    if not _fk_one(pk.kin, q, rot, pos, irot, ipos):
-        return False
-    _poses_kernel(rot[0], pos[0], T)
-    return True
 
 
 @njit_inline

@@ -6,7 +6,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, TypeGuard
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -15,24 +15,18 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
+from .chain import ancestors, chain_of, chain_pose, chain_poses
 from .com import com_many
 from .distance import distances
-from .fk import (
-    Kinematics,
-    PackedKinematics,
-    Plan,
-    body_poses_one,
-    frame_pose_one,
-    kinematic_arrays,
-    moved,
-    pack_kinematics,
-)
+from .fk import Kinematics, Plan, kinematic_arrays, moved
 from .frames import Frames, forward
 from .geoms import Geoms, geom_arrays
 from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
 Kind = Literal["body", "joint", "site"]
+# native float64 (numba's dispatch can mistake a read-only big-endian array for one: such q take the checked path)
+_FLOAT64 = np.dtype(np.float64)
 
 
 
@@ -49,6 +43,12 @@ class Tree:
     Everything is read once from a compiled :class:`mujoco.MjModel` into
     read-only arrays; mjkin's FK and Jacobians use only these. Body 0 is the
     world. Ids equal MuJoCo's, so results index like ``MjData.xpos``.
+
+    One field is a cache: ``chains`` maps a frame ``(name, kind)`` given to
+    :meth:`pose` to the chain of its body's ancestors (:mod:`mjkin.kinematics.chain`),
+    made by :meth:`pose` the first time the frame is asked for; only :meth:`pose`
+    writes it, and it is not pickled. Everything else is fixed at construction
+    (the chains, like ``bodies_chain``, are left writable only for numba's sake).
     """
 
     model: mujoco.MjModel
@@ -72,7 +72,8 @@ class Tree:
     plan: Plan = field(init=False, repr=False)  # index arrays that drive the vectorised FK
     body_dofs: tuple[NDArray[np.int64], ...] = field(init=False, repr=False)  # dofs moving each body, ascending
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
-    packed: PackedKinematics = field(init=False, repr=False)  # kin as one compiled object (not pickled)
+    bodies_chain: Array = field(init=False, repr=False)  # every body as one chain: the one-q path of fk
+    chains: dict[tuple[str, str | None], Array] = field(init=False, repr=False)  # the one-q path of pose, see below
     geoms: Geoms = field(init=False, repr=False)  # the geoms, for the compiled distances
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
@@ -95,7 +96,8 @@ class Tree:
         put("body_dofs", tuple(_ro(d, np.int64) for d in dofs))
         k = kinematic_arrays(self)
         put("kin", k)
-        put("packed", pack_kinematics(k))
+        put("bodies_chain", chain_of(self, list(range(m.nbody)), np.eye(4)))
+        put("chains", {})
         put("geoms", geom_arrays(m))
         put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                         k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
@@ -107,11 +109,11 @@ class Tree:
         put("frames", frames)
 
     def __getstate__(self) -> dict:
-        """Pickle the tree without :attr:`packed` (compiled memory; packed again on arrival)."""
-        return {k: v for k, v in self.__dict__.items() if k != "packed"}
+        """Pickle the tree without its cache :attr:`chains` (it arrives empty)."""
+        return {k: v for k, v in self.__dict__.items() if k != "chains"}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, packed=pack_kinematics(state["kin"]))
+        self.__dict__.update(state, chains={})
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
@@ -231,40 +233,43 @@ class Tree:
         return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
-    def _one_q(self, q: ArrayLike) -> TypeGuard[Array]:
-        """Whether ``q`` is one configuration ready for the single-q compiled paths (float64, C-contiguous, ``(nq,)``).
-
-        Its values are checked there; only when they fail does :meth:`check_q` run, to word the error.
-        """
-        return (type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,)
-                and q.flags.c_contiguous)
-
     def kinematics(self, q: ArrayLike) -> Frames:
         """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
         return forward(self, self.check_q(q))
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
-        if self._one_q(q):  # one compiled call, which checks q too
-            T = np.empty((self.nbody, 4, 4))
-            if body_poses_one(self.packed, q, T):
-                return T
+        if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1:  # one compiled call, which checks q too
+            T = np.empty((len(self.body_parent), 4, 4))
+            try:
+                if chain_poses(self.bodies_chain, q, T):
+                    return T
+            except TypeError:  # not float64 and C-contiguous: the checked path below
+                pass
         return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
-        if self._one_q(q):  # one compiled call, which checks q too
-            body, local = self.frame_body(name, kind)
-            T = np.empty((4, 4))
-            if frame_pose_one(self.packed, q, body, local, T):
+        try:  # a frame seen before and one float64 C-contiguous q: one compiled call, which checks q too
+            chain = self.chains[name, kind]
+            if (type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
+                    and chain_pose(chain, q, T := np.empty((4, 4)))):
                 return T
+        except (KeyError, TypeError):  # a new frame, or a q of another dtype or layout (chain_pose's signatures)
+            pass
         q = self.check_q(q)
-        if q.ndim > 1:
-            return self.kinematics(q).pose(*self.frame(name, kind))
-        body, local = self.frame_body(name, kind)
-        T = np.empty((4, 4))
-        frame_pose_one(self.packed, np.ascontiguousarray(q).reshape(-1), body, local, T)
-        return T
+        if q.ndim == 1:
+            T = np.empty((4, 4))
+            if chain_pose(self._chain(name, kind), np.ascontiguousarray(q), T):
+                return T
+        return self.kinematics(q).pose(*self.frame(name, kind))  # a batch (or a chain too long for chain_pose)
+
+    def _chain(self, name: str, kind: Kind | None) -> Array:
+        """The chain of a frame (:mod:`mjkin.kinematics.chain`), from :attr:`chains` (made there once)."""
+        if (name, kind) not in self.chains:
+            body, local = self.frame_body(name, kind)
+            self.chains[name, kind] = chain_of(self, ancestors(self, body), local)
+        return self.chains[name, kind]
 
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
                  offset: ArrayLike | None = None) -> Array:

@@ -1,0 +1,146 @@
+"""One configuration's FK over only the bodies a frame hangs from: the short path of ``Tree.pose`` and ``Tree.fk``.
+
+A frame's pose depends only on its body's ancestors. :func:`chain_of` copies the
+rows of a tree's FK arrays (:class:`mjkin.kinematics.fk.Plan`) for those bodies
+into one flat buffer, a *chain*, the bodies renumbered ``0..n-1`` (0 = the world),
+and the compiled :func:`chain_pose` unpacks it and runs the one FK formula,
+:func:`mjkin.kinematics.fk.fk_kernel`, on them; the frame's pose then goes through
+:func:`mjkin.kinematics.fk.frame_world` as on the batched path, so the two agree
+to the last bit.
+
+A chain is one float64 array ``(L,)``. Its integers come first, stored bit for bit
+(``ints.view(np.float64)``): the header (:data:`HEADER`), the first q address of each
+of the tree's quaternions ``(nquat,)`` (to refuse a zero one), per body ``parent``
+(its index in the chain), ``jnt_start``, ``jnt_count``, ``fixed_plain`` ``(n,)``
+each, per joint ``jnt_inner`` (all -1: no inner frames are kept), ``hinge_coord``,
+``anchor_zero``, ``jnt_type``, ``jnt_qadr`` ``(nj,)`` each. Then the floats: a frame
+fixed in the last body ``local (4, 4)``, the tree's ``qpos0 (nq,)``, ``fixed_rot
+(n, 3, 3)``, ``fixed_pos (n, 3)``, ``jnt_axis (nj, 3)``, ``jnt_pos (nj, 3)``.
+
+Why one buffer: numba's dispatch costs ~0.05 µs per plain array argument, ~0.5 µs
+for a structref, and the 14 arrays of the FK would cost more than a 7-DoF arm's FK
+itself. Nothing writes a chain, but it is not flagged read-only: numba's dispatch
+types a read-only array in Python (~1 µs). The compiled entries have explicit
+signatures (compiled once, cached on disk): a ``q`` of another dtype or layout
+raises :class:`TypeError` instead of compiling another version, and the caller
+takes its checked path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import types
+from numpy.typing import NDArray
+
+from ..jit import njit_eager, njit_inline, on_stack, unshared, unshared_int64
+from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+HEADER = 4  # nq, n (bodies, the world included), nj (their joints), nquat (the tree's quaternions in q)
+MAX_BODIES = 1024  # longest chain whose frames (96 bytes a body) the compiled entries keep on the stack
+
+
+def ancestors(tree: Bodies, body: int) -> list[int]:
+    """``body`` and the bodies its pose is composed from, world (0) first, in MuJoCo's order."""
+    out = [body]
+    while out[-1]:
+        out.append(int(tree.plan.parent[out[-1]]))
+    return out[::-1]
+
+
+def chain_of(tree: Bodies, bodies: list[int], local: Array) -> Array:
+    """The chain (see above) of ``bodies`` (ascending, 0 first, each one's composition parent among them).
+
+    ``local (4, 4)``: a frame fixed in the last body (:func:`chain_pose` returns its pose).
+    """
+    p, b = tree.plan, np.array(bodies, dtype=np.int64)
+    index = {int(x): i for i, x in enumerate(b)}
+    joints = np.concatenate([np.arange(p.jnt_start[x], p.jnt_start[x] + p.jnt_count[x]) for x in b]).astype(np.int64)
+    count = p.jnt_count[b]
+    quats = tree.layout.quats[:, 0]
+    ints = np.concatenate([
+        [tree.nq, len(b), len(joints), len(quats)], quats, [index[int(x)] for x in p.parent[b]],
+        np.cumsum(count) - count, count, p.fixed_plain[b], np.full(len(joints), -1), p.hinge_coord[joints],
+        p.anchor_zero[joints], tree.jnt_type[joints], tree.jnt_qadr[joints]]).astype(np.int64)
+    return np.concatenate([ints.view(np.float64), np.asarray(local, dtype=np.float64).reshape(16), tree.qpos0,
+                           p.fixed_rot[b].reshape(-1), p.fixed_pos[b].reshape(-1), tree.jnt_axis[joints].reshape(-1),
+                           tree.jnt_pos[joints].reshape(-1)])
+
+
+@njit_inline
+def _chain_fk(chain: Array, q: Array, S: Array) -> bool:
+    """:func:`fk_kernel` over a chain for one ``q (nq,)`` into the scratch ``S (12 n + 21,)``.
+
+    Writes the bodies' ``rot (1, n, 3, 3)`` at ``S[0]`` and ``pos (1, n, 3)`` at ``S[9 n]``
+    (the kernel's own scratch is the rest). False (nothing written) for a ``q`` of another
+    length, with a NaN or inf, or with a zero quaternion: what
+    :func:`mjkin.kinematics.qspace.check` refuses (the caller's check then says why).
+    """
+    head = unshared_int64(chain, 0, (HEADER,))
+    nq, n, nj, nquat = head[0], head[1], head[2], head[3]
+    if q.shape[0] != nq:
+        return False
+    for a in range(nq):
+        if not np.isfinite(q[a]):
+            return False
+    quats = unshared_int64(chain, HEADER, (nquat,))
+    for i in range(nquat):
+        a = quats[i]
+        if q[a] ** 2 + q[a + 1] ** 2 + q[a + 2] ** 2 + q[a + 3] ** 2 < 1e-18:
+            return False
+    o = HEADER + nquat  # the per-body integers
+    j = o + 4 * n  # the per-joint integers
+    f = j + 5 * nj + 16 + nq  # fixed_rot, after local and qpos0
+    rot, pos = unshared(S, 0, (1, n, 3, 3)), unshared(S, 9 * n, (1, n, 3))
+    fk_kernel_in(unshared(q, 0, (1, nq)), unshared_int64(chain, o, (n,)), unshared(chain, f, (n, 3, 3)),
+                 unshared(chain, f + 9 * n, (n, 3)), unshared_int64(chain, o + n, (n,)),
+                 unshared_int64(chain, o + 2 * n, (n,)), unshared_int64(chain, j, (nj,)),
+                 unshared_int64(chain, o + 3 * n, (n,)), unshared_int64(chain, j + nj, (nj,)),
+                 unshared_int64(chain, j + 2 * nj, (nj,)), unshared_int64(chain, j + 3 * nj, (nj,)),
+                 unshared_int64(chain, j + 4 * nj, (nj,)), unshared(chain, f + 12 * n, (nj, 3)),
+                 unshared(chain, f + 12 * n + 3 * nj, (nj, 3)), unshared(chain, f - nq, (nq,)),
+                 rot, pos, rot, pos,  # no inner frames: jnt_inner is all -1
+                 unshared(S, 12 * n, (3, 3)), unshared(S, 12 * n + 9, (3,)), unshared(S, 12 * n + 12, (3, 3)))
+    return True
+
+
+@njit_inline
+def _local(chain: Array) -> Array:
+    """The chain's frame in its last body ``(4, 4)``."""
+    head = unshared_int64(chain, 0, (HEADER,))
+    return unshared(chain, HEADER + head[3] + 4 * head[1] + 5 * head[2], (4, 4))
+
+
+_CHAIN = types.Array(types.float64, 1, "C")
+_Q = (types.Array(types.float64, 1, "C"), types.Array(types.float64, 1, "C", readonly=True))
+
+
+@njit_eager([types.boolean(_CHAIN, q, types.Array(types.float64, 2, "C")) for q in _Q])
+def chain_pose(chain: Array, q: Array, T: Array) -> bool:
+    """World pose ``T (4, 4)`` of a chain's frame for one ``q (nq,)``.
+
+    False (``T`` unwritten) if ``q`` is not valid, or the chain is longer than :data:`MAX_BODIES`.
+    """
+    n = unshared_int64(chain, 1, (1,))[0]
+    if n > MAX_BODIES:
+        return False
+    S = on_stack(12 * n + 21)
+    if not _chain_fk(chain, q, S):
+        return False
+    frame_world(unshared(S, 0, (1, n, 3, 3)), unshared(S, 9 * n, (1, n, 3)), 0, n - 1, _local(chain), T)
+    return True
+
+
+@njit_eager([types.boolean(_CHAIN, q, types.Array(types.float64, 3, "C")) for q in _Q])
+def chain_poses(chain: Array, q: Array, T: Array) -> bool:
+    """Pose ``T (n, 4, 4)`` of each body of a chain for one ``q (nq,)``; False (none written) as :func:`chain_pose`."""
+    n = unshared_int64(chain, 1, (1,))[0]
+    if n > MAX_BODIES:
+        return False
+    S = on_stack(12 * n + 21)
+    if not _chain_fk(chain, q, S):
+        return False
+    poses_kernel(unshared(S, 0, (n, 3, 3)), unshared(S, 9 * n, (n, 3)), T)
+    return True

@@ -1,0 +1,130 @@
+"""One configuration's short path (``tree.pose(q, frame)``, ``tree.fk(q)``): the batched path's bits, MuJoCo's poses.
+
+The short path runs the FK over the frame's ancestors only (:mod:`mjkin.kinematics.chain`);
+it must give exactly the batched path's numbers, and the batched path's errors for bad input.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import mjkin
+from conftest import FK_TOL, GYM_ASSETS, mujoco_state, tree_of
+from mjkin.kinematics.chain import MAX_BODIES, chain_pose, chain_poses
+
+# hinge arms, slides, ball chains, free roots (primate, the humanoid, the ant)
+MODELS = ["arm7", "panda", "primate", "ball_chain", "planar_prismatic", GYM_ASSETS / "humanoid.xml",
+          GYM_ASSETS / "ant.xml"]
+
+
+def frames_of(tree: mjkin.Tree) -> list[tuple[str, str]]:
+    """Every named site and body as ``(name, kind)``."""
+    return [(n, k) for k in ("site", "body") for n in tree.names(k) if n]  # type: ignore[arg-type]
+
+
+@given(model=st.sampled_from(MODELS), seed=st.integers(0, 2**32 - 1), data=st.data())
+def test_one_q_equals_the_batch_bit_for_bit_and_mujoco(model, seed, data):
+    tree = tree_of(model)
+    name, kind = data.draw(st.sampled_from(frames_of(tree)), label="frame")
+    q = tree.random_q(seed)
+    T = tree.pose(q, name, kind)
+    np.testing.assert_array_equal(T, tree.pose(q[None], name, kind)[0])
+    np.testing.assert_array_equal(T, tree.kinematics(q).pose(*tree.frame(name, kind)))
+    for other in (list(q), q.astype(">f8"), np.repeat(q, 2)[::2], q.copy()):  # the checked path: same bits
+        if isinstance(other, np.ndarray) and other.flags.c_contiguous:
+            other.setflags(write=False)
+        np.testing.assert_array_equal(tree.pose(other, name, kind), T)
+    np.testing.assert_array_equal(tree.pose(q, name, None if kind == "site" else kind), T)
+    B = tree.fk(q)
+    np.testing.assert_array_equal(B, tree.fk(q[None])[0])
+    d = mujoco_state(tree.model, q)
+    i = tree.id(name, kind)  # type: ignore[arg-type]
+    pos, mat = (d.site_xpos, d.site_xmat) if kind == "site" else (d.xpos, d.xmat)
+    np.testing.assert_allclose(T[:3, 3], pos[i], atol=FK_TOL, rtol=0)
+    np.testing.assert_allclose(T[:3, :3], mat[i].reshape(3, 3), atol=FK_TOL, rtol=0)
+    np.testing.assert_allclose(B[:, :3, 3], d.xpos, atol=FK_TOL, rtol=0)
+    np.testing.assert_allclose(B[:, :3, :3], d.xmat.reshape(-1, 3, 3), atol=FK_TOL, rtol=0)
+    np.testing.assert_array_equal(B[:, 3], np.broadcast_to([0.0, 0.0, 0.0, 1.0], (tree.nbody, 4)))
+    np.testing.assert_array_equal(T[3], [0.0, 0.0, 0.0, 1.0])
+
+
+def _error(call):  # type: ignore[no-untyped-def]
+    with pytest.raises(mjkin.MjkinError) as info:
+        call()
+    return type(info.value), str(info.value)
+
+
+@given(model=st.sampled_from(["arm7", "primate", "ball_chain"]), seed=st.integers(0, 2**32 - 1), data=st.data())
+def test_bad_q_gets_the_checked_paths_error(model, seed, data):
+    tree = tree_of(model)
+    name, kind = frames_of(tree)[-1]
+    tree.pose(tree.qpos0.copy(), name, kind)  # the frame's chain is made: the short path is taken below
+    q = tree.random_q(seed)
+    how = data.draw(st.sampled_from(["nan", "inf", "zero quaternion", "short", "long", "2-d"]), label="bad")
+    if how in ("nan", "inf"):
+        q[data.draw(st.integers(0, tree.nq - 1), label="at")] = np.nan if how == "nan" else -np.inf
+    elif how == "zero quaternion":
+        if not len(tree.layout.quats):
+            return
+        q[tree.layout.quats[data.draw(st.integers(0, len(tree.layout.quats) - 1), label="which")]] = 0.0
+    elif how in ("short", "long"):
+        q = q[:-1] if how == "short" else np.append(q, 0.0)
+    else:
+        q = q[:, None]
+    expected = _error(lambda: tree.check_q(q))
+    assert "\n" not in expected[1]
+    assert _error(lambda: tree.pose(q, name, kind)) == expected
+    assert _error(lambda: tree.fk(q)) == expected
+    assert _error(lambda: tree.pose(list(q), name, kind)) == expected
+
+
+def test_an_unknown_frame_is_named_before_and_after_the_frames_seen():
+    tree = mjkin.load("arm7")
+    for _ in range(2):
+        with pytest.raises(mjkin.UnknownNameError, match="'hand'.*'ee'"):
+            tree.pose(tree.qpos0.copy(), "hand")
+        tree.pose(tree.qpos0.copy(), "ee")
+    with pytest.raises(mjkin.InputError, match="kind"):
+        tree.pose(tree.qpos0.copy(), "ee", "geom")  # type: ignore[arg-type]
+
+
+def test_other_dtypes_take_the_checked_path_without_compiling():
+    tree = tree_of("arm7")
+    q = tree.random_q(3)
+    T = tree.pose(q, "ee")
+    versions = len(chain_pose.signatures), len(chain_poses.signatures)
+    for other in (q.astype(np.float32), np.round(q).astype(np.int64), q.astype(np.float16)):
+        np.testing.assert_array_equal(tree.pose(other, "ee"), tree.pose(other.astype(np.float64), "ee"))
+        np.testing.assert_array_equal(tree.fk(other), tree.fk(other.astype(np.float64)))
+    np.testing.assert_array_equal(tree.pose(q, "ee"), T)
+    assert (len(chain_pose.signatures), len(chain_poses.signatures)) == versions == (2, 2)  # float64, read-only too
+
+
+def test_the_cache_is_the_trees_own_and_not_pickled():
+    tree = mjkin.load("arm7")
+    assert tree.chains == {}
+    q = tree.random_q(5)
+    T = tree.pose(q, "ee")
+    assert list(tree.chains) == [("ee", None)]
+    back = pickle.loads(pickle.dumps(tree))
+    assert back.chains == {} and tree.chains
+    np.testing.assert_array_equal(back.pose(q, "ee"), T)
+
+
+def test_more_bodies_than_the_stack_takes_go_the_batched_way():
+    """MuJoCo nests at most ~1000 bodies deep: only ``fk`` of a wide tree has a chain over :data:`MAX_BODIES`."""
+    xml = "<mujoco><worldbody>" + "".join(f"<body name='b{i}' pos='0.01 0 0'><joint axis='0 1 0'/><geom size='.01'/>"
+                                          "</body>" for i in range(MAX_BODIES + 1)) + "</worldbody></mujoco>"
+    tree = mjkin.load(xml)
+    assert tree.nbody > MAX_BODIES
+    q = np.linspace(-1.0, 1.0, tree.nq)
+    T = tree.fk(q)
+    np.testing.assert_array_equal(T, tree.fk(q[None])[0])
+    d = mujoco_state(tree.model, q)
+    np.testing.assert_allclose(T[:, :3, :3], d.xmat.reshape(-1, 3, 3), atol=FK_TOL, rtol=0)
+    np.testing.assert_array_equal(tree.pose(q, f"b{MAX_BODIES}", "body"), T[-1])
