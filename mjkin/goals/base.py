@@ -212,6 +212,7 @@ class Goal:
             d.update(state)
             d.update(zip(fields, row[:n], strict=True))
             d["_checked"] = list(row[n:])
+            d["_batch"] = ()
             out.append(goal)
         return out
 
