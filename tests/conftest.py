@@ -127,8 +127,13 @@ def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
 
 # Checks that run in a process of their own and compile numba kernels of their own (minutes on 2 cores): a test
 # module names the command in BACKGROUND; it starts when collection is done (if a test of that module was selected),
-# so it runs beside the other tests, and the module's test waits for it with background(__name__).
+# so it runs beside the other tests; the module's tests run last and wait for it with background(__name__).
 _BACKGROUND: dict[str, tuple[subprocess.Popen, IO[str]]] = {}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests that wait for a BACKGROUND command run last, so the rest of the suite runs while it works."""
+    items.sort(key=lambda item: bool(getattr(getattr(item, "module", None), "BACKGROUND", None)))  # stable
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
