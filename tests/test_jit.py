@@ -1,9 +1,9 @@
-"""The numba set-up: the cache guard (caches go when any source changes, and only then), borrowed views."""
+"""The numba set-up: the cache guard (caches go when any source changes, and only then), borrowed views, entries."""
 
 import numba
 import numpy as np
 
-from mjkin.jit import borrowed, drop_stale_caches, keep_alive
+from mjkin.jit import borrowed, borrowed_fields, drop_stale_caches, entry, keep_alive
 
 
 def test_caches_are_dropped_when_any_source_changes(tmp_path):
@@ -66,3 +66,37 @@ def test_borrowed_views_read_and_write_their_owners():
     a = np.arange(3.0)
     assert fill(a) == 3 * 7 + 4.0
     assert np.array_equal(a, np.arange(3.0) + 1.0)
+
+
+def test_borrowed_fields_are_the_structrefs_own_arrays():
+    """A packed problem's fields, read without reference counts, are its arrays: what is written there is seen."""
+    from mjkin.ik.packed import FIELDS, Packed
+
+    @numba.njit
+    def first_q_plus_one(pk):
+        fields = borrowed_fields(pk)
+        q = fields[8]
+        q[0, 0] += 1.0
+        return fields[4], q[0, 0]
+
+    import mjkin
+    from mjkin.goals import Position
+
+    problem = mjkin.Problem(mjkin.load("arm7"), Position("ee", (0.3, 0.1, 0.4)))
+    problem.solve()
+    packed, arrays = problem._run.one
+    assert isinstance(packed, Packed) and FIELDS[8] == "q" and FIELDS[4] == "max_iters"
+    before = arrays[1][0, 0]
+    assert first_q_plus_one(packed) == (problem._run.max_iters, before + 1.0)
+    assert arrays[1][0, 0] == before + 1.0
+
+
+def test_an_entry_is_the_compiled_code_without_the_dispatch():
+    @numba.njit
+    def scaled(a, k):
+        return a.sum() * k
+
+    a = np.arange(4.0)
+    direct = entry(scaled, numba.typeof(a), numba.float64)
+    assert direct is not scaled and direct(a, 2.0) == scaled(a, 2.0) == 12.0
+    assert len(scaled.signatures) == 1  # compiled once, for those types

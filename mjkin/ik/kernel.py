@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..jit import njit, njit_inline
-from ..kinematics.fk import Kinematics, fk_kernel
+from ..kinematics.fk import Kinematics, fk_kernel_in
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
@@ -93,20 +93,28 @@ def timeout_ns(timeout: float | None) -> int:
 # ------------------------------------------------------------------ kinematics
 @njit_inline
 def _fk(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
-    fk_kernel(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
-              kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
-              kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos)
+    _fk_in(kin, q, rot, pos, irot, ipos, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
+
+
+@njit_inline
+def _fk_in(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array, A: Array, t: Array,
+           R: Array) -> None:
+    """:func:`_fk` with its scratch given (:func:`mjkin.kinematics.fk.fk_kernel_in`): the IK loop's, once a solve."""
+    fk_kernel_in(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
+                 kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
+                 kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos, A, t, R)
 
 
 # ------------------------------------------------------------------------ step
 @njit_inline
-def _damped_solve(A: Array, e: Array, lam2: float, x: Array) -> None:
-    """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky."""
+def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
+    """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky.
+
+    ``M (k, k)`` and ``b (k,)``, ``k = min(A.shape)``, are its scratch.
+    """
     m, n = A.shape
     tall = m > n
     k = n if tall else m
-    M = np.empty((k, k))
-    b = np.empty(k)
     for i in range(k):
         if tall:
             acc = 0.0
@@ -170,7 +178,8 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
     if m == 0:
         return 0
     if not need_basis and lam2 > 0.0 and (method == DLS or method == LM):
-        _damped_solve(A, e, lam2, x)
+        k = min(m, n)
+        _damped_solve(A, e, lam2, x, basis[:k, :k], basis[k, :k])  # no basis needed: its rows are scratch
         return 0
     if not need_basis and method == TRANSPOSE:
         Ae = A.T @ e
@@ -204,8 +213,8 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
 
 @njit
 def step_scratch(m: int, nv: int) -> tuple:
-    """Work arrays for :func:`_step`: projector, level step, row-space basis, level residual."""
-    return np.empty((nv, nv)), np.empty(nv), np.empty((nv, nv)), np.empty(m)
+    """Work arrays for :func:`_step`: projector, level step, row-space basis, level residual, level Jacobian."""
+    return np.empty((nv, nv)), np.empty(nv), np.empty((nv + 1, nv)), np.empty(m), np.empty((m, nv))
 
 
 @njit_inline
@@ -218,30 +227,45 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
     squares (with ``lam2[0]``) whatever the method. ``ws`` comes from :func:`step_scratch`.
     """
     nv = J.shape[1]
-    P, x, basis, e_all = ws
+    P, x, basis, e_all, A_all = ws
+    levels = level_rows.shape[0] - 1
     free = True
     for j in range(nv):
-        for c in range(nv):
-            P[j, c] = 0.0 if (c != j or locked[j]) else 1.0
         free = free and not locked[j]
+    if levels > 1:  # the projector onto what the levels above leave free: the unlocked dofs to start with
+        for j in range(nv):
+            for c in range(nv):
+                P[j, c] = 0.0 if (c != j or locked[j]) else 1.0
     dq[:] = 0.0
-    for lv in range(level_rows.shape[0] - 1):
-        Jl = J[level_rows[lv]:level_rows[lv + 1]]
-        gl = g[level_rows[lv]:level_rows[lv + 1]]
-        n = np.sqrt(gl @ gl)
+    for lv in range(levels):
+        r0, r1 = level_rows[lv], level_rows[lv + 1]
+        Jl, gl = J[r0:r1], g[r0:r1]
+        n = 0.0
+        for r in range(r1 - r0):
+            n += gl[r] * gl[r]
+        n = np.sqrt(n)
         k = scale * (clamp / n if n > clamp else 1.0)
-        e = e_all[:gl.shape[0]]
-        for r in range(gl.shape[0]):
+        e = e_all[:r1 - r0]
+        for r in range(r1 - r0):
             acc = -k * gl[r]
             for c in range(nv):
                 acc -= Jl[r, c] * dq[c]
             e[r] = acc
-        plain = free and lv == 0  # P is still the identity
-        A = Jl if plain else Jl @ P
-        last = lv == level_rows.shape[0] - 2
-        rank = _solve_level(A, e, LM if hard_level and lv == 0 else method, lam2[lv], alpha, x, basis, not last)
-        if plain:
-            dq += x
+        if lv == 0:  # P is diagonal here (the unlocked dofs): no products
+            A = Jl
+            if not free:
+                A = A_all[:r1 - r0]
+                for r in range(r1 - r0):
+                    for c in range(nv):
+                        A[r, c] = 0.0 if locked[c] else Jl[r, c]
+        else:
+            A = Jl @ P
+        rank = _solve_level(A, e, LM if hard_level and lv == 0 else method, lam2[lv], alpha, x, basis,
+                            lv < levels - 1)
+        if lv == 0:
+            for c in range(nv):
+                if not locked[c]:
+                    dq[c] += x[c]
         else:
             dq += P @ x
         for r in range(rank):

@@ -34,6 +34,7 @@ from mjkin.ik.kernel import (
     _damped_solve,
     _finite_row,
     _fk,
+    _fk_in,
     _levels_met,
     _max_abs,
     _merit,
@@ -45,7 +46,7 @@ from mjkin.ik.kernel import (
     summarise,
 )
 from mjkin.ik.packed import Packed
-from mjkin.jit import borrowed, keep_alive, monotonic_ns, njit, njit_inline
+from mjkin.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
 
@@ -103,6 +104,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     level_rows, counted, hard = ga.level_rows, ga.counted, ga.hard
     m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
+    fA, ft, fR = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
     ws, sws = scratch(nv), step_scratch(m, nv)
     g, gt = np.empty(m), np.empty(m)
     J, Jt = np.empty((m, nv)), np.empty((m, nv))
@@ -133,10 +135,10 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     run_ref = np.empty(G)  # each goal's error (in tolerances) at this run's last progress
     # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns its arguments,
     # and the local arrays are kept alive to the end (keep_alive)
-    own = (rot, pos, irot, ipos, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start, locked,
-           hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
-    (rot, pos, irot, ipos, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start, locked,
-     hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
+    own = (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q,
+           q_start, locked, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
+    (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start,
+     locked, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
@@ -144,7 +146,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     scale, fresh, any_locked, corrected = 1.0, True, False, False
     while True:
-        _fk(kin, qt, rot, pos, irot, ipos)
+        _fk_in(kin, qt, rot, pos, irot, ipos, fA, ft, fR)
         evaluate_goals(kin, ga, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
         _costs(gt, level_rows, costt)
         accept = (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
@@ -303,7 +305,8 @@ def _correct(s: Array, Js: Array, on: NDArray[np.bool_], locked: NDArray[np.bool
             A[:, d] = 0.0
     x = np.zeros(A.shape[1])
     if k < s.shape[0]:
-        _damped_solve(A, -s[k:], HARD_DAMPING2, x)
+        n = min(A.shape)
+        _damped_solve(A, -s[k:], HARD_DAMPING2, x, np.empty((n, n)), np.empty(n))
     integrate_kernel(q, x.reshape(1, -1), kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
 
 
@@ -341,10 +344,11 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
 @njit
 def solve_packed(pk: Packed, lo: int, hi: int) -> None:
     """Solve targets ``lo <= b < hi`` of a packed problem (:mod:`mjkin.ik.packed`) and summarise their errors."""
-    solve_batch(pk.kin, pk.ga, pk.q, pk.method, pk.settings, pk.max_iters, pk.starts, pk.restart_q, pk.active, pk.iters,
-                pk.status, pk.used, pk.binding, pk.err, pk.hist_q, pk.hist_err, lo, hi)
-    summarise(pk.err[lo:hi], pk.ga.counted, pk.ga.hard, pk.settings.tol, pk.settings.rot_tol, pk.worst[lo:hi],
-              pk.success[lo:hi])
+    (kin, ga, settings, method, max_iters, starts, restart_q, active, q, iters, status, used, binding, err, hist_q,
+     hist_err, worst, success) = borrowed_fields(pk)  # the caller holds pk, and so its arrays, for the call
+    solve_batch(kin, ga, q, method, settings, max_iters, starts, restart_q, active, iters, status, used, binding, err,
+                hist_q, hist_err, lo, hi)
+    summarise(err[lo:hi], ga.counted, ga.hard, settings.tol, settings.rot_tol, worst[lo:hi], success[lo:hi])
 
 
 

@@ -33,33 +33,36 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
     ``dof_inner >= 0``. ``dofs`` are the dofs that move the point's body; other
     columns are left untouched.
     """
-    F = np.empty((3, 3))  # the dof's joint frame: rotation F, origin x
-    x = np.empty(3)
-    u = np.empty(3)  # world axis
-    r = np.empty(3)  # from the world anchor to the point
     for b in range(point.shape[0]):
-        for d in dofs:  # element-wise indexing, no views (see mjkin.jit)
-            s, body = dof_inner[d], dof_body[d]
-            for i in range(3):
-                x[i] = inner_pos[b, s, i] if s >= 0 else pos[b, body, i]
-                for k in range(3):
-                    F[i, k] = inner_rot[b, s, i, k] if s >= 0 else rot[b, body, i, k]
-            for i in range(3):
-                u[i] = dof_axis[d, i] if dof_world[d] else (
-                    F[i, 0] * dof_axis[d, 0] + F[i, 1] * dof_axis[d, 1] + F[i, 2] * dof_axis[d, 2])
-            if dof_rot[d]:
-                for i in range(3):
-                    r[i] = point[b, i] - x[i] - (F[i, 0] * dof_anchor[d, 0] + F[i, 1] * dof_anchor[d, 1]
-                                                 + F[i, 2] * dof_anchor[d, 2])
-                J[b, 0, d] = u[1] * r[2] - u[2] * r[1]
-                J[b, 1, d] = u[2] * r[0] - u[0] * r[2]
-                J[b, 2, d] = u[0] * r[1] - u[1] * r[0]
-                for i in range(3):
-                    J[b, 3 + i, d] = u[i]
+        for d in dofs:  # element-wise indexing and scalars, no views or scratch arrays (see mjkin.jit)
+            f00, f01, f02, f10, f11, f12, f20, f21, f22, x0, x1, x2 = _joint_frame(rot, pos, inner_rot, inner_pos, b,
+                                                                                   dof_body[d], dof_inner[d])
+            a0, a1, a2 = dof_axis[d, 0], dof_axis[d, 1], dof_axis[d, 2]
+            if dof_world[d]:  # the world axis u
+                u0, u1, u2 = a0, a1, a2
             else:
-                for i in range(3):
-                    J[b, i, d] = u[i]
-                    J[b, 3 + i, d] = 0.0
+                u0, u1, u2 = f00 * a0 + f01 * a1 + f02 * a2, f10 * a0 + f11 * a1 + f12 * a2, f20 * a0 + f21 * a1 + (
+                    f22 * a2)
+            if dof_rot[d]:
+                c0, c1, c2 = dof_anchor[d, 0], dof_anchor[d, 1], dof_anchor[d, 2]
+                r0 = point[b, 0] - x0 - (f00 * c0 + f01 * c1 + f02 * c2)  # from the world anchor to the point
+                r1 = point[b, 1] - x1 - (f10 * c0 + f11 * c1 + f12 * c2)
+                r2 = point[b, 2] - x2 - (f20 * c0 + f21 * c1 + f22 * c2)
+                J[b, 0, d] = u1 * r2 - u2 * r1
+                J[b, 1, d] = u2 * r0 - u0 * r2
+                J[b, 2, d] = u0 * r1 - u1 * r0
+                J[b, 3, d], J[b, 4, d], J[b, 5, d] = u0, u1, u2
+            else:
+                J[b, 0, d], J[b, 1, d], J[b, 2, d] = u0, u1, u2
+                J[b, 3, d], J[b, 4, d], J[b, 5, d] = 0.0, 0.0, 0.0
+
+
+@njit_inline
+def _joint_frame(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, b: int, body: int, s: int) -> tuple:
+    """A dof's joint frame as 12 numbers, rotation row by row then origin: its body's, or inner joint ``s``'s."""
+    R, X, k = (inner_rot, inner_pos, s) if s >= 0 else (rot, pos, body)
+    return (R[b, k, 0, 0], R[b, k, 0, 1], R[b, k, 0, 2], R[b, k, 1, 0], R[b, k, 1, 1], R[b, k, 1, 2],
+            R[b, k, 2, 0], R[b, k, 2, 1], R[b, k, 2, 2], X[b, k, 0], X[b, k, 1], X[b, k, 2])
 
 
 def check_offset(offset: ArrayLike) -> Array:
