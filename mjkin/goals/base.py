@@ -54,7 +54,7 @@ def array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
 
 def broadcast(shapes: Sequence[tuple[int, ...]]) -> tuple[int, ...]:
     """``np.broadcast_shapes`` without its cost (a few µs) when every shape is the same (the usual case)."""
-    if all(s == shapes[0] for s in shapes[1:]):
+    if len(set(shapes)) <= 1:
         return tuple(shapes[0]) if shapes else ()
     return tuple(np.broadcast_shapes(*shapes))
 
@@ -97,7 +97,7 @@ def rotation(value: ArrayLike, what: str) -> Array:
 
 def rotation_matrix(R: Array, what: str) -> Array:
     """Finite float64 matrices ``R (..., 3, 3)`` checked to be rotations (orthonormalised when within 1e-6)."""
-    drift, det = _rotation_defect(np.ascontiguousarray(R).reshape(-1, 3, 3))
+    drift, det = _rotation_defect(R.reshape(-1, 3, 3))  # a view where it can (a pose's corner: strided)
     if drift > 1e-6 or det < 0:
         raise GoalError(f"{what} is not a rotation matrix (orthonormal, det +1)")
     return R if drift < 1e-12 else spatial.orthonormalize(R)

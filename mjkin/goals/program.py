@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -50,25 +51,43 @@ class Structure:
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class Program:
-    """A :class:`Structure` with targets: ``G`` goals, ``B`` targets, ``m`` residual rows."""
+    """A :class:`Structure` with targets: ``G`` goals, ``B`` targets, ``m`` residual rows.
+
+    The targets are ``data (B, G, DATA)`` and ``rest_q (G, B or 1, nq)``; :attr:`arrays` holds
+    them with everything else the compiled evaluator reads.
+    """
 
     structure: Structure
     goals: tuple[Goal, ...]  # sorted by priority, as solved
     batch: tuple[int, ...]  # () or (B,)
-    arrays: GoalArrays
+    data: Array
+    rest_q: Array
+    geoms: Geoms  # the tree's
+
+    def __init__(self, structure: Structure, goals: tuple[Goal, ...], batch: tuple[int, ...], data: Array,
+                 rest_q: Array, geoms: Geoms) -> None:
+        # at once, as Result does: a frozen dataclass's own __init__ costs ~0.5 µs more, on every solve
+        self.__dict__.update(structure=structure, goals=goals, batch=batch, data=data, rest_q=rest_q, geoms=geoms)
+
+    @cached_property
+    def arrays(self) -> GoalArrays:
+        """The compiled evaluator's arrays (made when first asked for: a single solve copies only the targets)."""
+        st = self.structure
+        return GoalArrays(st.kind, st.body, st.lrot, st.lpos, self.data, st.aux, st.column, st.sqrt_w, st.row,
+                          self.rest_q, st.joint_row, st.level_rows, st.counted, st.hard, self.geoms, st.bounded,
+                          st.pairs, st.support, st.support_pos)
 
     @property
     def B(self) -> int:
         """Number of targets (1 when unbatched)."""
-        return int(self.arrays.data.shape[0])
+        return int(self.data.shape[0])
 
     def target(self, b: int) -> Program:
         """The program of target ``b`` alone (unbatched)."""
-        a = self.arrays
-        rest = a.rest_q[:, b:b + 1] if self.structure.joint_targets else a.rest_q
-        return Program(self.structure, self.goals, (), a._replace(data=a.data[b:b + 1], rest_q=rest))
+        rest = self.rest_q[:, b:b + 1] if self.structure.joint_targets else self.rest_q
+        return Program(self.structure, self.goals, (), self.data[b:b + 1], rest, self.geoms)
 
     def __getattr__(self, name: str) -> Any:
         """The goal arrays by name (``prog.body``, ``prog.level_rows``...)."""
@@ -79,10 +98,13 @@ class Program:
 
 def as_goals(goals: Goal | Sequence[Goal]) -> tuple[Goal, ...]:
     """One goal or several as a tuple, checked to be goals; lists inside the list are flattened into it."""
-    out = (goals,) if isinstance(goals, Goal) else tuple(
-        h for g in goals for h in (g if isinstance(g, (list, tuple)) else (g,))) if isinstance(
-        goals, (list, tuple)) else None
-    if out is None:
+    if isinstance(goals, Goal):
+        out: tuple = (goals,)
+    elif isinstance(goals, (list, tuple)):
+        out = tuple(goals)
+        if not all(isinstance(g, Goal) for g in out):
+            out = tuple(h for g in goals for h in (g if isinstance(g, (list, tuple)) else (g,)))
+    else:
         raise GoalError(f"goals must be a mjkin.goals goal or a list of them, got {type(goals).__name__}")
     if not out:
         raise GoalError("give at least one goal")
@@ -96,7 +118,7 @@ def as_goals(goals: Goal | Sequence[Goal]) -> tuple[Goal, ...]:
 
 def key_of(goals: tuple[Goal, ...]) -> tuple:
     """The structure key of ``goals`` (in the order given)."""
-    return tuple(g.key() for g in goals)
+    return tuple([g.key() for g in goals])
 
 
 def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
@@ -147,24 +169,22 @@ def encode(tree: Tree, st: Structure, given: tuple[Goal, ...]) -> Program:
     Raises:
         GoalError: malformed targets, batches that disagree, or goals of another structure.
     """
-    if len(given) != len(st.order):
-        raise GoalError(f"expected {len(st.order)} goals of the problem's structure, got {len(given)}")
-    gs = tuple(given[i] for i in st.order)
+    G = len(st.order)
+    if len(given) != G:
+        raise GoalError(f"expected {G} goals of the problem's structure, got {len(given)}")
+    gs = given if G == 1 else tuple(given[i] for i in st.order)
     try:
-        batch = broadcast([g.batch() for g in gs])
+        batch = gs[0].batch() if G == 1 else broadcast([g.batch() for g in gs])
     except ValueError:
         raise GoalError(f"goal targets have different batch sizes: {[g.batch() for g in gs]}") from None
     if len(batch) > 1:
         raise GoalError(f"targets may have one leading batch axis, got batch shape {batch}")
     B = batch[0] if batch else 1
-    data = np.zeros((B, len(gs), DATA))
-    rest = np.zeros((len(gs), B if st.joint_targets else 1, tree.nq))
+    data = np.zeros((B, G, DATA))
+    rest = np.zeros((G, B if st.joint_targets else 1, tree.nq))
     for i, g in enumerate(gs):
         g.encode(tree, data[:, i], rest[i])
-    arrays = GoalArrays(st.kind, st.body, st.lrot, st.lpos, data, st.aux, st.column, st.sqrt_w, st.row, rest,
-                        st.joint_row, st.level_rows, st.counted, st.hard, tree.geoms, st.bounded, st.pairs,
-                        st.support, st.support_pos)
-    return Program(st, gs, batch, arrays)
+    return Program(st, gs, batch, data, rest, tree.geoms)
 
 
 def compile_goals(tree: Tree, goals: Goal | Sequence[Goal]) -> Program:

@@ -11,9 +11,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
+import numba
 import numpy as np
 
 from ..checks import check_count, check_flag, check_number
+from ..jit import entry
 from ..parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
@@ -203,13 +205,15 @@ class Loop:
         """One target through the arrays packed once (:meth:`__call__` holds the lock)."""
         if self.one is None or self.solve_packed is None:
             arrays = self.arrays(prog, q.copy())
-            self.one, self.starts_in_one = (self.pack(arrays), arrays), self.problem.starts
-            self.solve_packed = kernels().solve_packed
+            packed = self.pack(arrays)
+            self.one, self.starts_in_one = (packed, arrays), self.problem.starts
+            # the packed arrays are always these types: the call skips numba's dispatch (mjkin.jit.entry)
+            self.solve_packed = entry(kernels().solve_packed, numba.typeof(packed), numba.int64, numba.int64)
         packed, arrays = self.one
         ga, q_in, starts = arrays[:3]
-        ga.data[...] = prog.arrays.data
+        ga.data[...] = prog.data
         if prog.structure.joint_targets:
-            ga.rest_q[...] = prog.arrays.rest_q
+            ga.rest_q[...] = prog.rest_q
         q_in[...] = q
         if self.problem.starts is not self.starts_in_one:  # new restart starts each solve (seed=None)
             starts[...] = self.starts_in_one = self.problem.starts
@@ -221,17 +225,17 @@ class Loop:
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))
         ga, _, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
-        history = None if not self.H else History(hist_q.copy(), hist_err.copy())
-        return self.result(prog, (ga, q, None, iters, status, used, binding, err.copy(), None, None, worst.copy(),
-                                  success), history)
+        history = (hist_q.copy(), hist_err.copy()) if self.H else (None, None)
+        return self.result(prog, (ga, q, None, iters, status, used, binding, err.copy(), *history, worst.copy(),
+                                  success))
 
-    def result(self, prog: Program, arrays: tuple, history: History | None = None) -> Result:
+    def result(self, prog: Program, arrays: tuple) -> Result:
         """The :class:`Result` of a call's ``arrays``; they become the result's (unbatched: its numbers)."""
         _, q, _, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
         p = self.problem
-        if self.H and history is None:
+        history = None
+        if self.H:
             history = History(hist_q, hist_err)
-        if history is not None:
             history.error[np.arange(self.H)[None, :] > iters[:, None]] = np.nan
         return result_of(prog, q, worst, success, err, iters, status, used, p.method_name, history, p.tree,
                          binding)

@@ -133,7 +133,7 @@ class Result:
 
 
 def _shaped(batch: tuple[int, ...], a: NDArray) -> NDArray:
-    return a.reshape(batch + a.shape[1:]) if batch else a[0]
+    return a.reshape(batch + a.shape[1:])
 
 
 def package(prog: Program, q: Array, err: Array, iters: NDArray, status: NDArray, used: NDArray, tol: float,
@@ -153,9 +153,13 @@ def result_of(prog: Program, q: Array, worst: Array, success: NDArray, err: Arra
     The result keeps the arrays (views of them), so they must be the caller's no more.
     """
     b = prog.batch
+    if not b:  # one target: its row of each (a single solve's path, so without the reshapes)
+        hist = None if history is None else History(history.q[0], history.error[0])
+        return Result(q=q[0], success=success[0], error=worst[0], iterations=iters[0], status=STATUS[status[0]],
+                      goal_errors=err[0], goals=prog.goals, method=method, restarts=used[0], history=hist,
+                      reason=NO_REASON, binding=binding[0], tree=tree)
     hist = None if history is None else History(_shaped(b, history.q), _shaped(b, history.error))
     return Result(q=_shaped(b, q), success=_shaped(b, success), error=_shaped(b, worst),
                   iterations=_shaped(b, iters), status=_shaped(b, STATUS[status]), goal_errors=_shaped(b, err),
                   goals=prog.goals, method=method, restarts=_shaped(b, used), history=hist,
-                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")) if b else NO_REASON,
-                  binding=_shaped(b, binding), tree=tree)
+                  reason=_shaped(b, np.full(len(q), "", dtype="<U12")), binding=_shaped(b, binding), tree=tree)
