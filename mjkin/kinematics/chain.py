@@ -22,8 +22,10 @@ for a structref, and the 14 arrays of the FK would cost more than a 7-DoF arm's 
 itself. Nothing writes a chain, but it is not flagged read-only: numba's dispatch
 types a read-only array in Python (~1 µs). The compiled entries have explicit
 signatures (compiled once, cached on disk): a ``q`` of another dtype or layout
-raises :class:`TypeError` instead of compiling another version, and the caller
-takes its checked path.
+raises :class:`TypeError` instead of compiling another version. ``Tree.pose`` and
+``Tree.fk`` skip even the dispatch (:data:`chain_pose_direct`, :func:`mjkin.jit.entry`)
+for a ``q`` they have checked to be float64, 1-D and C-contiguous; any other takes
+their checked path.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import numpy as np
 from numba import types
 from numpy.typing import NDArray
 
-from ..jit import njit_eager, njit_inline, on_stack, unshared, unshared_int64
+from ..jit import entry, njit_eager, njit_inline, on_stack, unshared, unshared_int64
 from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
 
 Array = NDArray[np.float64]
@@ -144,3 +146,9 @@ def chain_poses(chain: Array, q: Array, T: Array) -> bool:
         return False
     poses_kernel(unshared(S, 0, (n, 3, 3)), unshared(S, 9 * n, (n, 3)), T)
     return True
+
+
+# the two without numba's dispatch (mjkin.jit.entry), for a q already known to be float64, 1-D and C-contiguous
+# (read-only too: neither writes q)
+chain_pose_direct = entry(chain_pose, _CHAIN, _Q[0], types.Array(types.float64, 2, "C"))
+chain_poses_direct = entry(chain_poses, _CHAIN, _Q[0], types.Array(types.float64, 3, "C"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
@@ -15,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .chain import ancestors, chain_of, chain_pose, chain_poses
+from .chain import ancestors, chain_of, chain_pose, chain_pose_direct, chain_poses_direct
 from .com import com_many
 from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
@@ -148,22 +149,23 @@ class Tree:
         """The model's name (MJCF ``<mujoco model=...>``)."""
         return bytes(self.model.names).split(b"\0", 1)[0].decode()
 
-    @property
+    # the sizes are read once: a solve reads them several times, and MjModel's attributes cost ~0.2 µs each
+    @cached_property
     def nq(self) -> int:
         """Length of a configuration q (MuJoCo's ``nq``)."""
         return int(self.model.nq)
 
-    @property
+    @cached_property
     def nv(self) -> int:
         """Degrees of freedom, the number of Jacobian columns (MuJoCo's ``nv``)."""
         return int(self.model.nv)
 
-    @property
+    @cached_property
     def nbody(self) -> int:
         """Number of bodies, the world (id 0) included."""
         return int(self.model.nbody)
 
-    @property
+    @cached_property
     def njnt(self) -> int:
         """Number of joints."""
         return int(self.model.njnt)
@@ -239,24 +241,18 @@ class Tree:
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
-        if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1:  # one compiled call, which checks q too
-            T = np.empty((len(self.body_parent), 4, 4))
-            try:
-                if chain_poses(self.bodies_chain, q, T):
-                    return T
-            except TypeError:  # not float64 and C-contiguous: the checked path below
-                pass
+        if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1 and q.flags.c_contiguous:
+            T = np.empty((len(self.body_parent), 4, 4))  # one compiled call, which checks q too
+            if chain_poses_direct(self.bodies_chain, q, T):
+                return T
         return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
-        try:  # a frame seen before and one float64 C-contiguous q: one compiled call, which checks q too
-            chain = self.chains[name, kind]
-            if (type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
-                    and chain_pose(chain, q, T := np.empty((4, 4)))):
-                return T
-        except (KeyError, TypeError):  # a new frame, or a q of another dtype or layout (chain_pose's signatures)
-            pass
+        chain = self.chains.get((name, kind))  # a frame seen before and one float64 C-contiguous q:
+        if (chain is not None and type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
+                and q.flags.c_contiguous and chain_pose_direct(chain, q, T := np.empty((4, 4)))):
+            return T  # one compiled call, which checks q too (else the checked path below says what is wrong)
         q = self.check_q(q)
         if q.ndim == 1:
             T = np.empty((4, 4))
