@@ -441,6 +441,32 @@ def test_spread_restart_starts_stratify_every_joint():
     assert any(len(set(np.floor(c * 64).astype(int))) < 64 for c in v.T)
 
 
+def test_a_seeds_restart_starts_are_drawn_once_per_tree_and_each_problem_owns_a_copy():
+    """Drawing them (scipy's Sobol set-up) cost more than ten easy solves on every ``mjkin.solve``."""
+    import gc
+    import weakref
+
+    from mjkin.ik.problem import SEEDED_STARTS
+    from mjkin.kinematics import qspace
+
+    tree = mjkin.load("arm7")
+    goal = G.Position("ee", (0.3, 0.1, 0.4))
+    a, b = mjkin.Problem(tree, goal, seed=3), mjkin.Problem(tree, goal, seed=3)
+    np.testing.assert_array_equal(a.starts, qspace.random(tree, np.random.default_rng(3), AUTO_RESTARTS, spread=True))
+    np.testing.assert_array_equal(a.starts, b.starts)
+    a.starts[:] = 0.0  # one problem's copy, not the shared draw
+    assert not np.array_equal(b.starts, a.starts)
+    np.testing.assert_array_equal(mjkin.Problem(tree, goal, seed=3).starts, b.starts)
+    assert not np.array_equal(mjkin.Problem(tree, goal, seed=4).starts, b.starts)
+    assert set(SEEDED_STARTS[tree]) == {(3, AUTO_RESTARTS), (4, AUTO_RESTARTS)}
+    mjkin.Problem(tree, goal, seed=None).solve()  # new starts each solve, none kept
+    assert set(SEEDED_STARTS[tree]) == {(3, AUTO_RESTARTS), (4, AUTO_RESTARTS)}
+    held, alive = len(SEEDED_STARTS), weakref.ref(tree)
+    del a, b, tree
+    gc.collect()
+    assert alive() is None and len(SEEDED_STARTS) == held - 1  # the draws go with their tree
+
+
 @pytest.mark.parametrize("method", ["auto", "dls", "pinv", "transpose", "ccd", "optimize", "reach", "analytic2"])
 def test_every_method_returns_its_tree(method):
     tree = tree_of("planar_2link")
