@@ -3,7 +3,8 @@
 An animation solves each frame starting from the previous frame's answer (warm);
 a one-off query starts from home (cold). Targets follow a smooth path made by FK
 of a smooth random joint path, so every target is reachable. Timed is one
-:func:`mjkin.solve` call per frame, on one core.
+``problem.solve`` per frame (a :class:`mjkin.Problem` made once, as real-time code
+holds one; ``mjkin.solve`` makes one on every call), on one core.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from numpy.typing import NDArray
 
 from ... import goals as G
 from ...errors import InputError
-from ...ik import solve
+from ...ik import Problem
 from ...kinematics.build import Link, links_mjcf
 from ...kinematics.qspace import FREE
 from ...kinematics.tree import Tree, load
@@ -88,14 +89,15 @@ def follow(case: Case, path: Array, warm: bool) -> tuple[Array, Array, Array, Ar
     a shared machine adds to the wall clock.
     """
     targets = [goals_at(case, q) for q in path]
-    solve(case.tree, targets[0], q0=case.home, tol=1e-4, rot_tol=1e-3)  # compile outside the timing
+    problem = Problem(case.tree, targets[0], tol=1e-4, rot_tol=1e-3)
+    problem.solve(case.home)  # compile outside the timing
     wall, cpu, ok, restarts = np.empty(len(path)), np.empty(len(path)), np.empty(len(path), dtype=bool), np.empty(
         len(path))
     q = case.home
     with gc_paused():
         for k, goals in enumerate(targets):
             start, start_cpu = time.perf_counter(), time.thread_time()
-            res = solve(case.tree, goals, q0=q if warm else case.home, tol=1e-4, rot_tol=1e-3)
+            res = problem.solve(q if warm else case.home, goals)
             wall[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
             ok[k], restarts[k] = _met(case, res.q, goals), res.restarts
             q = res.q
@@ -189,7 +191,7 @@ def draw(rows: list[Row], path: str) -> Path:
         ax.axhline(1e3 * budget, color="grey", lw=0.8, ls=":")
         ax.text(float(dof.min()), 1e3 * budget * 1.1, f"{label} budget", color="grey", fontsize=8)
     ax.set(yscale="log", xlabel="chain DoF", ylabel="ms per 6-D solve",
-           title="mjkin.solve per frame (mjkin bench realtime)")
+           title="problem.solve per frame (mjkin bench realtime)")
     ax.set_xscale("log", base=2)
     ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax.legend(fontsize=8, loc="center right")
