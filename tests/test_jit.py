@@ -3,6 +3,9 @@
 import numba
 import numpy as np
 
+import mjkin
+from mjkin.goals import Position
+from mjkin.ik.packed import FIELDS, Packed
 from mjkin.jit import borrowed, borrowed_fields, drop_stale_caches, entry, keep_alive
 
 
@@ -70,17 +73,12 @@ def test_borrowed_views_read_and_write_their_owners():
 
 def test_borrowed_fields_are_the_structrefs_own_arrays():
     """A packed problem's fields, read without reference counts, are its arrays: what is written there is seen."""
-    from mjkin.ik.packed import FIELDS, Packed
-
     @numba.njit
     def first_q_plus_one(pk):
         fields = borrowed_fields(pk)
         q = fields[8]
         q[0, 0] += 1.0
         return fields[4], q[0, 0]
-
-    import mjkin
-    from mjkin.goals import Position
 
     problem = mjkin.Problem(mjkin.load("arm7"), Position("ee", (0.3, 0.1, 0.4)))
     problem.solve()

@@ -174,7 +174,7 @@ def encode(tree: Tree, st: Structure, given: tuple[Goal, ...]) -> Program:
         raise GoalError(f"expected {G} goals of the problem's structure, got {len(given)}")
     gs = given if G == 1 else tuple(given[i] for i in st.order)
     try:
-        batch = gs[0].batch() if G == 1 else broadcast([g.batch() for g in gs])
+        batch = broadcast([g.batch() for g in gs])
     except ValueError:
         raise GoalError(f"goal targets have different batch sizes: {[g.batch() for g in gs]}") from None
     if len(batch) > 1:
