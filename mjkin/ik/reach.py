@@ -16,7 +16,9 @@ have to move for the chain to follow (the goal is outside the ring
 the new points are found base to tip, each joint turning its next point onto
 the wanted one (hinges about their axis, ball joints by the shortest arc, both
 clamped into their limits); on planar chains one pass is exact, on chains of
-ball joints the passes repeat until the tool is within ``tol``. Like the thesis
+ball joints the passes repeat until the tool is within ``tol``. Passes that stand
+still (a chain folded on the goal's line is a fixed point of them) get one more
+run, started stretched toward the goal. Like the thesis
 says, it behaves badly with joint limits (a clamped joint leaves the points
 where the pass did not put them; the next pass starts from there). A hinge in a
 3-D chain cannot put its next point where the pass wants it (it turns in one
@@ -222,16 +224,15 @@ def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int, 
     dist = float(np.linalg.norm(goal - pts[0]))
     total, inner = float(lengths.sum()), max(0.0, 2 * float(lengths.max(initial=0.0)) - float(lengths.sum()))
     if len(lengths) == 0 or dist > total * (1 + 1e-12) or dist < inner * (1 - 1e-12):
-        if len(lengths) and dist > total:  # stretched straight toward the goal
-            way = (goal - pts[0]) / dist
-            chain.align(q, pts[0] + np.concatenate([[0.0], np.cumsum(lengths)])[:, None] * way, groups)
+        if len(lengths) and dist > total:
+            _stretch(chain, q, pts, goal, lengths, groups)
         elif len(lengths):  # folded toward it as far as one pass goes
             chain.align(q, reach_points(pts, goal, chain.normal)[0], groups)
         e = float(np.linalg.norm(goal - chain.points(q)[0][-1]))
         if len(lengths) and len(hist_q) > 1:
             hist_q[1], hist_err[1, 0] = q, e
         return int(len(lengths) > 0), ROOT_WOULD_MOVE, e
-    best, best_q, since, pinned = np.inf, q.copy(), 0, False
+    best, best_q, since, pinned, kicked = np.inf, q.copy(), 0, False, False
     for it in range(max_iters + 1):
         pts, _ = chain.points(q)
         e = float(np.linalg.norm(goal - pts[-1]))
@@ -243,6 +244,12 @@ def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int, 
             since += 1
         if e <= tol:
             return it, CONVERGED, e
+        if since >= PATIENCE and not kicked:
+            # stalled: a chain folded on the line through the goal is a fixed point of the passes (each link's
+            # nearest move keeps it on the line); one more run starts stretched toward the goal, off that fold
+            kicked, since = True, 0
+            _stretch(chain, q, pts, goal, np.linalg.norm(np.diff(pts, axis=0), axis=1), groups)
+            continue
         if since >= PATIENCE:
             q[:] = best_q
             return it, LIMITS if pinned else UNREACHABLE, best
@@ -254,6 +261,12 @@ def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int, 
         pinned = chain.align(q, reach_points(pts, goal, chain.normal)[0], groups)
     q[:] = best_q
     return max_iters, MAX_ITERATIONS, best
+
+
+def _stretch(chain: _Chain, q: Array, pts: Array, goal: Array, lengths: Array, groups: list[list[int]]) -> None:
+    """Turn ``q (nq,)`` in place so the chain's points lie on the ray from the root toward ``goal``."""
+    way = _toward(goal - pts[0], pts[1] - pts[0])
+    chain.align(q, pts[0] + np.concatenate([[0.0], np.cumsum(lengths)])[:, None] * way, groups)
 
 
 def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, max_iters: int,
