@@ -80,6 +80,26 @@ def test_unknown_names_list_the_known_ones():
         t.pose(t.qpos0, "tip", "geom")  # type: ignore[arg-type]
 
 
+not_a_name = st.one_of(st.none(), st.integers(), st.floats(), st.binary(), st.lists(st.text(max_size=3), max_size=2),
+                       st.dictionaries(st.text(max_size=2), st.integers(), max_size=1), st.tuples(st.text(max_size=2)))
+
+
+@given(not_a_name, st.sampled_from([None, "site", "body"]), st.booleans())
+def test_a_frame_name_that_is_not_a_string_is_an_unknown_name(name, kind, batch):
+    """Found by reading: an unhashable name (a list) got Python's raw TypeError from the frame cache's lookup."""
+    t = mjkin.load(TWO_LINK)
+    q = t.qpos0[None] if batch else t.qpos0
+    listed = {"site": "'tip'", "body": "'b'", None: "'tip'.*'b'"}[kind]  # the names that exist
+    for call in (lambda: t.pose(q, name, kind), lambda: t.jacobian(q, name, kind)):
+        with pytest.raises(mjkin.UnknownNameError, match=listed) as info:
+            call()
+        assert "\n" not in str(info.value)
+    with pytest.raises(mjkin.InputError, match="kind"):
+        t.pose(q, "tip", [kind])  # type: ignore[arg-type]
+    with pytest.raises(mjkin.InputError, match="kind"):
+        t.id("tip", [kind])  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("q, text", [
     (np.zeros(3), r"shape \(3,\).*\(\.\.\., 2\)"),
     (np.zeros((4, 1)), "shape"),

@@ -187,10 +187,10 @@ class Tree:
 
     def id(self, name: str, kind: Kind) -> int:
         """MuJoCo id of a named body, joint or site; :class:`UnknownNameError` lists the names."""
-        if kind not in self.ids:
+        if not isinstance(kind, str) or kind not in self.ids:
             raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
         ids = self.ids[kind]
-        if name not in ids:
+        if not isinstance(name, str) or name not in ids:
             raise UnknownNameError(kind, name, list(ids))
         return ids[name]
 
@@ -200,7 +200,7 @@ class Tree:
             raise InputError(f"frame kind must be 'site', 'body' or None, not {kind!r}")
         if kind is None:
             for k in ("site", "body"):
-                if name in self.ids[k]:
+                if isinstance(name, str) and name in self.ids[k]:
                     return k, self.ids[k][name]  # type: ignore[return-value]
             raise UnknownNameError("site or body", name, {"sites": self.ids["site"], "bodies": self.ids["body"]})
         return kind, self.id(name, kind)
@@ -249,7 +249,10 @@ class Tree:
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
-        chain = self.chains.get((name, kind))  # a frame seen before and one float64 C-contiguous q:
+        try:
+            chain = self.chains.get((name, kind))  # a frame seen before and one float64 C-contiguous q:
+        except TypeError:  # an unhashable name or kind is no frame: the checked path below says so
+            chain = None
         if (chain is not None and type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
                 and q.flags.c_contiguous and chain_pose_direct(chain, q, T := np.empty((4, 4)))):
             return T  # one compiled call, which checks q too (else the checked path below says what is wrong)
@@ -262,8 +265,8 @@ class Tree:
 
     def _chain(self, name: str, kind: Kind | None) -> Array:
         """The chain of a frame (:mod:`mjkin.kinematics.chain`), from :attr:`chains` (made there once)."""
+        body, local = self.frame_body(name, kind)  # raises for what names no frame
         if (name, kind) not in self.chains:
-            body, local = self.frame_body(name, kind)
             self.chains[name, kind] = chain_of(self, ancestors(self, body), local)
         return self.chains[name, kind]
 
