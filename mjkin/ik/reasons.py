@@ -121,7 +121,8 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     goals = _positions(tree, prog, carried)
     for _, body, point, target in goals:
         anchor, bound = reach_bound(tree, body, point, active, q0)
-        far = np.linalg.norm(target - anchor, axis=-1) > bound + problem.tol
+        with np.errstate(over="ignore"):  # a distance past the float range is inf, and out of reach all the same
+            far = np.linalg.norm(target - anchor, axis=-1) > bound + problem.tol
         reason[failed & far] = OUT_OF_REACH
     if goals and not carried:
         blocked = _limits(problem, prog, q0, goals[0])
