@@ -1,10 +1,10 @@
 """Progress bars for long CLI work (on a terminal only), and a note on stderr while numba compiles.
 
-The first run compiles mjkin's kernels (about a minute for the IK path; later
+The first run compiles mjkin's kernels (minutes on a small machine; later
 runs load them from the disk cache). numba announces every real compilation
 (a cache miss, never a cache hit) as a ``"numba:compile"`` event; while enabled
 (the CLI), the first such event prints :data:`COMPILING` once on stderr, on a
-terminal or not, so a run that sits still for a minute (in CI, or piped into
+terminal or not, so a run that sits still for minutes (in CI, or piped into
 ``tee``) is explained. Bars show no rate or ETA until their first item is done,
 since that item may include the compilation and would make the estimate for
 the rest hours long; then the clock starts afresh.
@@ -20,7 +20,7 @@ from numba.core import event
 
 T = TypeVar("T")
 
-COMPILING = "compiling kernels (first run only, about a minute)..."
+COMPILING = "compiling kernels (first run only, a few minutes)..."
 
 _enabled = False
 _said = False  # COMPILING was printed in this process

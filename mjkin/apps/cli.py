@@ -483,7 +483,7 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     """Compile every kernel once (or load it from the cache), so later runs start at once."""
     from .warmup import compilations, warmup
 
-    print("preparing mjkin's kernels (compiling them takes about a minute, loading them from the cache a second)...",
+    print("preparing mjkin's kernels (compiling them takes minutes, loading them from the cache a second)...",
           flush=True)
     before = compilations()
     seconds = warmup()

@@ -1,6 +1,6 @@
 """Compile every kernel once, ahead of use (``mjkin warmup``).
 
-numba compiles mjkin's kernels on first use (about a minute for the IK path)
+numba compiles mjkin's kernels on first use (minutes on a small machine)
 and caches them on disk (see :func:`mjkin.jit.cache_dir`). A Dockerfile or a
 CI cache step runs ``mjkin warmup`` once so that later processes start in a
 second. The kernels' types do not depend on the model, so two small bundled
