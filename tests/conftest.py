@@ -9,6 +9,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
+# before mujoco is imported: it picks its GL backend then, and a later MUJOCO_GL would stop mjkin's own fallback
+# to EGL (found running the suite without MUJOCO_GL: the renderer went to GLFW, with no display)
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 import mujoco
 import numpy as np
 import pytest
@@ -168,5 +172,3 @@ def pytest_report_header(config: pytest.Config) -> str:
     root = shared_models_dir()
     return f"mjkin models: {len(bundled())} bundled, {len(gym_assets())} gymnasium, {len(shared())} shared ({root})"
 
-
-os.environ.setdefault("MUJOCO_GL", "egl")
