@@ -384,7 +384,8 @@ class Painter:
             self.renderer = mujoco.Renderer(model, height, width)
         except Exception as e:  # no GL context: say how to get one
             raise MjkinIOError(f"cannot start offscreen rendering ({' '.join(str(e).split())}); on a machine "
-                               f"without a display set MUJOCO_GL=egl (now {os.environ.get('MUJOCO_GL')!r})") from None
+                               f"without a display set MUJOCO_GL=egl before mujoco is imported "
+                               f"(now {os.environ.get('MUJOCO_GL')!r})") from None
         finally:
             vis.offwidth, vis.offheight, quality.shadowsize = max(kept[0], width), max(kept[1], height), kept[2]
 

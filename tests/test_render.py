@@ -562,3 +562,18 @@ def test_no_coincident_caps_between_linked_geoms(src):
         for g2, b2, c2, r2 in caps[i + 1:]:
             if b1 != b2 and np.linalg.norm(c1 - c2) < 1e-9:
                 assert abs(r1 - r2) > 1e-4 * max(r1, r2), f"geoms {m.geom(g1).name} and {m.geom(g2).name} z-fight"
+
+
+def test_a_renderer_that_cannot_start_says_how_to_get_one(monkeypatch):
+    """No GL context (MuJoCo's error): one line naming MUJOCO_GL=egl and when it must be set, and the model's
+    offscreen settings put back."""
+    def refuse(*args, **kwargs):
+        raise mujoco.FatalError("gladLoadGL error\nno context")
+
+    tree = tree_of("arm7")
+    kept = tree.model.vis.global_.offwidth, tree.model.vis.quality.shadowsize
+    monkeypatch.setattr(mujoco, "Renderer", refuse)
+    with pytest.raises(mjkin.MjkinIOError, match="MUJOCO_GL=egl before mujoco is imported") as info:
+        render.Painter(tree, 64, 48)
+    assert "\n" not in str(info.value) and "gladLoadGL error no context" in str(info.value)
+    assert (tree.model.vis.global_.offwidth, tree.model.vis.quality.shadowsize) == kept
