@@ -251,12 +251,14 @@ class Problem:
         scipy's Sobol sequence costs ~0.5 ms, ten easy solves, so a seed's starts are
         drawn once per tree (:data:`SEEDED_STARTS`) and each problem gets a copy.
         """
+        def draw() -> Array:  # seed None: fresh entropy
+            return np.ascontiguousarray(qspace.random(self.tree, np.random.default_rng(self.seed), n, spread=True))
+
         if self.seed is None:
-            return np.ascontiguousarray(qspace.random(self.tree, np.random.default_rng(), n, spread=True))
+            return draw()
         drawn = SEEDED_STARTS.setdefault(self.tree, {})
         if (self.seed, n) not in drawn:
-            drawn[self.seed, n] = np.ascontiguousarray(
-                qspace.random(self.tree, np.random.default_rng(self.seed), n, spread=True))
+            drawn[self.seed, n] = draw()
         return drawn[self.seed, n].copy()
 
     # ------------------------------------------------------------ once per solve
