@@ -248,7 +248,7 @@ def reach_one(chain: _Chain, q: Array, goal: Array, tol: float, max_iters: int, 
             # stalled: a chain folded on the line through the goal is a fixed point of the passes (each link's
             # nearest move keeps it on the line); one more run starts stretched toward the goal, off that fold
             kicked, since = True, 0
-            _stretch(chain, q, pts, goal, np.linalg.norm(np.diff(pts, axis=0), axis=1), groups)
+            _stretch(chain, q, pts, goal, lengths, groups)
             continue
         if since >= PATIENCE:
             q[:] = best_q
