@@ -110,51 +110,55 @@ def _fk_in(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos:
 def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
     """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky.
 
-    ``M (k, k)`` and ``b (k,)``, ``k = min(A.shape)``, are its scratch.
+    ``M (k, k)`` and ``b (k,)``, ``k = min(A.shape)``, are its scratch. The factor's
+    diagonal is kept inverted, so a solve divides ``k`` times, not ``k²`` (a 6x7
+    step is the IK loop's largest single cost).
     """
     m, n = A.shape
     tall = m > n
     k = n if tall else m
-    for i in range(k):
-        if tall:
+    if tall:  # M = AᵀA, b = Aᵀe (lower triangle)
+        for i in range(k):
             acc = 0.0
             for r in range(m):
                 acc += A[r, i] * e[r]
             b[i] = acc
-        else:
-            b[i] = e[i]
-    for i in range(k):
-        for j in range(i + 1):
-            acc = 0.0
-            if tall:
+            for j in range(i + 1):
+                acc = 0.0
                 for r in range(m):
                     acc += A[r, i] * A[r, j]
-            else:
+                M[i, j] = acc
+    else:  # M = AAᵀ, b = e
+        for i in range(k):
+            b[i] = e[i]
+            for j in range(i + 1):
+                acc = 0.0
                 for c in range(n):
                     acc += A[i, c] * A[j, c]
-            M[i, j] = acc
-        M[i, i] += lam2
-    for i in range(k):  # in-place Cholesky, lower triangle: M = L Lᵀ
-        for j in range(i + 1):
+                M[i, j] = acc
+    for i in range(k):  # in place, lower triangle: M + λ²I = L Lᵀ, with 1 / L[i, i] on the diagonal
+        for j in range(i):
             acc = M[i, j]
             for r in range(j):
                 acc -= M[i, r] * M[j, r]
-            if i == j:
-                M[i, i] = np.sqrt(max(acc, 1e-300))
-            else:
-                M[i, j] = acc / M[j, j]
+            M[i, j] = acc * M[j, j]
+        acc = M[i, i] + lam2
+        for r in range(i):
+            acc -= M[i, r] * M[i, r]
+        M[i, i] = 1.0 / np.sqrt(max(acc, 1e-300))
     for i in range(k):  # L y = b
         acc = b[i]
         for r in range(i):
             acc -= M[i, r] * b[r]
-        b[i] = acc / M[i, i]
+        b[i] = acc * M[i, i]
     for i in range(k - 1, -1, -1):  # Lᵀ z = y
         acc = b[i]
         for r in range(i + 1, k):
             acc -= M[r, i] * b[r]
-        b[i] = acc / M[i, i]
+        b[i] = acc * M[i, i]
     if tall:
-        x[:] = b
+        for c in range(n):
+            x[c] = b[c]
     else:
         for c in range(n):
             acc = 0.0
@@ -248,8 +252,9 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
         e = e_all[:r1 - r0]
         for r in range(r1 - r0):
             acc = -k * gl[r]
-            for c in range(nv):
-                acc -= Jl[r, c] * dq[c]
+            if lv > 0:  # what the levels above already move (nothing yet at the first)
+                for c in range(nv):
+                    acc -= Jl[r, c] * dq[c]
             e[r] = acc
         if lv == 0:  # P is diagonal here (the unlocked dofs): no products
             A = Jl
