@@ -507,9 +507,18 @@ def cross2(a: ArrayLike, b: ArrayLike) -> Array:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
+STRAIGHT = 1e-12  # convex_hull drops a corner this close (x the points' extent) to the edge its neighbours make
+
+
 def convex_hull(points: Array) -> Array:
-    """The convex hull of ``points (n, 2)``, counter-clockwise (Andrew's monotone chain), ``(k, 2)``."""
-    pts = sorted(map(tuple, np.asarray(points, float).reshape(-1, 2)))
+    """The convex hull of ``points (n, 2)``, counter-clockwise (Andrew's monotone chain), ``(k, 2)``.
+
+    A corner within :data:`STRAIGHT` times the points' extent of the segment between its
+    neighbours (a point on an edge but for rounding, or next to another corner) is left
+    out, so every corner turns left by more than rounding, as computed from its edges too.
+    """
+    arr = np.asarray(points, float).reshape(-1, 2)
+    pts = sorted(map(tuple, arr))
     if len(pts) < 3:
         return np.array(pts).reshape(-1, 2)
 
@@ -522,7 +531,23 @@ def convex_hull(points: Array) -> Array:
             out.append(p)
         return out
 
-    return np.array(half(pts)[:-1] + half(pts[::-1])[:-1])
+    hull = half(pts)[:-1] + half(pts[::-1])[:-1]
+    tol = STRAIGHT * float(np.ptp(arr, axis=0).max())
+    while len(hull) >= 3:
+        near = [i for i in range(len(hull)) if _off_segment(hull[i - 1], hull[i], hull[(i + 1) % len(hull)]) <= tol]
+        if not near:
+            break
+        del hull[near[0]]
+    return np.array(hull).reshape(-1, 2)
+
+
+def _off_segment(o: tuple, a: tuple, b: tuple) -> float:
+    """How far the point ``a`` is from the segment ``o``–``b`` (2-D)."""
+    dx, dy = b[0] - o[0], b[1] - o[1]
+    ax, ay = a[0] - o[0], a[1] - o[1]
+    length2 = dx * dx + dy * dy
+    t = min(max((ax * dx + ay * dy) / length2, 0.0), 1.0) if length2 > 0 else 0.0
+    return math.hypot(ax - t * dx, ay - t * dy)
 
 
 CLEAR_RGBA = (0.1, 0.8, 0.3, 1.0)  # the closest pair's line when apart; red when touching
