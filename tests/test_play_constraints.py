@@ -88,7 +88,7 @@ def test_balance_needs_feet_and_the_support_is_the_feet_hull():
 @settings(deadline=None, max_examples=50)
 @given(st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), min_size=3, max_size=20),
        st.tuples(st.floats(-1, 1), st.floats(-1, 1)))
-# found by CI: the middle corner turns by a sine of 6e-220, which the edges' rounding folds to zero
+# found by CI: a sliver whose corner at (1, 0) turns by a cross product of 6e-220, which rounds to zero from its edges
 @example([(0.0, -1.0), (1.0, 0.0), (6.081216636022552e-220, -1.0)], (0.0, 0.0))
 def test_convex_hull_holds_every_point_counter_clockwise(points, probe):
     pts = np.array(points)
