@@ -534,10 +534,11 @@ def convex_hull(points: Array) -> Array:
     hull = half(pts)[:-1] + half(pts[::-1])[:-1]
     tol = STRAIGHT * float(np.ptp(arr, axis=0).max())
     while len(hull) >= 3:
-        near = [i for i in range(len(hull)) if _off_segment(hull[i - 1], hull[i], hull[(i + 1) % len(hull)]) <= tol]
-        if not near:
+        near = next((i for i in range(len(hull))
+                     if _off_segment(hull[i - 1], hull[i], hull[(i + 1) % len(hull)]) <= tol), None)
+        if near is None:
             break
-        del hull[near[0]]
+        del hull[near]
     return np.array(hull).reshape(-1, 2)
 
 
