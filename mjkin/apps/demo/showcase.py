@@ -4,7 +4,8 @@
    pinv, DLS and CCD: every solver step is shown (eased between steps) while the
    tip walks onto (−20, 5), then toward the unreachable (−35, 5) from the start.
 2. ``arm`` — the 7-DoF arm's effector follows a Cartesian path with rounded
-   corners and minimum-jerk timing around two obstacles, solved frame by frame.
+   corners and minimum-jerk timing around two obstacles, solved frame by frame with the arm kept clear
+   of the obstacles and of itself.
 3. ``walk`` — the primate walks heel to toe, seen from the side by a tracking camera.
 
 Every scene yields its frames one at a time (see :func:`mjkin.render.frames`), so
@@ -92,14 +93,25 @@ def arm_with_obstacles() -> Tree:
     return load(xml.replace("</worldbody>", balls + "</worldbody>"))
 
 
-def scene_arm(width: int, height: int, n: int, fps: float) -> Images:
-    """The 7-DoF arm's effector along a rounded, eased path around two obstacles."""
+def arm_motion(n: int, fps: float) -> tuple[Tree, Array, motion.Trajectory]:
+    """The arm scene's tree, effector path ``(n, 3)`` (world, m) and the trajectory that follows it.
+
+    From the home key through :data:`ARM_STOPS` and back, corners rounded, eased; every frame
+    keeps the arm clear of the obstacles and of itself (``avoid_collisions``).
+    """
     tree = arm_with_obstacles()
     home = tree.model.key_qpos[0].copy()
     start = tree.pose(home, "ee")[:3, 3]
     stops = np.vstack([start, ARM_STOPS, start])
     path = motion.waypoints(stops, n, corner=0.12, ease=True)
-    traj = motion.follow(tree, "ee", path, q0=home, fps=fps, extra=[Rest(q_rest=home, weight=0.3, priority=1)])
+    traj = motion.follow(tree, "ee", path, q0=home, fps=fps, extra=[Rest(q_rest=home, weight=0.3, priority=1)],
+                         avoid_collisions=True)
+    return tree, path, traj
+
+
+def scene_arm(width: int, height: int, n: int, fps: float) -> Images:
+    """The 7-DoF arm's effector along a rounded, eased path around two obstacles."""
+    tree, path, traj = arm_motion(n, fps)
     scene = Scene(tree)
     contacts = np.array([len(scene.contacts(q)) for q in traj.q])
     err = np.linalg.norm(tree.pose(traj.q, "ee")[:, :3, 3] - path, axis=-1)
