@@ -17,9 +17,11 @@ import mujoco
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
+from numba.core import event
 
 import mjkin
 from mjkin.apps.bench.report import shared_models_dir
+from mjkin.progress import COMPILING
 
 # Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
 # depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not
@@ -172,3 +174,27 @@ def pytest_report_header(config: pytest.Config) -> str:
     root = shared_models_dir()
     return f"mjkin models: {len(bundled())} bundled, {len(gym_assets())} gymnasium, {len(shared())} shared ({root})"
 
+
+class _CompileNotice(event.Listener):
+    """Says once, past pytest's output capture, that numba is compiling: on a fresh checkout the dots stop for
+    minutes while the kernels compile (a helper's clean-clone run read that silence as a hang)."""
+
+    def __init__(self, config: pytest.Config) -> None:
+        self.config, self.said = config, False
+
+    def on_start(self, ev: event.Event) -> None:
+        plugins = self.config.pluginmanager  # the reporter registers after conftest's configure: looked up here
+        reporter, capture = plugins.get_plugin("terminalreporter"), plugins.get_plugin("capturemanager")
+        module = getattr(getattr(ev.data.get("dispatcher"), "py_func", None), "__module__", "") or ""
+        if reporter is None or capture is None or self.said or not module.startswith("mjkin"):
+            return  # a test's own small function (test_jit, test_progress) is not the kernels' compile
+        self.said = True
+        with capture.global_and_fixture_disabled():  # inside a test, stdout is captured
+            reporter.write_line(f"mjkin: {COMPILING}")
+
+    def on_end(self, ev: event.Event) -> None:
+        pass
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    event.register("numba:compile", _CompileNotice(config))
