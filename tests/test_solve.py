@@ -399,6 +399,19 @@ def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):
     assert seen == {threading.get_ident()}
 
 
+@given(st.integers(0, 100_000), st.integers(1, 64), st.integers(1, 256))
+def test_chunks_cover_the_batch_once_and_shrink(n, workers, min_chunk):
+    from mjkin.parallel import chunk_edges
+
+    edges = np.array(chunk_edges(n, workers, min_chunk))
+    sizes = np.diff(edges)
+    assert edges[0] == 0 and edges[-1] == n and (sizes > 0).all()
+    assert (sizes >= min(n, min_chunk)).all()  # no sliver: a rest smaller than min_chunk joins the last chunk
+    assert (sizes[:-1] >= sizes[1:] - min_chunk).all()  # large first, small last (the last may take a rest)
+    if n >= 4 * workers * min_chunk:  # plenty of work: the first chunk leaves the others most of it
+        assert sizes[0] == -(-n // (2 * workers)) and len(sizes) >= 2 * workers
+
+
 # -------------------------------------------------- one compiled specialisation
 def test_batch_sizes_share_one_compiled_kernel(rng):
     tree = tree_of("arm7")
