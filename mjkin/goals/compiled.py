@@ -112,8 +112,12 @@ def skew_times(v: Array, M: Array, out: Array, r0: int) -> None:
 
 
 @njit_inline
-def log_rotation(E: Array, out: Array) -> float:
-    """Rotation vector of ``E (3, 3)`` into ``out (3,)``; returns its angle in ``[0, π]``."""
+def log_rotation(E: Array, out: Array) -> tuple[float, float]:
+    """Rotation vector of ``E (3, 3)`` into ``out (3,)``; returns its angle ``θ`` in ``[0, π]`` and ``cot(θ/2)``.
+
+    ``cot(θ/2)`` is ``w / |xyz|`` of the quaternion found on the way (inf at ``θ = 0``): what
+    :func:`left_jacobian_inverse` needs, without a sine or cosine.
+    """
     tr = E[0, 0] + E[1, 1] + E[2, 2]
     # Shepperd: pick the largest quaternion component for accuracy
     if tr >= E[0, 0] and tr >= E[1, 1] and tr >= E[2, 2]:
@@ -134,16 +138,19 @@ def log_rotation(E: Array, out: Array) -> float:
     angle = 2.0 * np.arctan2(s, w)
     k = 2.0 / w if s < 1e-12 else angle / s
     out[0], out[1], out[2] = k * x, k * y, k * z
-    return angle
+    return angle, (w / s if s > 0.0 else np.inf)
 
 
 @njit_inline
-def left_jacobian_inverse(phi: Array, theta: float, out: Array) -> None:
-    """``J_l⁻¹(φ) = I - ½[φ]x + c [φ]x²``, the map from world angular velocity to ``dφ/dt``."""
+def left_jacobian_inverse(phi: Array, theta: float, cot_half: float, out: Array) -> None:
+    """``J_l⁻¹(φ) = I - ½[φ]x + c [φ]x²``, the map from world angular velocity to ``dφ/dt``.
+
+    ``θ = |φ|`` and ``cot_half = cot(θ/2)``; ``c = 1/θ² - (1 + cos θ) / (2θ sin θ) = 1/θ² - cot(θ/2) / (2θ)``.
+    """
     if theta < 1e-4:
         c = 1.0 / 12.0 + theta * theta / 720.0
     else:
-        c = 1.0 / (theta * theta) - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(max(theta, 1e-9)))
+        c = 1.0 / (theta * theta) - cot_half / (2.0 * theta)
     x, y, z = phi[0], phi[1], phi[2]
     t2 = x * x + y * y + z * z
     for i in range(3):  # [φ]x² = φφᵀ - |φ|² I
@@ -179,8 +186,8 @@ def orientation_rows(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Arr
         for c in range(3):
             E[a, c] = (R[a, 0] * ga.data[b, i, 3 + 3 * c] + R[a, 1] * ga.data[b, i, 4 + 3 * c]
                        + R[a, 2] * ga.data[b, i, 5 + 3 * c])
-    theta = log_rotation(E, v)
-    left_jacobian_inverse(v, theta, Li)
+    theta, cot_half = log_rotation(E, v)
+    left_jacobian_inverse(v, theta, cot_half, Li)
     for a in range(3):
         g[r0 + a] = w * v[a]
         for j in range(J.shape[1]):

@@ -77,7 +77,8 @@ def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array,
             d0 = kin.jnt_dofadr[jt] + (3 if kin.jnt_type[jt] == FREE else 0)
             for a in range(3):
                 v[a] = -dv[0, d0 + a]
-            left_jacobian_inverse(v, float(np.sqrt(v @ v)), Li)  # J_l⁻¹(-φ) = J_r⁻¹(φ)
+            theta = float(np.sqrt(v @ v))  # J_l⁻¹(-φ) = J_r⁻¹(φ)
+            left_jacobian_inverse(v, theta, 1.0 / np.tan(0.5 * theta) if theta > 0.0 else np.inf, Li)
             for a in range(3):
                 for c in range(3):
                     J[r0 + d0 + a, d0 + c] = Li[a, c]
