@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import mjkin
 from conftest import tree_of
@@ -113,6 +115,34 @@ def test_limits_status_when_a_limit_blocks():
     res = mjkin.solve(tree, G.Position("tip", [-1.5, 0.1, 0.0]), q0=[0.0, 0.3, 0.0])  # behind the shoulder limit
     assert not res.success and res.status in ("limits", "unreachable")
     assert_inside_limits(tree, res.q)
+
+
+def slides_in_a_plane(a: float, b: float) -> mjkin.Tree:
+    """Three slides in the xy-plane (along x, then at angles ``a`` and ``b``), each limited to [-1, 1]."""
+    axes = [(1.0, 0.0), (np.cos(a), np.sin(a)), (np.cos(b), np.sin(b))]
+    xml = "".join(f'<body><joint type="slide" axis="{x} {y} 0" range="-1 1"/><geom type="sphere" size="0.05"/>'
+                  for x, y in axes)
+    return mjkin.load(f'<mujoco><worldbody>{xml}<site name="tip"/>{"</body>" * 3}</worldbody></mujoco>')
+
+
+@given(st.floats(0.3, 2.8), st.floats(0.3, 2.8), st.sampled_from(["auto", "lm", "dls", "pinv"]),
+       st.integers(0, 2 ** 32 - 1))
+def test_a_convex_problem_with_limits_is_solved_from_every_corner(a, b, method, seed):
+    """Redundant slides make the tip linear in q: every reachable target is the one minimum, from any start.
+
+    Starting in a corner, steps push joints into their limits, and the locks must come off again when the
+    target needs those joints back: a lock set afresh each iteration stalled here on 0.3-0.4 % of these
+    (a run of one start: no restart to hide it).
+    """
+    tree = slides_in_a_plane(a, b)
+    rng = np.random.default_rng(seed)
+    P = tree.pose(tree.random_q(rng, 40), "tip")[:, :3, 3]
+    corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T
+    for corner in corners:
+        res = mjkin.solve(tree, G.Position("tip", P), q0=corner, method=method, tol=1e-9,
+                          **({"restarts": 0} if method in ("auto", "lm") else {}))
+        assert res.success.all(), (corner, res.status[~res.success])
+        assert_inside_limits(tree, res.q)
 
 
 def test_result_shapes_and_history():

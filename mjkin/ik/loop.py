@@ -116,6 +116,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     best_q = q.copy()
     q_start = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
+    held = np.zeros(nv, dtype=np.bool_)  # the dofs the last step locked at a limit (see below)
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
     # hard constraints: rows [0, h); the live ones (hard_row), their values and Jacobian at q, the active set
     h = level_rows[0]
@@ -136,9 +137,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns its arguments,
     # and the local arrays are kept alive to the end (keep_alive)
     own = (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q,
-           q_start, locked, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
+           q_start, locked, held, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
     (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start,
-     locked, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
+     locked, held, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
@@ -228,6 +229,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                     qt[0, k] = restarts[used, k] if restart_q[k] else q_start[0, k]
                 used += 1
                 run_it, mu, fresh = 0, lm_c, True
+                held[:] = False
                 dq[:] = 0.0
                 continue
             if since_best >= patience:
@@ -240,6 +242,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
         for d in range(nv):
             locked[d] = not active[d]
+        if L == 1 and not any_hard:  # one level: start from the dofs the last step locked, see _still_pushing
+            for d in range(nv):
+                locked[d] = locked[d] or (held[d] and _still_pushing(d, q, lo, hi, dof_q, dof_j, J, g))
         for r in range(h):
             on[r] = hard_row[r] and s_h[r] < 0.0
         for _ in range(3 + h):  # lock joints the step would push through a limit, activate hard rows it would
@@ -272,7 +277,8 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 break
         any_locked = False
         for d in range(nv):
-            any_locked = any_locked or (locked[d] and active[d])
+            held[d] = locked[d] and active[d]
+            any_locked = any_locked or held[d]
         qt[:] = q
         integrate_kernel(qt, dq, kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
         clip_kernel(qt, kin.jnt_type, kin.jnt_qadr, lo, hi)
@@ -289,6 +295,26 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             status = CONSTRAINT
     keep_alive(own)
     return it, status, used, binding
+
+
+@njit_inline
+def _still_pushing(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: Index, J: Array, g: Array) -> bool:
+    """Dof ``d`` (a hinge or slide) is at a limit, and the cost ``½|g|²`` at ``q (1, nq)`` falls past it.
+
+    That is, the gradient ``Jᵀg`` points inward, so descent points out.
+    A dof the last step locked is locked from the start of the next while this holds, so the step is
+    solved once, not twice (found free, then locked). The gradient's sign is the limit's multiplier at
+    the cost's minimum along the limit: as the run nears it, a joint that would help from inside is
+    freed (and locked again by the step if its step still points out).
+    """
+    jj, qd = dof_j[d], q[0, dof_q[d]]
+    at_lo, at_hi = qd <= lo[jj] + 1e-12, qd >= hi[jj] - 1e-12
+    if not (at_lo or at_hi):
+        return False
+    grad = 0.0
+    for r in range(g.shape[0]):
+        grad += J[r, d] * g[r]
+    return (at_lo and grad > 0.0) or (at_hi and grad < 0.0)
 
 
 @njit
