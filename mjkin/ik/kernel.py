@@ -222,6 +222,16 @@ def step_scratch(m: int, nv: int) -> tuple:
 
 
 @njit_inline
+def _aim(g: Array, scale: float, clamp: float) -> float:
+    """The factor ``k`` of a level's residual ``g`` its step aims to remove: ``scale``, at most ``clamp`` in norm."""
+    n = 0.0
+    for r in range(g.shape[0]):
+        n += g[r] * g[r]
+    n = np.sqrt(n)
+    return scale * (clamp / n if n > clamp else 1.0)
+
+
+@njit_inline
 def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array, alpha: float,
           scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool = False) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
@@ -244,11 +254,7 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
     for lv in range(levels):
         r0, r1 = level_rows[lv], level_rows[lv + 1]
         Jl, gl = J[r0:r1], g[r0:r1]
-        n = 0.0
-        for r in range(r1 - r0):
-            n += gl[r] * gl[r]
-        n = np.sqrt(n)
-        k = scale * (clamp / n if n > clamp else 1.0)
+        k = _aim(gl, scale, clamp)
         e = e_all[:r1 - r0]
         for r in range(r1 - r0):
             acc = -k * gl[r]

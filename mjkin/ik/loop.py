@@ -21,6 +21,7 @@ from mjkin.ik.kernel import (
     BINDING,
     CONSTRAINT,
     CONVERGED,
+    DLS,
     HARD_DAMPING2,
     HARD_TOL,
     LIMITS,
@@ -29,6 +30,7 @@ from mjkin.ik.kernel import (
     TIMEOUT,
     UNREACHABLE,
     Settings,
+    _aim,
     _converged,
     _costs,
     _damped_solve,
@@ -117,6 +119,8 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     q_start = q.copy()
     locked = np.zeros(nv, dtype=np.bool_)
     held = np.zeros(nv, dtype=np.bool_)  # the dofs the last step locked at a limit (see below)
+    warm = np.zeros(nv, dtype=np.bool_)  # those this step starts with locked
+    res = np.empty(m)  # the step's residual, for the locks' multipliers
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
     # hard constraints: rows [0, h); the live ones (hard_row), their values and Jacobian at q, the active set
     h = level_rows[0]
@@ -137,9 +141,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns its arguments,
     # and the local arrays are kept alive to the end (keep_alive)
     own = (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q,
-           q_start, locked, held, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
+           q_start, locked, held, warm, res, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
     (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start,
-     locked, held, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
+     locked, held, warm, res, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
@@ -240,11 +244,10 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             run_it += 1
             for lv in range(L):
                 lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
+        one = L == 1 and not any_hard  # one level: start from the dofs the last step locked, see _still_pushing
         for d in range(nv):
-            locked[d] = not active[d]
-        if L == 1 and not any_hard:  # one level: start from the dofs the last step locked, see _still_pushing
-            for d in range(nv):
-                locked[d] = locked[d] or (held[d] and _still_pushing(d, q, lo, hi, dof_q, dof_j, J, g))
+            warm[d] = one and active[d] and held[d] and _still_pushing(d, q, lo, hi, dof_q, dof_j, J, g)
+            locked[d] = warm[d] or not active[d]
         for r in range(h):
             on[r] = hard_row[r] and s_h[r] < 0.0
         for _ in range(3 + h):  # lock joints the step would push through a limit, activate hard rows it would
@@ -258,10 +261,21 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 dq[:] = 0.0
                 since_best = patience
                 break
+            changed = False
+            if one and (method == LM or method == DLS) and warm.any():  # free a warm lock whose limit's multiplier
+                # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see _wants_in)
+                aim = _aim(g, scale, goal_step)
+                for r in range(m):  # the step's residual: it solved J dq ≈ -aim g (damped)
+                    res[r] = -aim * g[r]
+                    for c in range(nv):
+                        res[r] -= J[r, c] * dq[0, c]
+                for d in range(nv):
+                    if warm[d] and _wants_in(d, q, lo, dof_q, dof_j, J, res):
+                        warm[d] = locked[d] = False
+                        changed = True
             big = _max_abs(dq)
             if big > max_step:
                 dq[0] *= max_step / big
-            changed = False
             for d in range(nv):
                 jj, qd = dof_j[d], q[0, dof_q[d]]
                 if locked[d] or not (kin.jnt_type[jj] == HINGE or kin.jnt_type[jj] == SLIDE):
@@ -304,8 +318,8 @@ def _still_pushing(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: 
     That is, the gradient ``Jᵀg`` points inward, so descent points out.
     A dof the last step locked is locked from the start of the next while this holds, so the step is
     solved once, not twice (found free, then locked). The gradient's sign is the limit's multiplier at
-    the cost's minimum along the limit: as the run nears it, a joint that would help from inside is
-    freed (and locked again by the step if its step still points out).
+    the cost's minimum along the limit, so a joint that would help from inside is freed as the run nears
+    it; damped steps also free a lock their own multiplier rejects (:func:`_wants_in`).
     """
     jj, qd = dof_j[d], q[0, dof_q[d]]
     at_lo, at_hi = qd <= lo[jj] + 1e-12, qd >= hi[jj] - 1e-12
@@ -315,6 +329,22 @@ def _still_pushing(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: 
     for r in range(g.shape[0]):
         grad += J[r, d] * g[r]
     return (at_lo and grad > 0.0) or (at_hi and grad < 0.0)
+
+
+@njit_inline
+def _wants_in(d: int, q: Array, lo: Array, dof_q: Index, dof_j: Index, J: Array, res: Array) -> bool:
+    """Locked dof ``d`` at a limit would move inward at the optimum of the step that kept it fixed.
+
+    The damped step minimises ``|J dq - e|² + λ²|dq|²`` with ``d`` fixed and leaves ``res = e - J dq``:
+    the objective falls as ``d`` moves by ``s`` when ``s Jdᵀ res > 0`` (the sign of the bound's
+    multiplier). The objective's least over the other dofs is convex in ``d``'s value and falls that
+    way at zero, so the step solved again with ``d`` free moves it inward. (Without damping, pinv's
+    minimum-norm choice among equal residuals may push it straight back out: not used there.)
+    """
+    grad = 0.0
+    for r in range(res.shape[0]):
+        grad += J[r, d] * res[r]
+    return grad > 0.0 if q[0, dof_q[d]] <= lo[dof_j[d]] + 1e-12 else grad < 0.0
 
 
 @njit
