@@ -81,17 +81,45 @@ def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array,
 
 
 @njit_inline
+def loop_scratch(kin: Kinematics, ga: GoalArrays, nq: int) -> tuple:
+    """The work arrays of :func:`solve_one` for a problem's sizes (``nq``: the tree's).
+
+    Made once for a range of targets: making them per target took ~0.7 µs of a
+    ~20 µs Panda solve. :func:`solve_one` takes them :func:`borrowed`, so the
+    caller keeps this tuple alive past its last solve.
+    """
+    nv, m, G, L = kin.dof_body.shape[0], ga.row[-1], ga.kind.shape[0], ga.level_rows.shape[0] - 1
+    h = ga.level_rows[0]  # hard constraints: rows [0, h)
+    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
+    hard_row = np.zeros(h, dtype=np.bool_)  # the rows of hard goals (the others in [0, h) are unused)
+    for i in range(G):
+        if ga.hard[i]:
+            hard_row[ga.row[i]:ga.row[i + 1]] = True
+    levels = np.empty(L + 2, dtype=np.int64)  # [active hard rows | the goal levels]
+    levels[1:] = ga.level_rows
+    lam2h = np.empty(L + 1)
+    lam2h[0] = HARD_DAMPING2
+    return (rot, pos, irot, ipos, np.empty((3, 3)), np.empty(3), np.empty((3, 3)), scratch(nv), step_scratch(m, nv),
+            np.empty(m), np.empty(m), np.empty((m, nv)), np.empty((m, nv)), np.empty((G, 2)), np.empty((G, 2)),
+            np.empty(L), np.empty(L), np.empty(L), np.empty((1, nv)), np.empty((1, nq)), np.empty((1, nq)),
+            np.empty((1, nq)), np.empty(nv, dtype=np.bool_), np.empty(nv, dtype=np.bool_),
+            np.empty(nv, dtype=np.bool_), np.empty(m), hard_row, np.empty(h), np.empty((h, nv)), np.empty(h),
+            np.empty(h, dtype=np.bool_), levels, lam2h, np.empty(G))
+
+
+@njit_inline
 def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st: Settings, max_iters: int,
               restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], err_out: Array,
-              hist_q: Array, hist_err: Array) -> tuple:
+              hist_q: Array, hist_err: Array, work: tuple) -> tuple:
     """Solve target ``b`` from ``q (1, nq)`` (overwritten with the best configuration found).
 
     ``restarts (K, nq)``: starts tried in turn when a run stalls or uses up
     ``max_iters``; only the entries where ``restart_q (nq,)`` is True are taken
     from them, the others keep this target's start values. ``active (nv,)``:
-    dofs allowed to move. Returns (iterations, status, restarts used, binding
-    goal); the status is ``TIMEOUT`` when ``st.timeout_ns`` ran out first, and the
-    binding goal the hard goal whose constraint holds the answer back (-1: none).
+    dofs allowed to move. ``work``: :func:`loop_scratch`, borrowed. Returns
+    (iterations, status, restarts used, binding goal); the status is ``TIMEOUT``
+    when ``st.timeout_ns`` ran out first, and the binding goal the hard goal whose
+    constraint holds the answer back (-1: none).
 
     The loop evaluates one configuration per pass (a start, or a trial step
     from the current one) at a single place, so the inlined kinematics and
@@ -105,48 +133,27 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     nv = kin.dof_body.shape[0]
     level_rows, counted, hard = ga.level_rows, ga.counted, ga.hard
     m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
-    rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
-    fA, ft, fR = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
-    ws, sws = scratch(nv), step_scratch(m, nv)
-    g, gt = np.empty(m), np.empty(m)
-    J, Jt = np.empty((m, nv)), np.empty((m, nv))
-    err, errt = np.empty((G, 2)), np.empty((G, 2))
-    cost, costt = np.empty(L), np.empty(L)
-    lam2 = np.empty(L)
-    dq = np.empty((1, nv))
-    qt = q.copy()  # the configuration evaluated next: a start, or a trial step from q
-    best_q = q.copy()
-    q_start = q.copy()
-    locked = np.zeros(nv, dtype=np.bool_)
-    held = np.zeros(nv, dtype=np.bool_)  # the dofs the last step locked at a limit (see below)
-    warm = np.zeros(nv, dtype=np.bool_)  # those this step starts with locked
-    res = np.empty(m)  # the step's residual, for the locks' multipliers
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
-    # hard constraints: rows [0, h); the live ones (hard_row), their values and Jacobian at q, the active set
-    h = level_rows[0]
-    hard_row = np.zeros(h, dtype=np.bool_)
-    for i in range(G):
-        if hard[i]:
-            hard_row[ga.row[i]:ga.row[i + 1]] = True
-    any_hard = hard_row.any()
-    s_h, J_h, best_s = np.zeros(h), np.zeros((h, nv)), np.zeros(h)
-    on = np.zeros(h, dtype=np.bool_)  # rows in the active set of this step
-    levels = np.empty(L + 2, dtype=np.int64)  # [active hard rows | the goal levels]
-    levels[1:] = level_rows
-    lam2h = np.empty(L + 1)
-    lam2h[0] = HARD_DAMPING2
-    viol, violt, infeasible, best_inf, inf_ref = 0.0, 0.0, 0.0, np.inf, 0.0
-    best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
-    run_ref = np.empty(G)  # each goal's error (in tolerances) at this run's last progress
-    # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns its arguments,
-    # and the local arrays are kept alive to the end (keep_alive)
-    own = (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q,
-           q_start, locked, held, warm, res, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref)
-    (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start,
-     locked, held, warm, res, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = borrowed(own)
+    # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns them all
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
+    (rot, pos, irot, ipos, fA, ft, fR, ws, sws, g, gt, J, Jt, err, errt, cost, costt, lam2, dq, qt, best_q, q_start,
+     locked, held, warm, res, hard_row, s_h, J_h, best_s, on, levels, lam2h, run_ref) = work
+    # qt: the configuration evaluated next (a start, or a trial step from q); held: the dofs the last step
+    # locked at a limit, warm: those the next step starts with locked (see below); res: the step's residual,
+    # for the locks' multipliers; run_ref: each goal's error (in tolerances) at this run's last progress
+    qt[:] = q
+    best_q[:] = q
+    q_start[:] = q
+    held[:] = False
+    # hard constraints: rows [0, h); the live ones (hard_row), their values and Jacobian at q (s_h, J_h; set
+    # by the first pass), the active set of a step (on)
+    h = level_rows[0]
+    any_hard = hard_row.any()
+    best_s[:] = 0.0
+    viol, violt, infeasible, best_inf, inf_ref = 0.0, 0.0, 0.0, np.inf, 0.0
+    best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
     mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
     scale, fresh, any_locked, corrected = 1.0, True, False, False
@@ -307,7 +314,6 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                         low, binding = best_s[r], i
         if binding >= 0 and status != TIMEOUT and (best_inf > 0.0 or status == UNREACHABLE or status == LIMITS):
             status = CONSTRAINT
-    keep_alive(own)
     return it, status, used, binding
 
 
@@ -388,13 +394,16 @@ def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Sett
                 status: Index, used: Index, binding: Index, err: Array, hist_q: Array, hist_err: Array, lo: int,
                 hi: int) -> None:
     """Solve targets ``lo <= b < hi`` of ``q (B, nq)`` in place; see :func:`solve_one`."""
+    own = loop_scratch(kin, ga, q.shape[1])
+    work = borrowed(own)
     for b in range(lo, hi):
         it, code, u, bind = solve_one(kin, ga, b, q[b:b + 1], method, st, max_iters, restarts, restart_q, active,
-                                      err[b], hist_q[b], hist_err[b])
+                                      err[b], hist_q[b], hist_err[b], work)
         iters[b] = it
         status[b] = code
         used[b] = u
         binding[b] = bind
+    keep_alive(own)
 
 
 @njit
