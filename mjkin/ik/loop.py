@@ -251,9 +251,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             run_it += 1
             for lv in range(L):
                 lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
-        one = L == 1 and not any_hard  # one level: start from the dofs the last step locked, see _still_pushing
+        one = L == 1 and not any_hard  # one level: start from the dofs the last step locked, see _inward
         for d in range(nv):
-            warm[d] = one and active[d] and held[d] and _still_pushing(d, q, lo, hi, dof_q, dof_j, J, g)
+            warm[d] = one and active[d] and held[d] and _inward(d, q, lo, hi, dof_q, dof_j, J, g) > 0.0
             locked[d] = warm[d] or not active[d]
         for r in range(h):
             on[r] = hard_row[r] and s_h[r] < 0.0
@@ -270,14 +270,14 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 break
             changed = False
             if one and (method == LM or method == DLS) and warm.any():  # free a warm lock whose limit's multiplier
-                # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see _wants_in)
+                # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see _inward)
                 aim = _aim(g, scale, goal_step)
                 for r in range(m):  # the step's residual: it solved J dq ≈ -aim g (damped)
                     res[r] = -aim * g[r]
                     for c in range(nv):
                         res[r] -= J[r, c] * dq[0, c]
                 for d in range(nv):
-                    if warm[d] and _wants_in(d, q, lo, dof_q, dof_j, J, res):
+                    if warm[d] and _inward(d, q, lo, hi, dof_q, dof_j, J, res) > 0.0:
                         warm[d] = locked[d] = False
                         changed = True
             big = _max_abs(dq)
@@ -318,39 +318,25 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
 
 
 @njit_inline
-def _still_pushing(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: Index, J: Array, g: Array) -> bool:
-    """Dof ``d`` (a hinge or slide) is at a limit, and the cost ``½|g|²`` at ``q (1, nq)`` falls past it.
+def _inward(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: Index, J: Array, v: Array) -> float:
+    """``J[:, d]ᵀ v``, signed to point into dof ``d``'s range from the limit it sits at in ``q (1, nq)`` (0 at none).
 
-    That is, the gradient ``Jᵀg`` points inward, so descent points out.
-    A dof the last step locked is locked from the start of the next while this holds, so the step is
-    solved once, not twice (found free, then locked). The gradient's sign is the limit's multiplier at
-    the cost's minimum along the limit, so a joint that would help from inside is freed as the run nears
-    it; damped steps also free a lock their own multiplier rejects (:func:`_wants_in`).
+    Both uses read a limit's multiplier from its sign. With ``v = g``, > 0 means the cost ``½|g|²`` falls
+    past the limit: a dof the last step locked there starts the next step locked, so the step is solved
+    once, not twice (found free, then locked). The sign is the multiplier at the cost's least along the
+    limit, so a joint that would help from inside is freed as the run nears it. With ``v = res = e - J dq``
+    after a damped step that kept ``d`` fixed (it minimised ``|J dq - e|² + λ²|dq|²``), > 0 means that
+    objective falls as ``d`` moves inward; its least over the other dofs is convex in ``d``'s value, so the
+    step solved again with ``d`` free moves it inward. (Without damping, pinv's minimum-norm choice among
+    equal residuals may push it straight back out: not used there.)
     """
     jj, qd = dof_j[d], q[0, dof_q[d]]
-    at_lo, at_hi = qd <= lo[jj] + 1e-12, qd >= hi[jj] - 1e-12
-    if not (at_lo or at_hi):
-        return False
-    grad = 0.0
-    for r in range(g.shape[0]):
-        grad += J[r, d] * g[r]
-    return (at_lo and grad > 0.0) or (at_hi and grad < 0.0)
-
-
-@njit_inline
-def _wants_in(d: int, q: Array, lo: Array, dof_q: Index, dof_j: Index, J: Array, res: Array) -> bool:
-    """Locked dof ``d`` at a limit would move inward at the optimum of the step that kept it fixed.
-
-    The damped step minimises ``|J dq - e|² + λ²|dq|²`` with ``d`` fixed and leaves ``res = e - J dq``:
-    the objective falls as ``d`` moves by ``s`` when ``s Jdᵀ res > 0`` (the sign of the bound's
-    multiplier). The objective's least over the other dofs is convex in ``d``'s value and falls that
-    way at zero, so the step solved again with ``d`` free moves it inward. (Without damping, pinv's
-    minimum-norm choice among equal residuals may push it straight back out: not used there.)
-    """
-    grad = 0.0
-    for r in range(res.shape[0]):
-        grad += J[r, d] * res[r]
-    return grad > 0.0 if q[0, dof_q[d]] <= lo[dof_j[d]] + 1e-12 else grad < 0.0
+    side = 1.0 if qd <= lo[jj] + 1e-12 else (-1.0 if qd >= hi[jj] - 1e-12 else 0.0)
+    dot = 0.0
+    if side != 0.0:
+        for r in range(v.shape[0]):
+            dot += J[r, d] * v[r]
+    return side * dot
 
 
 @njit
