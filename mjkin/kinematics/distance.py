@@ -78,8 +78,9 @@ def segments_closest(a: Array, u: Array, b: Array, w: Array) -> tuple[float, flo
     A = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
     E = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     B = u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
-    C = u[0] * (a[0] - b[0]) + u[1] * (a[1] - b[1]) + u[2] * (a[2] - b[2])
-    F = w[0] * (a[0] - b[0]) + w[1] * (a[1] - b[1]) + w[2] * (a[2] - b[2])
+    d0, d1, d2 = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    C = u[0] * d0 + u[1] * d1 + u[2] * d2
+    F = w[0] * d0 + w[1] * d1 + w[2] * d2
     tiny = 1e-300
     if A <= tiny and E <= tiny:
         return 0.0, 0.0
@@ -90,7 +91,6 @@ def segments_closest(a: Array, u: Array, b: Array, w: Array) -> tuple[float, flo
     # s = (B F - C E) / (A E - B²) = -n·(d × w) / |n|² with n = u × w, d = a - b (Lagrange's identity): the
     # cross products keep their accuracy where A E - B² cancels (near-parallel segments crossing put 1.6e-9
     # between segments that meet, with 2 m segments 6e-8 rad apart)
-    d0, d1, d2 = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     n0, n1, n2 = u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]
     denom = n0 * n0 + n1 * n1 + n2 * n2
     # only exactly parallel segments take s = 0: a cut-off (1e-14 A E) put two segments crossing at a hair's
