@@ -156,7 +156,11 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     viol, violt, infeasible, best_inf, inf_ref = 0.0, 0.0, 0.0, np.inf, 0.0
     best, best_met = np.inf, -1  # merit and levels met of the best configuration (returned)
     status, it, run_it, used, since_best, attempts = MAX_ITERATIONS, 0, 0, 0, 0, 0
-    mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one
+    mu = lm_c  # LM: λ² = λ_min² + μ · cost, μ shrinks after a good step and grows after a bad one:
+    # gently (÷2, ×4) where a rejection only damps; with hard rows a rejection also halves the step, and
+    # the gentle pair then used up its iterations against a blocking constraint (test_render's blocked
+    # target) instead of settling there: ÷3, ×10 with them
+    mu_down, mu_up = (3.0, 10.0) if any_hard else (2.0, 4.0)
     scale, fresh, any_locked, corrected = 1.0, True, False, False
     while True:
         _fk_in(kin, qt, rot, pos, irot, ipos, fA, ft, fR)
@@ -191,7 +195,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 s_h[:] = g[:h]
                 J_h[:] = J[:h]
             if not fresh:
-                mu = max(mu / 3.0, 1e-9)
+                mu = max(mu / mu_down, 1e-9)
             keep = 1.0 - (st.progress if used < restarts.shape[0] else 1e-9)
             if fresh:
                 since_best = 0
@@ -225,7 +229,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
         else:  # rejected: damp harder (LM) or halve the step
             attempts += 1
             if method == LM:
-                mu *= 10.0
+                mu *= mu_up
                 for lv in range(L):
                     lam2[lv] = lam * lam + mu * cost[lv]
             if method != LM or any_hard:
