@@ -15,10 +15,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import mujoco
+import numba
 import numpy as np
+from numba import types
 
 from ...errors import InputError
 from ...files import check_writable, write_text
+from ...jit import entry
+from ...kinematics.chain import ancestors, chain_of, chain_pose_direct
 from ...kinematics.tree import Tree, load
 from ...progress import track
 from . import ALL, FK_MODELS, add_arguments
@@ -94,6 +98,31 @@ def pinocchio_frame_pose(tree: Tree, frame: str, q: np.ndarray) -> Callable[[], 
     return run
 
 
+_VEC, _MAT = types.Array(types.float64, 1, "C"), types.Array(types.float64, 2, "C")
+
+
+def _nothing(chain: np.ndarray, q: np.ndarray, T: np.ndarray) -> bool:
+    """Compiled, it does nothing: a call of it is what numba's call of three arrays costs by itself."""
+    return True
+
+
+def pose_parts(tree: Tree, frame: str, q: np.ndarray, T: np.ndarray) -> list[tuple[str, str, Callable[[], object]]]:
+    """Where ``tree.pose(q, frame, "site")``'s time goes: its compiled call alone, and numba's call alone.
+
+    The first is the call ``tree.pose`` makes once it has checked ``q`` (:data:`chain_pose_direct`),
+    writing the pose into ``T (4, 4)``, given once rather than made per call; the second passes the
+    same arrays to a compiled function that does nothing. ``tree.pose`` minus the first is the Python
+    around it; the first minus the second the FK.
+    """
+    body, local = tree.frame_body(frame, "site")
+    chain = chain_of(tree, ancestors(tree, body), local)
+    nothing = entry(numba.njit(_nothing), _VEC, _VEC, _MAT)
+    return [("mjkin: its compiled call alone", "chain_pose_direct(chain, q, T), T made once",
+             lambda: chain_pose_direct(chain, q, T)),
+            ("numba: calling nothing", "the same three arrays to an empty compiled function",
+             lambda: nothing(chain, q, T))]
+
+
 def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skipped: list[Row]) -> list[Row]:
     """One site pose for one q: mjkin's ``tree.pose``, MuJoCo and pinocchio, each a loop of single calls.
 
@@ -106,6 +135,7 @@ def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skip
     frame = tree.names("site")[site]
     calls: list[tuple[str, str, Callable[[], object]]] = [
         ("mjkin", "tree.pose(q, site)", lambda: tree.pose(q, frame, "site")),
+        *pose_parts(tree, frame, q, np.empty((4, 4))),
         ("mujoco", "mj_kinematics + site_xpos/site_xmat into a 4x4", mujoco_site_pose(tree.model, q, site))]
     try:
         calls.append(("pinocchio", "forwardKinematics + updateFramePlacement", pinocchio_frame_pose(tree, frame, q)))
