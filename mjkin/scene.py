@@ -194,24 +194,27 @@ class Scene:
 
 
 @njit_inline
-def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int) -> float:
+def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int, S: NDArray[np.float64]) -> float:
     """Distance between segments ``C[i] ± H[i]`` and ``C[j] ± H[j]`` (centres and half-vectors, rows of ``(n, 3)``).
 
     The closest points from :func:`mjkin.kinematics.distance.segments_closest` (zero-length segments allowed).
+    ``S (4, 3)``: scratch for the segments' starts and spans, written element by element (array
+    expressions here allocated four arrays a pair, which halved the vector env's steps).
     """
-    a, b = C[i] - H[i], C[j] - H[j]
-    u, w = 2.0 * H[i], 2.0 * H[j]
-    s, t = segments_closest(a, u, b, w)
+    for k in range(3):
+        S[0, k], S[1, k] = C[i, k] - H[i, k], 2.0 * H[i, k]
+        S[2, k], S[3, k] = C[j, k] - H[j, k], 2.0 * H[j, k]
+    s, t = segments_closest(S[0], S[1], S[2], S[3])
     gap = 0.0
     for k in range(3):
-        g = (a[k] + s * u[k]) - (b[k] + t * w[k])
+        g = (S[0, k] + s * S[1, k]) - (S[2, k] + t * S[3, k])
         gap += g * g
     return float(np.sqrt(gap))
 
 
 @njit
 def _segment_gap_of(C: NDArray[np.float64], H: NDArray[np.float64]) -> float:
-    return _segment_gap(C, H, 0, 1)
+    return _segment_gap(C, H, 0, 1, np.empty((4, 3)))
 
 
 def segment_distance(c1: ArrayLike, h1: ArrayLike, c2: ArrayLike, h2: ArrayLike) -> float:
@@ -231,6 +234,7 @@ def near_kernel(rot: NDArray[np.float64], pos: NDArray[np.float64], geom_body: N
     ngeom = geom_body.shape[0]
     centre = np.empty((ngeom, 3))
     axis = np.empty((ngeom, 3))
+    S = np.empty((4, 3))
     for b in range(rot.shape[0]):
         for g in range(ngeom):
             k = geom_body[g]
@@ -241,7 +245,13 @@ def near_kernel(rot: NDArray[np.float64], pos: NDArray[np.float64], geom_body: N
                                         + rot[b, k, i, 2] * geom_axis[g, 2])
         hit = False
         for p in range(pairs.shape[0]):
-            if _segment_gap(centre, axis, pairs[p, 0], pairs[p, 1]) <= reach[p]:
+            i, j = pairs[p, 0], pairs[p, 1]
+            # the segments' points lie within half[i], half[j] of their centres: centres farther apart than
+            # reach + both halves put the pair out of reach without the closest points
+            lim, d2 = reach[p] + half[i] + half[j], 0.0
+            for k in range(3):
+                d2 += (centre[i, k] - centre[j, k]) ** 2
+            if d2 <= lim * lim and _segment_gap(centre, axis, i, j, S) <= reach[p]:
                 hit = True
                 break
         for p in range(other.shape[0]):

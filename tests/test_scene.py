@@ -110,6 +110,25 @@ def test_counts_with_fk_frames_skip_only_configurations_without_contacts(model):
         assert scene._prefilter and np.count_nonzero(scene._near(tree.kinematics(qs))) < len(qs)
 
 
+
+@pytest.mark.parametrize("model", ["arm7", "primate", "panda"])
+def test_near_is_any_pair_within_reach_by_its_segments_or_its_plane(model):
+    """The compiled broad phase (which skips pairs whose centres are far apart) equals the test written out."""
+    tree = tree_of(model)
+    scene = Scene(tree)
+    f = tree.kinematics(tree.random_q(5, 200))
+    (pairs, reach), (other, normal, offset, radius) = scene._spheres, scene._planes
+    rot = f.rot[:, scene._geom_body]
+    centre = f.pos[:, scene._geom_body] + np.einsum("bgij,gj->bgi", rot, scene._geom_pos)
+    axis = scene._half[:, None] * np.einsum("bgij,gj->bgi", rot, scene._geom_axis)
+    want = [any(segment_distance(c[i], h[i], c[j], h[j]) <= r for (i, j), r in zip(pairs, reach, strict=True))
+            or any(c[g] @ n - o - abs(h[g] @ n) <= r for g, n, o, r in zip(other, normal, offset, radius, strict=True))
+            for c, h in zip(centre, axis, strict=True)]
+    near = scene._near(f)
+    np.testing.assert_array_equal(near, want)
+    assert near.any() and not near.all()  # both answers are compared
+
+
 segment_distance([0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1])  # load the compiled kernel outside hypothesis' clock
 vec3 = st.lists(st.floats(-2, 2, allow_nan=False), min_size=3, max_size=3).map(np.array)
 
