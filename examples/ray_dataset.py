@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -92,6 +93,7 @@ def clips(n: int, frames: int, out: str) -> None:
     import ray
 
     tree = mjkin.load("arm7")
+    Path(out).mkdir(parents=True, exist_ok=True)
     scripts = []
     for k in range(n):
         q = np.linspace(tree.qpos0, tree.random_q(np.random.default_rng(k), 1)[0], frames)
@@ -125,7 +127,7 @@ def main() -> None:
     m.add_argument("--targets", type=int, default=200_000)
     m.add_argument("--chunk", type=int, default=20_000)
     r = sub.add_parser("render", help="time clips rendered in a loop against render_many on this machine")
-    r.add_argument("out", help="folder for the scripts and clips")
+    r.add_argument("out", help="folder for the scripts and clips (made if missing)")
     r.add_argument("--clips", type=int, default=4)
     r.add_argument("--frames", type=int, default=60)
     args = p.parse_args()
