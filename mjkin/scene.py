@@ -199,7 +199,7 @@ def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int,
 
     The closest points from :func:`mjkin.kinematics.distance.segments_closest` (zero-length segments allowed).
     ``S (4, 3)``: scratch for the segments' starts and spans, written element by element (array
-    expressions here allocated four arrays a pair, which halved the vector env's steps).
+    expressions would allocate four arrays a pair, in the broad phase's inner loop).
     """
     for k in range(3):
         S[0, k], S[1, k] = C[i, k] - H[i, k], 2.0 * H[i, k]

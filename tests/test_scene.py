@@ -110,7 +110,6 @@ def test_counts_with_fk_frames_skip_only_configurations_without_contacts(model):
         assert scene._prefilter and np.count_nonzero(scene._near(tree.kinematics(qs))) < len(qs)
 
 
-
 @pytest.mark.parametrize("model", ["arm7", "primate", "panda"])
 def test_near_is_any_pair_within_reach_by_its_segments_or_its_plane(model):
     """The compiled broad phase (which skips pairs whose centres are far apart) equals the test written out."""
