@@ -1,12 +1,16 @@
 """One configuration's short path (``tree.pose(q, frame)``, ``tree.fk(q)``): the batched path's bits, MuJoCo's poses.
 
 The short path runs the FK over the frame's ancestors only (:mod:`mjkin.kinematics.chain`);
-it must give exactly the batched path's numbers, and the batched path's errors for bad input.
+it must give exactly the batched path's numbers, and the batched path's errors for bad input,
+both through the C module ``_posecall`` and through numba's entry (installs without a compiler).
 """
 
 from __future__ import annotations
 
+import contextlib
 import pickle
+import shutil
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -15,6 +19,8 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import FK_TOL, GYM_ASSETS, mujoco_state, tree_of
+from mjkin.kinematics import chain
+from mjkin.kinematics import tree as tree_module
 from mjkin.kinematics.chain import MAX_BODIES, chain_pose, chain_poses
 
 # hinge arms, slides, ball chains, free roots (primate, the humanoid, the ant)
@@ -27,18 +33,46 @@ def frames_of(tree: mjkin.Tree) -> list[tuple[str, str]]:
     return [(n, k) for k in ("site", "body") for n in tree.names(k) if n]  # type: ignore[arg-type]
 
 
-@given(model=st.sampled_from(MODELS), seed=st.integers(0, 2**32 - 1), data=st.data())
-def test_one_q_equals_the_batch_bit_for_bit_and_mujoco(model, seed, data):
-    tree = tree_of(model)
+@contextlib.contextmanager
+def short_path(path: str) -> Iterator[None]:
+    """``Tree.pose`` and ``Tree.fk`` through the C module ("c", as installed) or numba's entry ("numba")."""
+    saved = tree_module.pose_of, tree_module.poses_of
+    if path == "numba":
+        tree_module.pose_of, tree_module.poses_of = chain.pose_numba, chain.poses_numba
+    try:
+        yield
+    finally:
+        tree_module.pose_of, tree_module.poses_of = saved
+
+
+PATHS = st.sampled_from(["c", "numba"])
+
+
+def test_the_c_call_path_is_built_where_a_compiler_is():
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        pytest.skip("no C compiler: the package installs without _posecall")
+    assert chain.pose_of is not chain.pose_numba and chain.poses_of is not chain.poses_numba
+    assert tree_module.pose_of is chain.pose_of
+
+
+@given(model=st.sampled_from(MODELS), seed=st.integers(0, 2**32 - 1), path=PATHS, data=st.data())
+def test_one_q_equals_the_batch_bit_for_bit_and_mujoco(model, seed, path, data):
+    with short_path(path):
+        one_q_equals_the_batch_and_mujoco(tree_of(model), seed, data)
+
+
+def one_q_equals_the_batch_and_mujoco(tree: mjkin.Tree, seed: int, data: st.DataObject) -> None:
     name, kind = data.draw(st.sampled_from(frames_of(tree)), label="frame")
     q = tree.random_q(seed)
     T = tree.pose(q, name, kind)
     np.testing.assert_array_equal(T, tree.pose(q[None], name, kind)[0])
     np.testing.assert_array_equal(T, tree.kinematics(q).pose(*tree.frame(name, kind)))
-    for other in (list(q), q.astype(">f8"), np.repeat(q, 2)[::2], q.copy()):  # the checked path: same bits
-        if isinstance(other, np.ndarray) and other.flags.c_contiguous:
+    unaligned = np.frombuffer(b"\0" + q.tobytes(), dtype=np.float64, offset=1)
+    for other in (list(q), q.astype(">f8"), np.repeat(q, 2)[::2], q.copy(), unaligned, np.ma.array(q)):
+        if isinstance(other, np.ndarray) and other.flags.c_contiguous:  # the checked path, or read-only: same bits
             other.setflags(write=False)
         np.testing.assert_array_equal(tree.pose(other, name, kind), T)
+        np.testing.assert_array_equal(tree.fk(other), tree.fk(q))
     np.testing.assert_array_equal(tree.pose(q, name, None if kind == "site" else kind), T)
     B = tree.fk(q)
     np.testing.assert_array_equal(B, tree.fk(q[None])[0])
@@ -59,9 +93,14 @@ def _error(call):  # type: ignore[no-untyped-def]
     return type(info.value), str(info.value)
 
 
-@given(model=st.sampled_from(["arm7", "primate", "ball_chain"]), seed=st.integers(0, 2**32 - 1), data=st.data())
-def test_bad_q_gets_the_checked_paths_error(model, seed, data):
-    tree = tree_of(model)
+@given(model=st.sampled_from(["arm7", "primate", "ball_chain"]), seed=st.integers(0, 2**32 - 1), path=PATHS,
+       data=st.data())
+def test_bad_q_gets_the_checked_paths_error(model, seed, path, data):
+    with short_path(path):
+        bad_q_gets_the_checked_paths_error(tree_of(model), seed, data)
+
+
+def bad_q_gets_the_checked_paths_error(tree: mjkin.Tree, seed: int, data: st.DataObject) -> None:
     name, kind = frames_of(tree)[-1]
     tree.pose(tree.qpos0.copy(), name, kind)  # the frame's chain is made: the short path is taken below
     q = tree.random_q(seed)
@@ -81,6 +120,36 @@ def test_bad_q_gets_the_checked_paths_error(model, seed, data):
     assert _error(lambda: tree.pose(q, name, kind)) == expected
     assert _error(lambda: tree.fk(q)) == expected
     assert _error(lambda: tree.pose(list(q), name, kind)) == expected
+
+
+def test_the_c_and_numba_calls_agree_and_refuse_the_same_q():
+    """The two short calls themselves: the same bits, None for what the checked path must take."""
+    tree = tree_of("primate")
+    q = tree.random_q(7)
+    body, local = tree.frame_body("right_hand")
+    frame = chain.chain_of(tree, chain.ancestors(tree, body), local)
+    for ours, numbas, c in ((chain.pose_of, chain.pose_numba, frame), (chain.poses_of, chain.poses_numba,
+                                                                         tree.bodies_chain)):
+        T = numbas(c, q)
+        assert T is not None and T.flags.c_contiguous and T.flags.writeable
+        np.testing.assert_array_equal(ours(c, q), T)
+        assert ours(c, q) is not ours(c, q)  # a new array each call
+        zero = q.copy()
+        zero[tree.layout.quats[0]] = 0.0
+        for other in (list(q), q.astype(np.float32), q[:-1], np.append(q, 0.0), q[None], q[:, None], zero,
+                      np.where(np.arange(tree.nq) == 3, np.nan, q), np.repeat(q, 2)[::2], q.astype(">f8")):
+            assert ours(c, other) is None and numbas(c, other) is None
+
+
+def test_the_c_call_refuses_what_is_no_chain():
+    posecall = pytest.importorskip("mjkin.kinematics._posecall", reason="built only where a C compiler is")
+    tree = tree_of("arm7")
+    frame, q = tree.bodies_chain, tree.random_q(2)
+    for bad in ((), (frame,), (frame, q, q), (list(frame), q), (frame.astype(np.float32), q), (frame[:3], q),
+                (frame[::2], q)):
+        for call in (posecall.pose, posecall.poses):
+            with pytest.raises(TypeError, match="takes"):
+                call(*bad)
 
 
 def test_an_unknown_frame_is_named_before_and_after_the_frames_seen():

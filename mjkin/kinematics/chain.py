@@ -22,16 +22,25 @@ for a structref, and the 14 arrays of the FK would cost more than a 7-DoF arm's 
 itself. Nothing writes a chain, but it is not flagged read-only: numba's dispatch
 types a read-only array in Python (~1 µs). The compiled entries have explicit
 signatures (compiled once, cached on disk): a ``q`` of another dtype or layout
-raises :class:`TypeError` instead of compiling another version. ``Tree.pose`` and
-``Tree.fk`` skip even the dispatch (:data:`chain_pose_direct`, :func:`mjkin.jit.entry`)
-for a ``q`` they have checked to be float64, 1-D and C-contiguous; any other takes
-their checked path.
+raises :class:`TypeError` instead of compiling another version.
+
+``Tree.pose`` and ``Tree.fk`` skip numba's Python wrapper too: :data:`pose_of` and
+:data:`poses_of` come from the small C module :mod:`mjkin.kinematics._posecall`
+(``_posecall.c``), which checks ``q``, makes the output and calls the kernels as
+numba cfuncs through C function pointers (the wrapper's unboxing of three arrays
+costs ~0.2 µs, as much as a 7-DoF pose). Without a C compiler at install they are
+:func:`pose_numba` and :func:`poses_numba`, which call numba's compiled entry from
+Python (:func:`mjkin.jit.entry`). Both return None for any ``q`` but a native float64
+ndarray, 1-D and C-contiguous, or one the kernel refuses: the caller's checked path
+then answers, or says what is wrong.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
-from numba import types
+from numba import carray, cfunc, types
 from numpy.typing import NDArray
 
 from ..jit import entry, njit_eager, njit_inline, on_stack, unshared, unshared_int64
@@ -148,7 +157,56 @@ def chain_poses(chain: Array, q: Array, T: Array) -> bool:
     return True
 
 
-# the two without numba's dispatch (mjkin.jit.entry), for a q already known to be float64, 1-D and C-contiguous
+_KERNEL = types.int32(types.CPointer(types.float64), types.int64, types.CPointer(types.float64), types.int64,
+                      types.CPointer(types.float64))  # (chain, L, q, nq, out): what _posecall.c calls
+
+
+@cfunc(_KERNEL, cache=True)
+def _pose_cfunc(chain: Any, length: int, q: Any, nq: int, T: Any) -> int:
+    """:func:`chain_pose` behind a C function pointer, for :mod:`mjkin.kinematics._posecall`."""
+    return 1 if chain_pose(carray(chain, (length,)), carray(q, (nq,)), carray(T, (4, 4))) else 0
+
+
+@cfunc(_KERNEL, cache=True)
+def _poses_cfunc(chain: Any, length: int, q: Any, nq: int, T: Any) -> int:
+    """:func:`chain_poses` behind a C function pointer; ``T (n, 4, 4)``, ``n`` read from the chain."""
+    c = carray(chain, (length,))
+    return 1 if chain_poses(c, carray(q, (nq,)), carray(T, (unshared_int64(c, 1, (1,))[0], 4, 4))) else 0
+
+
+# without numba's dispatch (mjkin.jit.entry), for a q already known to be float64, 1-D and C-contiguous
 # (read-only too: neither writes q)
-chain_pose_direct = entry(chain_pose, _CHAIN, _Q[0], types.Array(types.float64, 2, "C"))
-chain_poses_direct = entry(chain_poses, _CHAIN, _Q[0], types.Array(types.float64, 3, "C"))
+_pose_direct = entry(chain_pose, _CHAIN, _Q[0], types.Array(types.float64, 2, "C"))
+_poses_direct = entry(chain_poses, _CHAIN, _Q[0], types.Array(types.float64, 3, "C"))
+_FLOAT64 = np.dtype(np.float64)  # native float64 (numba's dispatch can mistake a read-only big-endian array for one)
+
+
+def _is_plain(q: object) -> bool:
+    """Whether ``q`` is what the compiled entries read: a native float64 ndarray, 1-D, C-contiguous."""
+    return type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1 and q.flags.c_contiguous
+
+
+def pose_numba(chain: Array, q: object) -> Array | None:
+    """:func:`chain_pose` into a new ``(4, 4)``, or None for any other ``q`` or one it refuses.
+
+    What :data:`pose_of` is when :mod:`mjkin.kinematics._posecall` was not built (no C compiler).
+    """
+    if _is_plain(q) and _pose_direct(chain, q, T := np.empty((4, 4))):
+        return T
+    return None
+
+
+def poses_numba(chain: Array, q: object) -> Array | None:
+    """:func:`chain_poses` into a new ``(n, 4, 4)``, or None as :func:`pose_numba`."""
+    if _is_plain(q) and _poses_direct(chain, q, T := np.empty((int(chain[1:2].view(np.int64)[0]), 4, 4))):
+        return T  # n: the chain's second header integer
+    return None
+
+
+try:
+    from . import _posecall  # type: ignore[attr-defined]  # built by setup.py, optional
+except ImportError:  # installed without a C compiler
+    pose_of, poses_of = pose_numba, poses_numba
+else:
+    _posecall.bind(_pose_cfunc.address, _poses_cfunc.address)
+    pose_of, poses_of = _posecall.pose, _posecall.poses

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
-from .chain import ancestors, chain_of, chain_pose, chain_pose_direct, chain_poses_direct
+from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
@@ -26,9 +26,6 @@ from .jacobian import check_offset, frame_jacobian_one
 
 Array = NDArray[np.float64]
 Kind = Literal["body", "joint", "site"]
-# native float64 (numba's dispatch can mistake a read-only big-endian array for one: such q take the checked path)
-_FLOAT64 = np.dtype(np.float64)
-
 
 
 def _ro(a: ArrayLike, dtype: type = np.float64) -> NDArray:
@@ -241,21 +238,17 @@ class Tree:
 
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
-        if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1 and q.flags.c_contiguous:
-            T = np.empty((len(self.body_parent), 4, 4))  # one compiled call, which checks q too
-            if chain_poses_direct(self.bodies_chain, q, T):
-                return T
-        return self.kinematics(q).poses()
+        T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
+        return self.kinematics(q).poses() if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
         try:
-            chain = self.chains.get((name, kind))  # a frame seen before and one float64 C-contiguous q:
+            chain = self.chains.get((name, kind))  # a frame seen before
         except TypeError:  # an unhashable name or kind is no frame: the checked path below says so
             chain = None
-        if (chain is not None and type(q) is np.ndarray and q.dtype is _FLOAT64 and q.ndim == 1
-                and q.flags.c_contiguous and chain_pose_direct(chain, q, T := np.empty((4, 4)))):
-            return T  # one compiled call, which checks q too (else the checked path below says what is wrong)
+        if chain is not None and (T := pose_of(chain, q)) is not None:
+            return T  # one compiled call for a plain 1-D q, which checks it too (else the path below says why)
         q = self.check_q(q)
         if q.ndim == 1:
             T = np.empty((4, 4))

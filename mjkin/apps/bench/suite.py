@@ -15,14 +15,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import mujoco
-import numba
 import numpy as np
-from numba import types
 
 from ...errors import InputError
 from ...files import check_writable, write_text
-from ...jit import entry
-from ...kinematics.chain import ancestors, chain_of, chain_pose_direct
+from ...kinematics.chain import ancestors, chain_of, pose_numba, pose_of
 from ...kinematics.tree import Tree, load
 from ...progress import track
 from . import ALL, FK_MODELS, add_arguments
@@ -98,29 +95,16 @@ def pinocchio_frame_pose(tree: Tree, frame: str, q: np.ndarray) -> Callable[[], 
     return run
 
 
-_VEC, _MAT = types.Array(types.float64, 1, "C"), types.Array(types.float64, 2, "C")
+def pose_without_c(tree: Tree, frame: str, q: np.ndarray) -> Callable[[], object]:
+    """``tree.pose(q, frame, "site")``'s compiled call as it runs without the C module ``_posecall``.
 
-
-def _nothing(chain: np.ndarray, q: np.ndarray, T: np.ndarray) -> bool:
-    """Compiled, it does nothing: a call of it is what numba's call of three arrays costs by itself."""
-    return True
-
-
-def pose_parts(tree: Tree, frame: str, q: np.ndarray, T: np.ndarray) -> list[tuple[str, str, Callable[[], object]]]:
-    """Where ``tree.pose(q, frame, "site")``'s time goes: its compiled call alone, and numba's call alone.
-
-    The first is the call ``tree.pose`` makes once it has checked ``q`` (:data:`chain_pose_direct`),
-    writing the pose into ``T (4, 4)``, given once rather than made per call; the second passes the
-    same arrays to a compiled function that does nothing. ``tree.pose`` minus the first is the Python
-    around it; the first minus the second the FK.
+    :func:`mjkin.kinematics.chain.pose_numba` on the frame's chain: numba's compiled entry
+    called from Python, what a package installed without a C compiler runs. Against the
+    ``tree.pose`` row it shows what the C call path saves.
     """
     body, local = tree.frame_body(frame, "site")
     chain = chain_of(tree, ancestors(tree, body), local)
-    nothing = entry(numba.njit(_nothing), _VEC, _VEC, _MAT)
-    return [("mjkin: its compiled call alone", "chain_pose_direct(chain, q, T), T made once",
-             lambda: chain_pose_direct(chain, q, T)),
-            ("numba: calling nothing", "the same three arrays to an empty compiled function",
-             lambda: nothing(chain, q, T))]
+    return lambda: pose_numba(chain, q)
 
 
 def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skipped: list[Row]) -> list[Row]:
@@ -135,7 +119,7 @@ def single_pose_rows(name: str, tree: Tree, q: np.ndarray, min_time: float, skip
     frame = tree.names("site")[site]
     calls: list[tuple[str, str, Callable[[], object]]] = [
         ("mjkin", "tree.pose(q, site)", lambda: tree.pose(q, frame, "site")),
-        *pose_parts(tree, frame, q, np.empty((4, 4))),
+        ("mjkin without its C call", "pose_numba(chain, q): numba's entry from Python", pose_without_c(tree, frame, q)),
         ("mujoco", "mj_kinematics + site_xpos/site_xmat into a 4x4", mujoco_site_pose(tree.model, q, site))]
     try:
         calls.append(("pinocchio", "forwardKinematics + updateFramePlacement", pinocchio_frame_pose(tree, frame, q)))
@@ -177,6 +161,8 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
         tables["pinocchio without a row (the reason)"] = skipped
     return Report(tables, {"sizes": list(sizes), "seed": seed,
                            "timing": f"median of 5 runs of >= {min_time} s of calls each", "gc": GC_NOTE,
+                           "tree.pose": "through the C module _posecall" if pose_of is not pose_numba
+                                        else "through numba's entry (the C module _posecall was not built)",
                            "pinocchio": "the chain to the site as a URDF, its FK checked equal to tree.pose to 1e-12 "
                                         "before timing; returns its SE3 (not copied into a 4x4)"},
                   {"skipped": skipped})
