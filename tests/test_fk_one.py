@@ -150,6 +150,10 @@ def test_the_c_call_refuses_what_is_no_chain():
         for call in (posecall.pose, posecall.poses):
             with pytest.raises(TypeError, match="takes"):
                 call(*bad)
+    for bad, error in (((None, None), TypeError), ((0, 0), ValueError), ((1,), TypeError)):
+        with pytest.raises(error):
+            posecall.bind(*bad)
+    np.testing.assert_array_equal(posecall.poses(frame, q), chain.poses_numba(frame, q))  # still bound as it was
 
 
 def test_an_unknown_frame_is_named_before_and_after_the_frames_seen():

@@ -27,8 +27,14 @@ static PyObject *bind(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
         PyErr_SetString(PyExc_TypeError, "bind(pose_address, poses_address) takes two cfunc addresses");
         return NULL;
     }
-    void *pose = PyLong_AsVoidPtr(args[0]), *poses = PyLong_AsVoidPtr(args[1]);
+    void *pose = PyLong_AsVoidPtr(args[0]);
     if (PyErr_Occurred()) return NULL;
+    void *poses = PyLong_AsVoidPtr(args[1]);
+    if (PyErr_Occurred()) return NULL;
+    if (pose == NULL || poses == NULL) {
+        PyErr_SetString(PyExc_ValueError, "bind() takes the addresses of two cfuncs, not 0");
+        return NULL;
+    }
     pose_kernel = (kernel_t)pose;
     poses_kernel = (kernel_t)poses;
     Py_RETURN_NONE;

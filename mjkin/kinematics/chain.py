@@ -37,6 +37,7 @@ then answers, or says what is wrong.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -203,8 +204,10 @@ def poses_numba(chain: Array, q: object) -> Array | None:
     return None
 
 
+pose_of: Callable[[Array, object], Array | None]  # what Tree.pose and Tree.fk call: see the module's docstring
+poses_of: Callable[[Array, object], Array | None]
 try:
-    from . import _posecall  # type: ignore[attr-defined]  # built by setup.py, optional
+    from . import _posecall  # built by setup.py where a C compiler is (types: _posecall.pyi)
 except ImportError:  # installed without a C compiler
     pose_of, poses_of = pose_numba, poses_numba
 else:
