@@ -48,6 +48,11 @@ class ReachEnv(gym.Env):
     | ``"cartesian"`` | ``"pose"`` | 6 | twist: displacement (``step_size`` m per unit), rotation vector |
     | | | | (world axes, ``rot_step`` rad per unit); the new pose is solved by mjkin IK |
 
+    An arm whose effector moves in one plane (``PlanarReach-v0``: the world's x-y plane)
+    drops what leaves it: a cartesian displacement keeps its part in the plane, a
+    rotation its part about the plane's normal, so each step's IK gets a target the
+    arm can reach (``env.unwrapped.task.plane``: the normal, else None).
+
     ## Observation space
     A goal ``g`` is the effector position ``[x, y, z]`` (``goal_type="position"``,
     3 numbers) or its pose ``[x, y, z, qw, qx, qy, qz]`` (``"pose"``, 7 numbers,
@@ -124,7 +129,9 @@ class ReachEnv(gym.Env):
     in each cartesian step's IK: no joint changes more than that from one step to the next.
 
     ## Version history
-    v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0).
+    v0: first version (goal-conditioned and pose variants, MuJoCo obstacles, reset options, sparse −1/0);
+    a planar arm's cartesian actions keep to its plane (before, the part out of it was asked of the IK,
+    which ended each step at the closest pose it could prove: the same pose, at several times the cost).
     """
 
     # gym.make reads the class's modes: with "human" listed it never wraps the env in pygame's HumanRendering;

@@ -98,6 +98,22 @@ def model_spec(model: str, obstacles: Sequence[tuple[Array, float]], table: floa
     return spec
 
 
+def motion_plane(tree: mjkin.Tree, frame: str, samples: int = 8) -> tuple[Array | None, bool]:
+    """The plane a planar arm's ``frame`` moves in: its unit normal ``(3,)`` (else None), and whether it turns about it.
+
+    From the frame's Jacobian at ``samples`` random configurations (seeded): the origin
+    is planar when the linear columns span a plane (rank 2 to 1e-9 of the largest
+    singular value); it turns about the normal only when every angular column is along it.
+    """
+    J = tree.jacobian(tree.random_q(np.random.default_rng(0), samples), frame)  # (samples, 6, nv)
+    u, s, _ = np.linalg.svd(np.moveaxis(J[:, :3], 1, 0).reshape(3, -1))
+    if not s[2] <= 1e-9 * s[0]:
+        return None, False
+    n = u[:, 2]
+    angular = np.moveaxis(J[:, 3:], 1, 0).reshape(3, -1)
+    return n, bool(np.abs(angular - np.outer(n, n @ angular)).max() <= 1e-9 * max(np.abs(angular).max(), 1.0))
+
+
 def info_column(info: Any, key: str) -> Array:
     """``info[key]`` as an array over the batch, from a dict, a dict of arrays, or a list/array of dicts."""
     if isinstance(info, Mapping):
@@ -143,6 +159,8 @@ class ReachTask:
         body, r, o = self.tree.kinematics(self.tree.qpos0).local_frame(self.site_kind, self.site_id)
         self.site_local = (body, np.array(r), np.array(o))  # writable copies: one compiled signature
         self._move: mjkin.Problem | None = None  # the cartesian step's IK, made at the first step
+        # a planar arm's cartesian actions keep to its plane (and its rotations to the plane's normal)
+        self.plane, self.plane_turns = motion_plane(self.tree, frame) if action_type == "cartesian" else (None, False)
         # the largest joint change per step (njnt,) at max_joint_speed, or None
         self.max_step = None if max_joint_speed is None else speed_step(self.tree, max_joint_speed, 1.0 / dt)
         self._expert: dict[tuple[str, ...], mjkin.Problem] = {}
@@ -243,13 +261,19 @@ class ReachTask:
         a = np.minimum(np.maximum(action, -1.0), 1.0)
         if self.action_type == "joint":
             return self.tidy(self.tree.integrate(q, a * self.step_size))
-        p = achieved[:, :3] + a[:, :3] * self.step_size
+        d = a[:, :3] * self.step_size
+        if self.plane is not None:  # what leaves the plane the effector moves in: no IK step can follow it
+            d = d - np.outer(d @ self.plane, self.plane)
+        p = achieved[:, :3] + d
         if self.goal_type == "position":
             goal: G.Goal = G.Position(self.frame, p)
         else:  # a twist: translation, then rotation vector in world axes
             assert R is not None
+            w = a[:, 3:] * self.rot_step
+            if self.plane is not None and self.plane_turns:
+                w = np.outer(w @ self.plane, self.plane)
             T = np.zeros((len(q), 4, 4))
-            T[:, :3, :3] = spatial.rotvec_to_mat(a[:, 3:] * self.rot_step) @ R
+            T[:, :3, :3] = spatial.rotvec_to_mat(w) @ R
             T[:, :3, 3], T[:, 3, 3] = p, 1.0
             goal = G.Pose(self.frame, T)
         goals = [goal] if self.max_step is None else [goal, G.StepLimit(q, self.max_step)]

@@ -159,6 +159,37 @@ def test_cartesian_twist_moves_the_effector_as_commanded():
     np.testing.assert_allclose(turn, action[3:] * env.task.rot_step, atol=1e-3)
 
 
+@pytest.mark.parametrize("goal_type", ["position", "pose"])
+def test_a_planar_arms_cartesian_actions_keep_to_its_plane(goal_type):
+    env = gym.make("mjkin/PlanarReach-v0", goal_type=goal_type, action_type="cartesian").unwrapped
+    task = env.task
+    assert task.plane is not None and abs(task.plane[2]) == pytest.approx(1.0, abs=1e-12) and task.plane_turns
+    env.reset(seed=0, options={"q": [0.3, 0.5, 0.4]})
+    before = env.tree.pose(env.q, "tip")
+    statuses = []
+    env.step(np.zeros(env.action_space.shape, np.float32))  # the step's IK is made at the first step
+    real = task._move.solve
+
+    def spy(q, goals):  # type: ignore[no-untyped-def]
+        res = real(q, goals)
+        statuses.extend(np.atleast_1d(res.status))
+        return res
+
+    task._move.solve = spy
+    action = np.array([0.5, -0.3, 0.8, 0.4, -0.2, 0.3][:env.action_space.shape[0]], np.float32)
+    env.step(action)
+    after = env.tree.pose(env.q, "tip")
+    # the z of the displacement and the turns about x and y are dropped: the IK reaches what is left
+    assert statuses == ["converged"]
+    np.testing.assert_allclose(after[:3, 3] - before[:3, 3], [0.5 * env.step_size, -0.3 * env.step_size, 0],
+                               atol=1e-4 * env.extent)
+    if goal_type == "pose":
+        turn = spatial.mat_to_rotvec(after[:3, :3] @ before[:3, :3].T)
+        np.testing.assert_allclose(turn, [0, 0, 0.3 * env.task.rot_step], atol=1e-4)
+    plain = gym.make("mjkin/Reach-v0", action_type="cartesian").unwrapped.task
+    assert plain.plane is None and not plain.plane_turns
+
+
 def test_reset_options_set_start_and_target():
     env = gym.make("mjkin/Reach-v0").unwrapped
     q = env.tree.random_q(7)
