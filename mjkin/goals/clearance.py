@@ -11,8 +11,8 @@ import numpy as np
 
 from ..checks import check_count
 from ..errors import GoalError, UnknownNameError
-from ..jit import njit, njit_inline
-from ..kinematics.distance import pair_distance, pair_distance_jacobian
+from ..jit import njit, njit_inline, on_stack, unshared
+from ..kinematics.distance import distance_gradient, pair_distance_normal
 from ..kinematics.geoms import (
     BOX,
     CAPSULE,
@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from .compiled import GoalArrays
 
 Index = np.ndarray
+KEPT = 11  # numbers kept of each of the closest pairs: distance, pair, two witness points, normal
 
 
 @dataclass(frozen=True)
@@ -143,32 +144,41 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
 
     ``pairs (P, 4)``: ``[geom1, geom2, goal, bounded]``, each goal's contiguous; a pair marked
     ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
-    ``reach - margin`` with a zero gradient.
+    ``reach - margin`` with a zero gradient. Each pair is measured once: the ``k`` closest
+    keep their witness points and normal for their gradients.
     """
     lo, hi = owned(pairs[:, 2], i)
     near = np.empty(hi - lo, dtype=np.int64)
     n = near_pairs(geoms, rot, pos, pairs[lo:hi, :2], reach, near)
-    best_d, best_p = np.full(k, np.inf), np.full(k, -1)
-    p1, p2 = np.empty(3), np.empty(3)
-    for c in range(n):  # keep the k closest, sorted
+    S = on_stack(KEPT * k + 9)  # the k closest, sorted, each [d, pair, p1, p2, normal]; then the pair at hand
+    best = unshared(S, 0, (k, KEPT))
+    for j in range(k):
+        best[j, 0], best[j, 1] = np.inf, -1.0
+    here = unshared(S, KEPT * k, (9,))
+    for c in range(n):
         p = lo + near[c]
-        d = pair_distance(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1], p1, p2)
-        if d < best_d[k - 1]:
+        d = pair_distance_normal(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1],
+                                 unshared(here, 0, (3,)), unshared(here, 3, (3,)), unshared(here, 6, (3,)))
+        if d < best[k - 1, 0]:
             j = k - 1
-            while j > 0 and best_d[j - 1] > d:
-                best_d[j], best_p[j] = best_d[j - 1], best_p[j - 1]
+            while j > 0 and best[j - 1, 0] > d:
+                for x in range(KEPT):
+                    best[j, x] = best[j - 1, x]
                 j -= 1
-            best_d[j], best_p[j] = d, p
+            best[j, 0], best[j, 1] = d, p
+            for x in range(9):
+                best[j, 2 + x] = here[x]
     for j in range(k):
         r = r0 + j
-        if best_p[j] < 0:
+        if best[j, 1] < 0:
             g[r] = reach - margin
             for c in range(J.shape[1]):
                 J[r, c] = 0.0
         else:
-            p = best_p[j]
-            g[r] = pair_distance_jacobian(kin, bounded if pairs[p, 3] else geoms, rot, pos, irot, ipos, pairs[p, 0],
-                                          pairs[p, 1], J[r]) - margin
+            p, o = int(best[j, 1]), KEPT * j
+            distance_gradient(kin, rot, pos, irot, ipos, geoms.body[pairs[p, 0]], geoms.body[pairs[p, 1]],
+                              unshared(S, o + 2, (1, 3)), unshared(S, o + 5, (1, 3)), unshared(S, o + 8, (3,)), J[r])
+            g[r] = best[j, 0] - margin
 
 
 @njit_inline

@@ -32,7 +32,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..jit import njit, njit_inline
+from ..jit import borrowed, njit, njit_inline, on_stack, unshared
 from .fk import Bodies, Kinematics
 from .frames import forward, point_jacobian
 from .geoms import (
@@ -110,9 +110,9 @@ def solid_distance(kind: int, size: Array, R: Array, c: Array, p: Array, y: Arra
     """Signed distance of the point ``p`` from a box or cylinder (axes ``R``, centre ``c``); closest surface point
     ``y`` and outward unit normal ``n`` there (world), ``p = y + d n``.
     """  # noqa: D205
-    x = np.empty(3)  # p in the solid's frame; yl, nl: y and n there
-    yl = np.empty(3)
-    nl = np.zeros(3)
+    S = on_stack(9)  # p in the solid's frame x; yl, nl: y and n there
+    x, yl, nl = unshared(S, 0, (3,)), unshared(S, 3, (3,)), unshared(S, 6, (3,))
+    nl[0] = nl[1] = nl[2] = 0.0
     for i in range(3):
         x[i] = R[0, i] * (p[0] - c[0]) + R[1, i] * (p[1] - c[1]) + R[2, i] * (p[2] - c[2])
     if kind == BOX:
@@ -203,7 +203,8 @@ def _segment_box_apart(a: Array, u: Array, size: Array, R: Array, c: Array, p: A
     f = _along(BOX, size, R, c, a, u, 1.0)
     if f < d:
         d, best = f, 1.0
-    e, w = np.empty(3), np.empty(3)
+    S = on_stack(6)
+    e, w = unshared(S, 0, (3,)), unshared(S, 3, (3,))
     for k in range(12):
         _box_edge(size, R, c, k, e, w)
         s, t = segments_closest(a, u, e, w)
@@ -284,8 +285,8 @@ def _box_edge(size: Array, R: Array, c: Array, e: int, a: Array, u: Array) -> No
 def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1: Array, p2: Array,
             n: Array) -> float:
     """Signed distance of two boxes; witness points ``p1``, ``p2`` and the unit normal ``n`` from box 1 to box 2."""
-    D = np.empty(3)
-    ax = np.empty(3)
+    S = on_stack(33)  # D, ax, the edge lines q1, u1, q2, u2 and the separated search's v, a, u, b, w
+    D, ax = unshared(S, 0, (3,)), unshared(S, 3, (3,))
     for i in range(3):
         D[i] = c2[i] - c1[i]
     best, kbest = -np.inf, 0
@@ -331,7 +332,7 @@ def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1
         else:  # edge against edge: the closest points of the lines through box 1's edge along a and box 2's
             # along b (p2 - p1 = d n even where the edges' own closest points would be their ends)
             ia, ib = (kbest - 6) // 3, (kbest - 6) % 3
-            q1, u1, q2, u2 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+            q1, u1, q2, u2 = unshared(S, 6, (3,)), unshared(S, 9, (3,)), unshared(S, 12, (3,)), unshared(S, 15, (3,))
             for i in range(3):
                 ax[i] = -n[i]
             support(BOX, s1, R1, c1, n, q1)
@@ -350,11 +351,8 @@ def box_box(s1: Array, R1: Array, c1: Array, s2: Array, R2: Array, c2: Array, p1
         return best
     d = np.inf  # separated: the nearest of the corner-box and edge-edge pairs, found by value, then placed
     which = 0  # 0..7 box 1's corners, 8..15 box 2's, 16 + 12 e1 + e2 the edge pairs
-    v = np.empty(3)
-    a = np.empty(3)
-    u = np.empty(3)
-    b = np.empty(3)
-    w = np.empty(3)
+    v, a, u, b, w = (unshared(S, 18, (3,)), unshared(S, 21, (3,)), unshared(S, 24, (3,)), unshared(S, 27, (3,)),
+                     unshared(S, 30, (3,)))
     for k in range(8):  # (a corner is the segment's start, t = 0)
         _box_corner(s1, R1, c1, k, v)
         dk = _along(BOX, s2, R2, c2, v, D, 0.0)
@@ -404,12 +402,15 @@ def _core(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array) -> flo
 def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int, p1: Array, p2: Array,
                          n: Array) -> float:
     """:func:`pair_distance`, also writing the unit normal ``n (3,)`` from geom 1 to geom 2 (``p2 - p1 = d n``)."""
+    # views without reference counts (mjkin.jit): each counted view or array passed on cost two atomic updates,
+    # and a sphere pair took 0.4 µs, nearly all of it counting
+    geoms, rot, pos, p1, p2, n = borrowed((geoms, rot, pos, p1, p2, n))
     swap = geoms.type[g1] > geoms.type[g2]  # order by type, as MuJoCo does
     ga, gb = (g2, g1) if swap else (g1, g2)
     qa, qb = (p2, p1) if swap else (p1, p2)
     ta, tb = geoms.type[ga], geoms.type[gb]
-    frames, points = np.empty((2, 3, 3)), np.empty((7, 3))  # two allocations, the rest views (see mjkin.jit)
-    Ra, Rb, ca, cb = frames[0], frames[1], points[0], points[1]
+    S = on_stack(39)  # two frames, then seven points
+    Ra, Rb, ca, cb = unshared(S, 0, (3, 3)), unshared(S, 9, (3, 3)), unshared(S, 18, (3,)), unshared(S, 21, (3,))
     geom_world(geoms, rot, pos, ga, Ra, ca)
     geom_world(geoms, rot, pos, gb, Rb, cb)
     sa, sb = geoms.size[ga], geoms.size[gb]
@@ -419,7 +420,7 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
             qa[i] = qb[i] = n[i] = np.nan
         return d
     if ta == PLANE:  # the other geom's deepest point below the plane z = 0
-        v = points[2]
+        v = unshared(S, 24, (3,))
         for i in range(3):
             n[i] = Ra[i, 2]
             v[i] = -n[i]
@@ -432,10 +433,10 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
     elif ta == ELLIPSOID or tb == ELLIPSOID or ta == CYLINDER:  # cylinder-cylinder, cylinder-box
         d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n)
     else:  # a sphere or capsule against a sphere, capsule, cylinder or box
-        a, u = points[3], points[4]
+        a, u = unshared(S, 27, (3,)), unshared(S, 30, (3,))
         ra = _core(ta, sa, Ra, ca, a, u)
         if tb == SPHERE or tb == CAPSULE:
-            b, w = points[5], points[6]
+            b, w = unshared(S, 33, (3,)), unshared(S, 36, (3,))
             rb = _core(tb, sb, Rb, cb, b, w)
             s, t = segments_closest(a, u, b, w)
             for i in range(3):
@@ -470,8 +471,7 @@ def pair_distance(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int, p1: Ar
     Writes the witness points ``p1 (3,)`` on ``g1`` and ``p2 (3,)`` on ``g2`` (world);
     NaN everywhere for a pair it does not compute (see :func:`native`).
     """
-    n = np.empty(3)
-    return pair_distance_normal(geoms, rot, pos, g1, g2, p1, p2, n)
+    return pair_distance_normal(geoms, rot, pos, g1, g2, p1, p2, on_stack(3))
 
 
 @njit_inline
@@ -487,6 +487,22 @@ def _add_point_rate(kin: Kinematics, rot: Array, pos: Array, irot: Array, ipos: 
 
 
 @njit
+def distance_gradient(kin: Kinematics, rot: Array, pos: Array, irot: Array, ipos: Array, body1: int, body2: int,
+                      p1: Array, p2: Array, n: Array, out: Array) -> None:
+    """A pair's distance gradient ``out (nv,) = nᵀ (J_p2 − J_p1)`` from its witness points and normal.
+
+    ``p1 (1, 3)``, ``p2 (1, 3)``: the witness points (world) fixed to ``body1`` and ``body2``;
+    ``n (3,)``: the unit normal from the first to the second (:func:`pair_distance_normal`).
+    """
+    kin, rot, pos, irot, ipos, p1, p2, n, out = borrowed((kin, rot, pos, irot, ipos, p1, p2, n, out))
+    for k in range(out.shape[0]):
+        out[k] = 0.0
+    J6 = unshared(on_stack(6 * out.shape[0]), 0, (1, 6, out.shape[0]))  # jacobian_kernel writes the columns read
+    _add_point_rate(kin, rot, pos, irot, ipos, body2, p2, n, 1.0, J6, out)
+    _add_point_rate(kin, rot, pos, irot, ipos, body1, p1, n, -1.0, J6, out)
+
+
+@njit
 def pair_distance_jacobian(kin: Kinematics, geoms: Geoms, rot: Array, pos: Array, irot: Array, ipos: Array,
                            g1: int, g2: int, out: Array) -> float:
     """Signed distance of geoms ``g1``, ``g2`` (as :func:`pair_distance`) and its gradient ``out (nv,)``.
@@ -495,15 +511,14 @@ def pair_distance_jacobian(kin: Kinematics, geoms: Geoms, rot: Array, pos: Array
     point Jacobians at the witness points fixed to each geom's body and ``n`` the unit
     normal from ``g1`` to ``g2``. NaN and a zero row for a pair it does not compute.
     """
-    P1, P2, n = np.empty((1, 3)), np.empty((1, 3)), np.empty(3)
+    S = on_stack(9)
+    P1, P2, n = unshared(S, 0, (1, 3)), unshared(S, 3, (1, 3)), unshared(S, 6, (3,))
     d = pair_distance_normal(geoms, rot, pos, g1, g2, P1[0], P2[0], n)
-    for k in range(out.shape[0]):
-        out[k] = 0.0
     if np.isnan(d):
+        for k in range(out.shape[0]):
+            out[k] = 0.0
         return d
-    J6 = np.zeros((1, 6, out.shape[0]))
-    _add_point_rate(kin, rot, pos, irot, ipos, geoms.body[g2], P2, n, 1.0, J6, out)
-    _add_point_rate(kin, rot, pos, irot, ipos, geoms.body[g1], P1, n, -1.0, J6, out)
+    distance_gradient(kin, rot, pos, irot, ipos, geoms.body[g1], geoms.body[g2], P1, P2, n, out)
     return d
 
 
