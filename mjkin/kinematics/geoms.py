@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..jit import njit, njit_inline
+from ..jit import borrowed, njit, njit_inline, on_stack, unshared
 
 if TYPE_CHECKING:
     from .fk import Bodies
@@ -128,22 +128,31 @@ def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float,
     Pass ``reach`` = the clearance margin plus a slack for how far the geoms may move
     before the next call.
     """
-    R1, R2 = np.empty((3, 3)), np.empty((3, 3))
-    c1, c2 = np.empty(3), np.empty(3)
+    geoms, rot, pos, pairs, out = borrowed((geoms, rot, pos, pairs, out))
+    ng = geoms.type.shape[0]
+    W = unshared(on_stack(7 * ng), 0, (ng, 7))  # per geom: world centre, plane normal (planes only), done
+    for g in range(ng):
+        W[g, 6] = 0.0
+    for p in range(pairs.shape[0]):  # each geom's world centre (and a plane's normal) once
+        for g in (pairs[p, 0], pairs[p, 1]):
+            if W[g, 6] == 0.0:
+                W[g, 6] = 1.0
+                bd = geoms.body[g]
+                for i in range(3):
+                    W[g, i] = pos[0, bd, i] + (rot[0, bd, i, 0] * geoms.pos[g, 0] + rot[0, bd, i, 1] * geoms.pos[g, 1]
+                                               + rot[0, bd, i, 2] * geoms.pos[g, 2])
+                    if geoms.type[g] == PLANE:
+                        W[g, 3 + i] = (rot[0, bd, i, 0] * geoms.rot[g, 0, 2] + rot[0, bd, i, 1] * geoms.rot[g, 1, 2]
+                                       + rot[0, bd, i, 2] * geoms.rot[g, 2, 2])
     k = 0
     for p in range(pairs.shape[0]):
         g1, g2 = pairs[p, 0], pairs[p, 1]
-        geom_world(geoms, rot, pos, g1, R1, c1)
-        geom_world(geoms, rot, pos, g2, R2, c2)
         if geoms.type[g1] == PLANE or geoms.type[g2] == PLANE:
-            if geoms.type[g1] == PLANE:
-                gap = R1[0, 2] * (c2[0] - c1[0]) + R1[1, 2] * (c2[1] - c1[1]) + R1[2, 2] * (c2[2] - c1[2])
-                gap -= geoms.rbound[g2]
-            else:
-                gap = R2[0, 2] * (c1[0] - c2[0]) + R2[1, 2] * (c1[1] - c2[1]) + R2[2, 2] * (c1[2] - c2[2])
-                gap -= geoms.rbound[g1]
+            a, b = (g1, g2) if geoms.type[g1] == PLANE else (g2, g1)  # a: the plane
+            gap = W[a, 3] * (W[b, 0] - W[a, 0]) + W[a, 4] * (W[b, 1] - W[a, 1]) + W[a, 5] * (W[b, 2] - W[a, 2])
+            gap -= geoms.rbound[b]
         else:
-            gap = np.sqrt((c2[0] - c1[0]) ** 2 + (c2[1] - c1[1]) ** 2 + (c2[2] - c1[2]) ** 2) - (
+            gap = np.sqrt((W[g2, 0] - W[g1, 0]) ** 2 + (W[g2, 1] - W[g1, 1]) ** 2 + (W[g2, 2] - W[g1, 2]) ** 2) - (
                 geoms.rbound[g1] + geoms.rbound[g2])
         if gap <= reach:
             out[k] = p

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import njit
+from ..jit import njit, on_stack, unshared, unshared_int64
 from .geoms import BOX, CAPSULE, CYLINDER, SPHERE
 
 Array = NDArray[np.float64]
@@ -49,7 +49,7 @@ def support(kind: int, size: Array, R: Array, c: Array, v: Array, z: Array) -> N
             for i in range(3):
                 z[i] += sg * size[j] * R[i, j]
     else:  # ellipsoid: c + R S² Rᵀv / |S Rᵀv|
-        sv = np.empty(3)
+        sv = on_stack(3)
         norm = 0.0
         for j in range(3):
             sv[j] = size[j] * (R[0, j] * v[0] + R[1, j] * v[1] + R[2, j] * v[2])
@@ -100,9 +100,10 @@ def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array)
     and its weights to ``lam``, keeps only the face's rows; returns the face's size.
     """
     best, best_mask = np.inf, 1
-    G, r = np.empty((3, 3)), np.empty(3)
-    mu, weights, x = np.empty(3), np.empty(4), np.empty(3)
-    idx = np.empty(4, np.int64)
+    S = on_stack(26)  # scratch on the stack, views without reference counts (see mjkin.jit)
+    G, r = unshared(S, 0, (3, 3)), unshared(S, 9, (3,))
+    mu, weights, x = unshared(S, 12, (3,)), unshared(S, 15, (4,)), unshared(S, 19, (3,))
+    idx = unshared_int64(S, 22, (4,))
     for mask in range(1, 1 << k):
         m = 0
         for i in range(k):
@@ -159,7 +160,9 @@ def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: A
     supports along ``±n``: negative, and at least as deep as the true penetration.
     """
     best = -np.inf
-    ax, u, m, za, zb = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    S = on_stack(15)
+    ax, u, m, za, zb = (unshared(S, 0, (3,)), unshared(S, 3, (3,)), unshared(S, 6, (3,)), unshared(S, 9, (3,)),
+                        unshared(S, 12, (3,)))
     for k in range(16):
         if k < 3:
             for i in range(3):
@@ -201,8 +204,9 @@ def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array,
     (to :data:`GJK_TOL`) with the closest points ``p1``, ``p2``; overlapping ones
     :func:`_overlap`'s estimate.
     """
-    W, A, B = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
-    lam, v, dir_a, dir_b = np.empty(4), np.empty(3), np.empty(3), np.empty(3)
+    S = on_stack(49)
+    W, A, B = unshared(S, 0, (4, 3)), unshared(S, 12, (4, 3)), unshared(S, 24, (4, 3))
+    lam, v, dir_a, dir_b = unshared(S, 36, (4,)), unshared(S, 40, (3,)), unshared(S, 43, (3,)), unshared(S, 46, (3,))
     for i in range(3):
         v[i] = ca[i] - cb[i]
     vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
