@@ -157,9 +157,13 @@ def test_max_joint_speed_over_http(served_cluttered):
     api = Client.of(served_cluttered)
     status, state = api.post("/constraints", {"clearance": False, "max_joint_speed": 3.0})
     assert status == 200 and state["max_joint_speed"] == pytest.approx(3.0)
-    q0 = np.array(state["q"])
+    q0, v0 = np.array(state["q"]), state["version"]
     status, state = api.post("/target", {"frame": "ee", "pos": [0.0, 0.45, 0.6]})
-    assert status == 200 and np.abs(cluttered().difference(np.array(state["q"]), q0)).max() <= 0.1 + 1e-6  # 3/30
+    # each change of the state, the target's and any frame the render loop stepped meanwhile (a loaded host),
+    # moves no joint more than 3/30
+    frames = state["version"] - v0
+    assert status == 200 and frames >= 1
+    assert np.abs(cluttered().difference(np.array(state["q"]), q0)).max() <= 0.1 * frames + 1e-6
     status, reply = api.post("/constraints", {"max_joint_speed": "fast"})
     assert status == 400 and "max_joint_speed" in reply["error"]
     status, state = api.post("/constraints", {"max_joint_speed": None})
