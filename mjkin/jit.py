@@ -292,9 +292,12 @@ def unshared_int64(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.nd
 
 @njit_inline
 def on_stack(n: int) -> np.ndarray:
-    """``np.empty(n)`` on the stack of the compiled call, not the heap: no allocation, no reference count.
+    """``np.empty(n)`` on the stack of the compiled function, not the heap: no allocation, no reference count.
 
-    Only for scratch of a few KB in an entry called from Python (not in a loop: the
-    space is given back when the entry returns); nothing may keep it past that.
+    For scratch of a few KB, taken once at the top of an ``njit`` function (never inside
+    one of its loops, nor in an :data:`njit_inline` kernel: each pass would take more
+    stack). The space is given back when the function returns, also where LLVM inlines
+    it into a caller's loop (it brackets the call with a stack save and restore), so such
+    a function may be called any number of times; nothing may keep the array past that.
     """
     return numba.carray(_stack_floats(n), (n,))  # type: ignore[call-arg]  # typed by numba
