@@ -130,29 +130,24 @@ def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float,
     """
     geoms, rot, pos, pairs, out = borrowed((geoms, rot, pos, pairs, out))
     ng = geoms.type.shape[0]
-    W = unshared(on_stack(7 * ng), 0, (ng, 7))  # per geom: world centre, plane normal (planes only), done
+    S = on_stack(13 * ng)  # per geom: world axes (9), origin (3), placed yet (1)
     for g in range(ng):
-        W[g, 6] = 0.0
-    for p in range(pairs.shape[0]):  # each geom's world centre (and a plane's normal) once
+        S[13 * g + 12] = 0.0
+    for p in range(pairs.shape[0]):  # each geom placed once, not once per pair
         for g in (pairs[p, 0], pairs[p, 1]):
-            if W[g, 6] == 0.0:
-                W[g, 6] = 1.0
-                bd = geoms.body[g]
-                for i in range(3):
-                    W[g, i] = pos[0, bd, i] + (rot[0, bd, i, 0] * geoms.pos[g, 0] + rot[0, bd, i, 1] * geoms.pos[g, 1]
-                                               + rot[0, bd, i, 2] * geoms.pos[g, 2])
-                    if geoms.type[g] == PLANE:
-                        W[g, 3 + i] = (rot[0, bd, i, 0] * geoms.rot[g, 0, 2] + rot[0, bd, i, 1] * geoms.rot[g, 1, 2]
-                                       + rot[0, bd, i, 2] * geoms.rot[g, 2, 2])
+            if S[13 * g + 12] == 0.0:
+                S[13 * g + 12] = 1.0
+                geom_world(geoms, rot, pos, g, unshared(S, 13 * g, (3, 3)), unshared(S, 13 * g + 9, (3,)))
+    W = unshared(S, 0, (ng, 13))  # a plane's normal: its z axis, W[g, 2], W[g, 5], W[g, 8]; its origin W[g, 9:12]
     k = 0
     for p in range(pairs.shape[0]):
         g1, g2 = pairs[p, 0], pairs[p, 1]
         if geoms.type[g1] == PLANE or geoms.type[g2] == PLANE:
             a, b = (g1, g2) if geoms.type[g1] == PLANE else (g2, g1)  # a: the plane
-            gap = W[a, 3] * (W[b, 0] - W[a, 0]) + W[a, 4] * (W[b, 1] - W[a, 1]) + W[a, 5] * (W[b, 2] - W[a, 2])
+            gap = W[a, 2] * (W[b, 9] - W[a, 9]) + W[a, 5] * (W[b, 10] - W[a, 10]) + W[a, 8] * (W[b, 11] - W[a, 11])
             gap -= geoms.rbound[b]
         else:
-            gap = np.sqrt((W[g2, 0] - W[g1, 0]) ** 2 + (W[g2, 1] - W[g1, 1]) ** 2 + (W[g2, 2] - W[g1, 2]) ** 2) - (
+            gap = np.sqrt((W[g2, 9] - W[g1, 9]) ** 2 + (W[g2, 10] - W[g1, 10]) ** 2 + (W[g2, 11] - W[g1, 11]) ** 2) - (
                 geoms.rbound[g1] + geoms.rbound[g2])
         if gap <= reach:
             out[k] = p
