@@ -3,91 +3,71 @@
 The kernels (FK, Jacobians, IK iterations) are plain loops over a leading
 batch axis compiled by numba: numpy's per-call overhead (~1 µs a call, dozens
 of calls per FK) would otherwise dominate single configurations, and its
-stacked 3x3 products are slow for large batches. Compiled code is cached on
-disk next to the modules, so only the first run pays for compilation.
+stacked 3x3 products are slow for large batches. Nothing compiles at import: a
+kernel compiles when first called, and is cached on disk (:mod:`mjkin.cache`),
+so only the first run that uses it pays for it.
 
 One rule for the hot kernels: in numba every array bound to a variable, sliced,
 or passed across a call costs two atomic reference-count updates (~25 ns
 together on a 2-core VM), more than a 3x3 product. So they index arrays element
 by element instead of taking views, and the kernels other kernels call in their
-loops are inlined at numba's IR level (:data:`njit_inline`). Inlining does not
-save the updates for an inlined kernel's array arguments; the IK loop passes
+loops are inlined by LLVM (:data:`njit_inline`). Inlining does not save the
+updates for an inlined kernel's array arguments; the IK loop passes
 :func:`borrowed` views, which carry no count.
 """
 
 from __future__ import annotations
 
-import hashlib
-import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numba
 import numpy as np
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
+from numba.core import cgutils, sigutils
+from numba.core.ccallback import CFunc
 from numba.experimental import structref
 from numba.extending import intrinsic
 
-PACKAGE = Path(__file__).resolve().parent
+from .cache import KernelCache
+
 CLOCK_MONOTONIC = 1  # Linux
 
 
-def cache_dir(package: Path = PACKAGE) -> Path:
-    """Where numba keeps this package's compiled kernels.
+def _jit(**options: Any) -> Callable[[Callable], Any]:
+    """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.cache.KernelCache`."""
 
-    Next to the sources by default; under ``$NUMBA_CACHE_DIR`` (numba's own
-    setting, mirroring the source path) when set — the choice for read-only
-    installs, containers and CI caches.
-    """
-    root = os.environ.get("NUMBA_CACHE_DIR")
-    return Path(root) / package.relative_to(package.anchor) if root else package
+    def decorate(fn: Callable) -> Any:
+        dispatcher = numba.njit(**{"nogil": True, "fastmath": False, **options})(fn)
+        dispatcher._cache = KernelCache(dispatcher.py_func)
+        return dispatcher
 
-
-def drop_stale_caches(package: Path = PACKAGE) -> bool:
-    """Delete the package's numba caches when any of its sources changed; True if it did.
-
-    numba keys a cached kernel to its own file, but a kernel carries the code of
-    the kernels it calls (inlined or linked) from other files: after an update of
-    ``fk.py`` alone, the IK kernel's cache would still hold the old FK. A digest
-    of every source, kept beside the caches, catches that.
-    """
-    sources = sorted(p for p in package.rglob("*.py") if "__pycache__" not in p.parts)  # not the generated loops
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
-    caches = cache_dir(package)
-    stamp = caches / "__pycache__" / "mjkin-sources.sha256" if caches == package else caches / "mjkin-sources.sha256"
-    if stamp.is_file() and stamp.read_text() == digest:
-        return False
-    try:
-        for cache in (*caches.rglob("*.nbi"), *caches.rglob("*.nbc")):
-            cache.unlink(missing_ok=True)
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        tmp = stamp.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(digest)
-        tmp.replace(stamp)
-    except OSError:  # a read-only install: numba then caches elsewhere, per user
-        return False
-    return True
+    return decorate
 
 
-drop_stale_caches()
-njit = numba.njit(cache=True, nogil=True, fastmath=False)
-# Inlined where another kernel calls it (an FK of a 7-DoF arm passes 18 arrays for ~0.5 µs of arithmetic);
-# called from Python it behaves like ``njit``.
-njit_inline = numba.njit(cache=True, nogil=True, fastmath=False, inline="always")
+njit = _jit()
+# Inlined by LLVM wherever another kernel calls it (``forceinline``: LLVM's alwaysinline), compiled once on its own
+# and cached: numba's own inlining (``inline="always"``) typed the callee again at every call site, the better part
+# of the IK loop's compile time. Called from Python it behaves like ``njit``.
+njit_inline = _jit(forceinline=True)
+# Inlined into its caller by numba, in numba's IR: only for what must live in the caller's own frame
+# (:func:`on_stack`) and the IK loop's single-call layers (see mjkin.ik.loop).
+njit_ir_inline = _jit(inline="always")
+# Short entries called from Python once per configuration keep the GIL: releasing and taking it back costs ~0.1 µs
+# a call, a third of a 7-DoF pose.
+njit_gil = _jit(nogil=False)
 
 
-def njit_eager(signatures: list) -> Callable:
-    """``njit`` compiled for these signatures only, at import (from the disk cache after the first run).
+def cfunc(signature: Any) -> Callable[[Callable], CFunc]:
+    """``numba.cfunc(signature)`` cached like :data:`njit`; not compiled until its ``compile()`` is called."""
 
-    For short entries called from Python once per configuration: an argument of another
-    type raises :class:`TypeError` (numba's "No matching definition") instead of compiling
-    another version, so the caller can take its checked path. They keep the GIL: releasing
-    and taking it back costs ~0.1 µs a call, a third of a 7-DoF pose.
-    """
-    return numba.njit(signatures, cache=True, nogil=False, fastmath=False)
+    def decorate(fn: Callable) -> CFunc:
+        c = CFunc(fn, sigutils.normalize_signature(signature), locals={}, options={})
+        c._cache = KernelCache(fn)
+        return c
+
+    return decorate
 
 
 def entry(dispatcher: Any, *types_: Any) -> Callable:
@@ -290,7 +270,7 @@ def unshared_int64(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.nd
     return numba.carray(_int64_pointer(buf, start), shape)  # type: ignore[call-arg]  # typed by numba
 
 
-@njit_inline
+@njit_ir_inline
 def on_stack(n: int) -> np.ndarray:
     """``np.empty(n)`` on the stack of the compiled function, not the heap: no allocation, no reference count.
 

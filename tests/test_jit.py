@@ -1,4 +1,4 @@
-"""The numba set-up: the cache guard (caches go when any source changes, and only then), borrowed views, entries."""
+"""The numba set-up: the kernel cache (stamped by what a kernel imports, read where it cannot write), borrowed views."""
 
 import numba
 import numpy as np
@@ -6,50 +6,135 @@ import numpy as np
 import mjkin
 from mjkin.goals import Position
 from mjkin.ik.packed import FIELDS, Packed
-from mjkin.jit import borrowed, borrowed_fields, drop_stale_caches, entry, keep_alive
+from mjkin.jit import borrowed, borrowed_fields, entry, keep_alive
 
 
-def test_caches_are_dropped_when_any_source_changes(tmp_path):
-    (tmp_path / "fk.py").write_text("x = 1\n")
-    (tmp_path / "sub").mkdir()
-    (tmp_path / "sub" / "kernel.py").write_text("y = 2\n")
-    cache = tmp_path / "sub" / "__pycache__"
-    cache.mkdir()
-    index, data = cache / "kernel.solve-1.py311.nbi", cache / "kernel.solve-1.py311.1.nbc"
-    assert drop_stale_caches(tmp_path)  # no digest yet: caches of unknown sources go
-    index.write_bytes(b"i")
-    data.write_bytes(b"d")
-    assert not drop_stale_caches(tmp_path) and index.exists() and data.exists()  # unchanged: kept
-    (tmp_path / "fk.py").write_text("x = 3\n")  # another file than the cached kernel's
-    assert drop_stale_caches(tmp_path)
-    assert not index.exists() and not data.exists()
-    assert not drop_stale_caches(tmp_path)
+# a package of two files: a kernel in kern.py that inlines a helper from help.py (as the IK loop inlines FK)
+_HELP = "from mjkin.jit import njit_inline\n\n\n@njit_inline\ndef shift(x):\n    return x + {k}\n"
+_KERN = "from mjkin.jit import njit\n\nfrom .help import shift\n\n\n@njit\ndef kernel(x):\n    return shift(x) * 2.0\n"
+_RUN = ("import sys; sys.path.insert(0, sys.argv[1]); from kpkg.kern import kernel; "
+        "print(kernel(1.0), kernel.stats.cache_hits.get(kernel.signatures[0], 0) if kernel.signatures else 0)")
 
 
-def test_numba_cache_dir_is_honoured(tmp_path, monkeypatch):
-    from mjkin.jit import cache_dir
+def _package(root, k=1.0):
+    pkg = root / "kpkg"
+    pkg.mkdir(parents=True, exist_ok=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "help.py").write_text(_HELP.format(k=k))
+    (pkg / "kern.py").write_text(_KERN)
+    return pkg
 
-    pkg = tmp_path / "src" / "mjkin"
-    pkg.mkdir(parents=True)
-    (pkg / "a.py").write_text("x = 1\n")
-    assert cache_dir(pkg) == pkg
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
-    target = cache_dir(pkg)
-    assert target == tmp_path / "cache" / pkg.relative_to(pkg.anchor)
-    target.mkdir(parents=True)
-    stale = target / "a.f-1.py311.nbi"
-    stale.write_bytes(b"i")
-    assert drop_stale_caches(pkg) and not stale.exists()  # the caches numba would read are the ones checked
-    assert (target / "mjkin-sources.sha256").is_file() and not (pkg / "__pycache__").exists()
+
+def _run(root, **env):
+    import os
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _RUN, str(root)], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, **env}, check=True).stdout.split()
+    return float(out[0]), int(out[1])  # the answer, and whether it came from a cache (1) or was compiled (0)
+
+
+def test_a_kernel_is_stamped_with_the_files_it_imports(tmp_path):
+    from mjkin.cache import stamp
+
+    pkg = _package(tmp_path)
+    before = stamp(pkg / "kern.py"), stamp(pkg / "help.py")
+    (pkg / "help.py").write_text(_HELP.format(k=2.0))  # another file than the kernel's
+    after = stamp(pkg / "kern.py"), stamp(pkg / "help.py")
+    assert after[0] != before[0] and after[1] != before[1]
+    (pkg / "kern.py").write_text(_KERN + "\n# a comment\n")
+    assert stamp(pkg / "help.py") == after[1]  # the helper does not depend on its caller
+
+
+def test_the_ik_loop_depends_on_the_goal_helpers_and_fk_but_fk_not_on_the_goals(tmp_path):
+    """An edit of position_rows (goals/compiled.py) restamps the loop and Position's residual; FK keeps its stamp."""
+    import shutil
+
+    from mjkin.cache import PACKAGE, stamp
+
+    copy = tmp_path / "mjkin"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    files = [copy / "ik" / "loop.py", copy / "goals" / "position.py", copy / "kinematics" / "fk.py",
+             copy / "goals" / "com.py"]
+    before = [stamp(f) for f in files]
+    helpers = copy / "goals" / "compiled.py"
+    helpers.write_text(helpers.read_text().replace("w * (pt[0, a] - ga.data[b, i, a])",
+                                                   "w * (pt[0, a] + 0.1 - ga.data[b, i, a])"))
+    after = [stamp(f) for f in files]
+    assert after[0] != before[0] and after[1] != before[1] and after[2] == before[2]
+    (copy / "goals" / "com.py").write_text((copy / "goals" / "com.py").read_text() + "\n")
+    assert stamp(files[1]) == after[1] and stamp(files[0]) == after[0]  # another kind's edit: Position's loop stays
+
+
+def test_an_edited_helper_recompiles_its_caller_under_numba_cache_dir(tmp_path):
+    """The stale-code case: with NUMBA_CACHE_DIR a kernel whose inlined helper changed is compiled again."""
+    pkg = _package(tmp_path / "src")
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    assert _run(tmp_path / "src", **env) == (4.0, 0)  # compiled
+    assert _run(tmp_path / "src", **env) == (4.0, 1)  # loaded from the cache
+    (pkg / "help.py").write_text(_HELP.format(k=5.0))
+    assert _run(tmp_path / "src", **env) == (12.0, 0)  # the new helper, compiled in: no stale answer
+    assert not (pkg / "__pycache__").exists() or not list((pkg / "__pycache__").glob("*.nbi"))  # all under the dir
+
+
+def test_a_cache_warmed_elsewhere_is_read_where_it_cannot_be_written(tmp_path):
+    """Kernels compiled beside the sources (a warmed install) are used when numba must write elsewhere."""
+    _package(tmp_path / "src")
+    assert _run(tmp_path / "src") == (4.0, 0)  # warmed in the tree
+    # another place to write (as when the tree is read-only): the kernel still comes from the tree's cache
+    assert _run(tmp_path / "src", NUMBA_CACHE_DIR=str(tmp_path / "elsewhere")) == (4.0, 1)
+
+
+def test_generated_code_is_never_taken_from_a_folder_another_user_can_write(tmp_path, monkeypatch):
+    """A folder planted by another user (or writable by others) is refused; the code goes to a private one."""
+    import os
+
+    from mjkin import cache
+
+    planted = tmp_path / "xdg" / "mjkin" / "generated"
+    planted.mkdir(parents=True)
+    marker = tmp_path / "ran"
+    (planted / "mjkin_loop_0.py").write_text(f"open({str(marker)!r}, 'w').write('x')\n")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setattr(cache, "PACKAGE", tmp_path / "readonly-package")
+    (tmp_path / "readonly-package").write_text("")  # a file: no folder can be made under it
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(cache, "_TEMPORARY", [])
+    if os.getuid() == 0:
+        os.chown(planted, 65534, 65534)  # another user's folder
+    else:
+        planted.chmod(0o777)  # one that every user may write to
+    chosen = cache.private_folder("generated")
+    assert chosen != planted and chosen.is_dir() and not (chosen / "mjkin_loop_0.py").exists()
+    assert os.stat(chosen).st_uid == os.getuid() and not os.stat(chosen).st_mode & 0o077
+    planted.chmod(0o700)
+    if os.getuid() == 0:
+        os.chown(planted, 0, 0)
+    assert cache.private_folder("generated") == planted  # once it is private and ours, it is used
+    assert not marker.exists()
+
+
+def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
+    """A Pose problem's loop dispatches to Pose alone: no distance or balance code is compiled for it."""
+    from mjkin.goals import Clearance, HalfSpace, Pose
+    from mjkin.ik import compiled
+
+    text = compiled.source((Pose.code,))
+    assert "mjkin.goals.pose import residual" in text and text.count("ga.kind[i] ==") == 1
+    assert "clearance" not in text and "com import" not in text
+    both = compiled.source((Clearance.code, HalfSpace.code))
+    assert both.count("ga.kind[i] ==") == 2 and "mjkin.goals.clearance import residual" in both
 
 
 def test_warmup_compiles_every_kernel_mjkin_runs():
     from mjkin.apps.warmup import warmup
+    from mjkin.goals import Pose
     from mjkin.ik.compiled import kernels
     from mjkin.kinematics.fk import fk_kernel
 
     assert warmup() > 0
-    assert kernels().solve_packed.signatures and fk_kernel.signatures
+    assert kernels((Pose.code,)).solve_packed.signatures and fk_kernel.signatures
 
 
 def test_borrowed_views_read_and_write_their_owners():

@@ -10,6 +10,7 @@ import numba
 
 from mjkin.apps import warmup
 from mjkin.apps.cli import main
+from mjkin.goals import Pose
 from mjkin.ik.compiled import kernels
 
 
@@ -19,7 +20,7 @@ def test_warmup_compiles_the_solver_and_reports_seconds(capsys):
     assert out[0].startswith("preparing mjkin's kernels")
     done = r"\((compiled \d+ kernels?|none compiled: cached or loaded)\)"
     assert re.fullmatch(rf"kernels ready in \d+\.\d s {done}", out[1])
-    solver = kernels().solve_packed  # the loop's one entry from Python
+    solver = kernels((Pose.code,)).solve_packed  # the Pose loop's one entry from Python
     assert isinstance(solver, numba.core.registry.CPUDispatcher) and len(solver.signatures) >= 1
 
 

@@ -50,6 +50,11 @@ class Structure:
     support_pos: Array  # (S, 3) those points in their bodies
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
+    @cached_property
+    def kinds(self) -> tuple[int, ...]:
+        """The registry codes of the goal kinds present, ascending: the IK loop is compiled for these."""
+        return tuple(sorted(set(self.kind.tolist())))
+
 
 @dataclass(frozen=True, eq=False, init=False)
 class Program:

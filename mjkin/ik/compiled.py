@@ -1,9 +1,13 @@
-"""The IK loop compiled with the registered goal kinds.
+"""The IK loop compiled with a problem's goal kinds.
 
 numba resolves the functions a kernel calls when it compiles it, so the loop
-(:mod:`mjkin.ik.loop`) is written out once per set of kinds, with a dispatch
-branch per kind, to a module in the kernel cache (named by a digest of the kinds'
-sources, so numba's disk cache stays valid), and imported from there.
+(:mod:`mjkin.ik.loop`) is written out once per set of goal kinds, with a dispatch
+branch per kind, to a module in a folder only this user can write
+(:func:`mjkin.cache.private_folder`), named by a digest of its text, and imported
+from there. A problem compiles the loop of the kinds it holds (a Pose-only problem
+no Clearance or CenterOfMass code); each set's loop is cached on disk like every
+kernel, stamped with the files it imports (:mod:`mjkin.cache`), those of its kinds'
+residuals among them.
 """
 
 from __future__ import annotations
@@ -13,12 +17,12 @@ import importlib.util
 import inspect
 import os
 import sys
-import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
+from ..cache import PACKAGE, private_folder
 from ..goals import registry
-from ..jit import PACKAGE, cache_dir
 
 PREFIX = "mjkin_loop_"  # the generated modules' names
 _LOADED: dict[tuple, ModuleType] = {}
@@ -26,36 +30,44 @@ _BRANCH = ("        {kw} ga.kind[i] == {code}:\n"
            "            _k{code}(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, ga.row[i], err)\n")
 
 
-def source() -> str:
-    """The loop module's source for the kinds registered now."""
+def _binding(code: int) -> str:
+    """The line that names kind ``code``'s residual ``_k<code>`` in the generated module.
+
+    Imported from its own module where that works, so the module's imports (and so its cache
+    stamp) name the residual's file; otherwise (a kind defined in ``__main__``) through the
+    registry, with a digest of the residual's source in the text.
+    """
+    residual, cls = registry.RESIDUALS[code], registry.KINDS[code]
+    fn = residual.py_func  # type: ignore[attr-defined]
+    module = sys.modules.get(fn.__module__)
+    if fn.__module__ != "__main__" and getattr(module, fn.__name__, None) is residual:
+        return f"from {fn.__module__} import {fn.__name__} as _k{code}  # {cls.__qualname__}\n"
+    source = hashlib.sha256(inspect.getsource(fn).encode()).hexdigest()[:16]
+    return f"_k{code} = residual_of({code})  # {cls.__module__}.{cls.__qualname__}, source {source}\n"
+
+
+def source(codes: Sequence[int]) -> str:
+    """The loop module's source with a branch for each kind code in ``codes``."""
     template = (PACKAGE / "ik" / "loop.py").read_text()
     marker = "        pass  # DISPATCH: mjkin.ik.compiled puts one branch per registered kind here\n"
-    branches = "".join(_BRANCH.format(kw="if" if c == 0 else "elif", code=c) for c in range(len(registry.KINDS)))
-    imports = "from mjkin.goals.registry import residual_of\n\n" + "".join(
-        f"_k{c} = residual_of({c})  # {cls.__module__}.{cls.__qualname__}\n" for c, cls in enumerate(registry.KINDS))
+    branches = "".join(_BRANCH.format(kw="if" if k == 0 else "elif", code=c) for k, c in enumerate(codes))
+    imports = "from mjkin.goals.registry import residual_of\n" + "".join(_binding(c) for c in codes)
     head, rest = template.split("# BEGIN evaluate_goals", 1)
     return head + imports + "\n\n# BEGIN evaluate_goals" + rest.replace(marker, branches)
 
 
-def kernels() -> ModuleType:
-    """The compiled loop for the kinds registered now (written and imported once per set of kinds)."""
-    key = tuple(registry.KINDS)
+def kernels(codes: Sequence[int]) -> ModuleType:
+    """The compiled loop for the goal kinds ``codes`` (registry codes; written and imported once per set)."""
+    key = tuple(sorted(set(int(c) for c in codes)))
     if key in _LOADED:
         return _LOADED[key]
-    text = source()
-    sources = [inspect.getsource(r.py_func) for r in registry.RESIDUALS]  # type: ignore[attr-defined]
-    digest = hashlib.sha256("".join([text, *sources]).encode()).hexdigest()[:16]
-    for folder in (cache_dir() / "__pycache__" / "generated", Path(tempfile.gettempdir()) / f"mjkin-{os.getuid()}"):
-        path = folder / f"{PREFIX}{digest}.py"
-        try:
-            if not path.is_file() or path.read_text() != text:
-                folder.mkdir(parents=True, exist_ok=True)
-                tmp = folder / f".{path.name}.{os.getpid()}.tmp"
-                tmp.write_text(text)
-                tmp.replace(path)
-            break
-        except OSError:  # a read-only install without NUMBA_CACHE_DIR: the user's temporary folder
-            continue
+    text = source(key)
+    folder = private_folder("generated")
+    path = folder / f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py"
+    if not path.is_file() or path.read_text() != text:
+        tmp = folder / f".{path.name}.{os.getpid()}.tmp"
+        tmp.write_text(text)
+        tmp.replace(path)
     module = _import(path)
     _LOADED[key] = module
     return module

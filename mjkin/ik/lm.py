@@ -196,7 +196,7 @@ class Loop:
             finally:
                 self.lock.release()
         arrays = self.arrays(prog, q)
-        packed, solve_packed = self.pack(arrays), kernels().solve_packed
+        packed, solve_packed = self.pack(arrays), kernels(prog.structure.kinds).solve_packed
         # the compiled code releases the GIL
         parallel_chunks(lambda lo, hi: solve_packed(packed, lo, hi), prog.B)
         return self.result(prog, arrays)
@@ -208,7 +208,8 @@ class Loop:
             packed = self.pack(arrays)
             self.one, self.starts_in_one = (packed, arrays), self.problem.starts
             # the packed arrays are always these types: the call skips numba's dispatch (mjkin.jit.entry)
-            self.solve_packed = entry(kernels().solve_packed, numba.typeof(packed), numba.int64, numba.int64)
+            self.solve_packed = entry(kernels(prog.structure.kinds).solve_packed, numba.typeof(packed), numba.int64,
+                                      numba.int64)
         packed, arrays = self.one
         ga, q_in, starts = arrays[:3]
         ga.data[...] = prog.data

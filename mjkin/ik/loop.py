@@ -1,12 +1,14 @@
-"""The IK loop, compiled with the registered goal kinds: whole solves of targets, and goal evaluation.
+"""The IK loop, compiled with a problem's goal kinds: whole solves of targets, and goal evaluation.
 
 This file is a template: :mod:`mjkin.ik.compiled` writes a copy with
-:func:`evaluate_goals` dispatching to every kind of the registry
-(:mod:`mjkin.goals.registry`) and imports that copy. A solve of one target runs
-entirely inside :func:`solve_one`; :func:`solve_batch` runs a range of targets
-(the caller splits large batches across threads: the compiled code releases the GIL).
-Python calls :func:`solve_packed`, which takes all the arrays as one packed argument
-(:mod:`mjkin.ik.packed`); the other two are inlined into it.
+:func:`evaluate_goals` dispatching to the goal kinds of a problem (codes of
+:mod:`mjkin.goals.registry`) and imports that copy, so a Pose-only problem compiles
+no distance or balance code. A solve of one target runs entirely inside
+:func:`solve_one`; :func:`solve_batch` runs a range of targets (the caller splits
+large batches across threads: the compiled code releases the GIL). Python calls
+:func:`solve_packed`, which takes all the arrays as one packed argument
+(:mod:`mjkin.ik.packed`); the other two are inlined into it by numba (one call site
+each), the kernels they call by LLVM (:data:`mjkin.jit.njit_inline`).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from mjkin.ik.kernel import (
     summarise,
 )
 from mjkin.ik.packed import Packed
-from mjkin.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline
+from mjkin.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline, njit_ir_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
 
@@ -108,7 +110,7 @@ def loop_scratch(kin: Kinematics, ga: GoalArrays, nq: int) -> tuple:
             np.empty(h, dtype=np.bool_), levels, lam2h, np.empty(G))
 
 
-@njit_inline
+@njit_ir_inline
 def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st: Settings, max_iters: int,
               restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], err_out: Array,
               hist_q: Array, hist_err: Array, work: tuple) -> tuple:
@@ -379,7 +381,7 @@ def _stack_active(s: Array, Js: Array, on: NDArray[np.bool_], g: Array, J: Array
     return k
 
 
-@njit_inline
+@njit_ir_inline
 def solve_batch(kin: Kinematics, ga: GoalArrays, q: Array, method: int, st: Settings, max_iters: int,
                 restarts: Array, restart_q: NDArray[np.bool_], active: NDArray[np.bool_], iters: Index,
                 status: Index, used: Index, binding: Index, err: Array, hist_q: Array, hist_err: Array, lo: int,

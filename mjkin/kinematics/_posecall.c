@@ -5,9 +5,10 @@
  * in C that q is what the kernels read (a float64 ndarray, 1-D, C-contiguous, aligned,
  * native byte order), makes the output array and calls the kernel through a plain C
  * function pointer: numba's cfuncs over chain_pose and chain_poses
- * (mjkin/kinematics/chain.py), bound once with bind(). Any other q, or a q the kernel
- * refuses (another length, NaN, a zero quaternion), returns None: the caller's checked
- * path then answers or says what is wrong. The arithmetic is all in the numba kernels.
+ * (mjkin/kinematics/chain.py), bound once with bind() on the first one-q pose (nothing
+ * compiles at import). Before that, or for any other q, or a q the kernel refuses
+ * (another length, NaN, a zero quaternion), it returns None: the caller's checked path
+ * then answers or says what is wrong. The arithmetic is all in the numba kernels.
  *
  * Optional: when no C compiler is at hand the package installs without it, and chain.py
  * falls back to calling numba's compiled entry from Python.
@@ -54,10 +55,8 @@ static int is_call(PyObject *const *args, Py_ssize_t nargs) {
 
 /* the kernel's output (nd dims) for (chain, q), or None when q is not for it */
 static PyObject *call(kernel_t kernel, PyObject *const *args, int nd, npy_intp *dims) {
-    if (kernel == NULL) {
-        PyErr_SetString(PyExc_RuntimeError, "mjkin.kinematics._posecall: bind() was not called");
-        return NULL;
-    }
+    if (kernel == NULL) /* not bound yet (chain.ready() binds it on the first one-q pose): the checked path */
+        Py_RETURN_NONE;
     PyArrayObject *chain = (PyArrayObject *)args[0], *q = (PyArrayObject *)args[1];
     if (!PyArray_CheckExact(args[1]) || PyArray_TYPE(q) != NPY_DOUBLE || PyArray_NDIM(q) != 1 ||
         !PyArray_ISCARRAY_RO(q))

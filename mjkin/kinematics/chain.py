@@ -20,14 +20,15 @@ fixed in the last body ``local (4, 4)``, the tree's ``qpos0 (nq,)``, ``fixed_rot
 Why one buffer: numba's dispatch costs ~0.05 µs per plain array argument, ~0.5 µs
 for a structref, and the 14 arrays of the FK would cost more than a 7-DoF arm's FK
 itself. Nothing writes a chain, but it is not flagged read-only: numba's dispatch
-types a read-only array in Python (~1 µs). The compiled entries have explicit
-signatures (compiled once, cached on disk): a ``q`` of another dtype or layout
-raises :class:`TypeError` instead of compiling another version.
+types a read-only array in Python (~1 µs). The compiled entries have fixed
+signatures, compiled (or loaded from the disk cache) by :func:`ready` on the first
+one-q pose, not at import: after that a ``q`` of another dtype or layout raises
+:class:`TypeError` instead of compiling another version.
 
 ``Tree.pose`` and ``Tree.fk`` skip numba's Python wrapper too: :data:`pose_of` and
 :data:`poses_of` come from the small C module :mod:`mjkin.kinematics._posecall`
 (``_posecall.c``), which checks ``q``, makes the output and calls the kernels as
-numba cfuncs through C function pointers (the wrapper's unboxing of three arrays
+numba cfuncs through C function pointers (bound by :func:`ready`; until then it returns None) (the wrapper's unboxing of three arrays
 costs ~0.2 µs, as much as a 7-DoF pose). Without a C compiler at install they are
 :func:`pose_numba` and :func:`poses_numba`, which call numba's compiled entry from
 Python (:func:`mjkin.jit.entry`). Both return None for any ``q`` but a native float64
@@ -41,10 +42,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from numba import carray, cfunc, types
+from numba import carray, types
 from numpy.typing import NDArray
 
-from ..jit import entry, njit_eager, njit_inline, on_stack, unshared, unshared_int64
+from ..jit import cfunc, entry, njit_gil, njit_inline, on_stack, unshared, unshared_int64
 from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
 
 Array = NDArray[np.float64]
@@ -129,7 +130,7 @@ _CHAIN = types.Array(types.float64, 1, "C")
 _Q = (types.Array(types.float64, 1, "C"), types.Array(types.float64, 1, "C", readonly=True))
 
 
-@njit_eager([types.boolean(_CHAIN, q, types.Array(types.float64, 2, "C")) for q in _Q])
+@njit_gil
 def chain_pose(chain: Array, q: Array, T: Array) -> bool:
     """World pose ``T (4, 4)`` of a chain's frame for one ``q (nq,)``.
 
@@ -145,7 +146,7 @@ def chain_pose(chain: Array, q: Array, T: Array) -> bool:
     return True
 
 
-@njit_eager([types.boolean(_CHAIN, q, types.Array(types.float64, 3, "C")) for q in _Q])
+@njit_gil
 def chain_poses(chain: Array, q: Array, T: Array) -> bool:
     """Pose ``T (n, 4, 4)`` of each body of a chain for one ``q (nq,)``; False (none written) as :func:`chain_pose`."""
     n = unshared_int64(chain, 1, (1,))[0]
@@ -162,24 +163,46 @@ _KERNEL = types.int32(types.CPointer(types.float64), types.int64, types.CPointer
                       types.CPointer(types.float64))  # (chain, L, q, nq, out): what _posecall.c calls
 
 
-@cfunc(_KERNEL, cache=True)
+@cfunc(_KERNEL)
 def _pose_cfunc(chain: Any, length: int, q: Any, nq: int, T: Any) -> int:
     """:func:`chain_pose` behind a C function pointer, for :mod:`mjkin.kinematics._posecall`."""
     return 1 if chain_pose(carray(chain, (length,)), carray(q, (nq,)), carray(T, (4, 4))) else 0
 
 
-@cfunc(_KERNEL, cache=True)
+@cfunc(_KERNEL)
 def _poses_cfunc(chain: Any, length: int, q: Any, nq: int, T: Any) -> int:
     """:func:`chain_poses` behind a C function pointer; ``T (n, 4, 4)``, ``n`` read from the chain."""
     c = carray(chain, (length,))
     return 1 if chain_poses(c, carray(q, (nq,)), carray(T, (unshared_int64(c, 1, (1,))[0], 4, 4))) else 0
 
 
-# without numba's dispatch (mjkin.jit.entry), for a q already known to be float64, 1-D and C-contiguous
-# (read-only too: neither writes q)
-_pose_direct = entry(chain_pose, _CHAIN, _Q[0], types.Array(types.float64, 2, "C"))
-_poses_direct = entry(chain_poses, _CHAIN, _Q[0], types.Array(types.float64, 3, "C"))
 _FLOAT64 = np.dtype(np.float64)  # native float64 (numba's dispatch can mistake a read-only big-endian array for one)
+_direct: list[Callable] = []  # chain_pose's and chain_poses' entries without numba's dispatch (see ready)
+
+
+def ready() -> None:
+    """Compile (or load from the disk cache) the one-q entries, once, and bind the C module's pointers to them.
+
+    ``Tree.pose`` and ``Tree.fk`` call it on their first one-q pose; until then :data:`pose_of` and
+    :data:`poses_of` return None (nothing compiles at import).
+    """
+    if _direct:
+        return
+    for kernel, ndim in ((chain_pose, 2), (chain_poses, 3)):
+        for q in _Q:  # float64, and read-only too: neither writes q
+            kernel.compile((_CHAIN, q, types.Array(types.float64, ndim, "C")))
+        kernel.disable_compile()  # any other q: TypeError, for the caller's checked path
+    _direct.extend(entry(k, _CHAIN, _Q[0], types.Array(types.float64, n, "C")) for k, n in ((chain_pose, 2),
+                                                                                           (chain_poses, 3)))
+    if _posecall is not None:
+        _pose_cfunc.compile()
+        _poses_cfunc.compile()
+        _posecall.bind(_pose_cfunc.address, _poses_cfunc.address)
+
+
+def is_ready() -> bool:
+    """Whether :func:`ready` has run."""
+    return bool(_direct)
 
 
 def _is_plain(q: object) -> bool:
@@ -188,18 +211,18 @@ def _is_plain(q: object) -> bool:
 
 
 def pose_numba(chain: Array, q: object) -> Array | None:
-    """:func:`chain_pose` into a new ``(4, 4)``, or None for any other ``q`` or one it refuses.
+    """:func:`chain_pose` into a new ``(4, 4)``, or None for any other ``q`` or one it refuses (or before :func:`ready`).
 
     What :data:`pose_of` is when :mod:`mjkin.kinematics._posecall` was not built (no C compiler).
     """
-    if _is_plain(q) and _pose_direct(chain, q, T := np.empty((4, 4))):
+    if _direct and _is_plain(q) and _direct[0](chain, q, T := np.empty((4, 4))):
         return T
     return None
 
 
 def poses_numba(chain: Array, q: object) -> Array | None:
     """:func:`chain_poses` into a new ``(n, 4, 4)``, or None as :func:`pose_numba`."""
-    if _is_plain(q) and _poses_direct(chain, q, T := np.empty((int(chain[1:2].view(np.int64)[0]), 4, 4))):
+    if _direct and _is_plain(q) and _direct[1](chain, q, T := np.empty((int(chain[1:2].view(np.int64)[0]), 4, 4))):
         return T  # n: the chain's second header integer
     return None
 
@@ -209,7 +232,7 @@ poses_of: Callable[[Array, object], Array | None]
 try:
     from . import _posecall  # built by setup.py where a C compiler is (types: _posecall.pyi)
 except ImportError:  # installed without a C compiler
+    _posecall = None  # type: ignore[assignment]
     pose_of, poses_of = pose_numba, poses_numba
 else:
-    _posecall.bind(_pose_cfunc.address, _poses_cfunc.address)
     pose_of, poses_of = _posecall.pose, _posecall.poses

@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import qspace
+from . import chain as chains
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
@@ -239,6 +240,9 @@ class Tree:
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
         T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
+        if T is None and not chains.is_ready() and np.ndim(q) == 1:  # the first one-q pose: compile that call
+            chains.ready()
+            T = poses_of(self.bodies_chain, q)
         return self.kinematics(q).poses() if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
@@ -251,6 +255,7 @@ class Tree:
             return T  # one compiled call for a plain 1-D q, which checks it too (else the path below says why)
         q = self.check_q(q)
         if q.ndim == 1:
+            chains.ready()  # the one-q entries, compiled (or loaded) on the first one-q pose
             T = np.empty((4, 4))
             if chain_pose(self._chain(name, kind), np.ascontiguousarray(q), T):
                 return T

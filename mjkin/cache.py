@@ -1,0 +1,184 @@
+"""Where compiled kernels are kept on disk, and when a kept kernel is stale.
+
+numba keeps a compiled function beside its source (``__pycache__``), under
+``$NUMBA_CACHE_DIR`` when that is set, or else per user, and stamps it with its
+own source file only. But a kernel carries the code of the kernels it calls from
+other files (inlined or linked in), so an edit of ``fk.py`` alone would leave the
+IK loop running the old FK. :class:`KernelCache` stamps each kernel instead with
+:func:`stamp`: a digest of its file and of every file it imports, transitively,
+within the package. An edit recompiles the kernels that depend on it and no
+others, wherever the cache lives.
+
+A cache folder that cannot be written (a read-only install or a Docker layer
+warmed with ``mjkin warmup``) is still read: new versions go to the next
+writable place, as numba chooses it.
+
+Generated source (the IK loop of a set of goal kinds, :mod:`mjkin.ik.compiled`)
+is only ever imported from :func:`private_folder`: never from a folder that
+another user could write to.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import os
+import stat
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from numba.core import caching
+
+PACKAGE = Path(__file__).resolve().parent
+
+
+def _locator(*names: str) -> type:  # numba 0.61 dropped the leading underscore of these names
+    return next(getattr(caching, n) for n in names if hasattr(caching, n))
+
+
+_PROVIDED = _locator("UserProvidedCacheLocator", "_UserProvidedCacheLocator")
+_IN_TREE = _locator("InTreeCacheLocator", "_InTreeCacheLocator")
+_USER_WIDE = _locator("UserWideCacheLocator", "_UserWideCacheLocator")
+
+
+@lru_cache(maxsize=None)
+def _read(path: str, mtime_ns: int, size: int) -> tuple[str, tuple[str, ...]]:
+    """A source file's own digest and the files it imports (keyed by its mtime and size: an edit reads it again)."""
+    text = Path(path).read_bytes()
+    found: list[str] = []
+    try:
+        tree = ast.parse(text)
+    except SyntaxError:
+        tree = ast.Module(body=[], type_ignores=[])
+    here = Path(path).parent
+    top = here
+    while (top.parent / "__init__.py").is_file():
+        top = top.parent
+    root = top if top.name == PACKAGE.name and (top / "__init__.py").is_file() else PACKAGE  # the package it is in
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from its own folder upwards
+                base = here
+                for _ in range(node.level - 1):
+                    base = base.parent
+                found += _module_files(base, (node.module or "").split("."), [a.name for a in node.names])
+            elif node.module and node.module.split(".")[0] == PACKAGE.name:
+                found += _module_files(root, node.module.split(".")[1:], [a.name for a in node.names])
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == PACKAGE.name:
+                    found += _module_files(root, a.name.split(".")[1:], [])
+    return hashlib.sha256(text).hexdigest(), tuple(sorted(set(found)))
+
+
+def _module_files(base: Path, parts: list[str], names: list[str]) -> list[str]:
+    """The files of module ``parts`` under ``base`` and of those of ``names`` that are its submodules.
+
+    A package's ``__init__`` counts only when some name is not a submodule (it may define or re-export it).
+    """
+    folder = base.joinpath(*[p for p in parts if p])
+    subs = [f for n in names if (f := folder / f"{n}.py").is_file() or (f := folder / n / "__init__.py").is_file()]
+    own = [folder.with_suffix(".py")] if folder.with_suffix(".py").is_file() else (
+        [folder / "__init__.py"] if len(subs) < len(names) or not names else [])
+    return [str(f) for f in own + subs if f.is_file()]
+
+
+def _file_info(path: str) -> tuple[str, tuple[str, ...]]:
+    st = os.stat(path)
+    return _read(path, st.st_mtime_ns, st.st_size)
+
+
+def stamp(path: str | os.PathLike) -> str:
+    """Digest of the source file ``path`` and of every package file it imports, transitively.
+
+    Imports are read from the source (``from ..kinematics.fk import ...``, ``import mjkin.jit``),
+    ``TYPE_CHECKING`` ones included: a superset of what a kernel compiles in, never less.
+    """
+    seen: dict[str, str] = {}
+    todo = [str(Path(path).resolve())]
+    while todo:
+        p = todo.pop()
+        if p in seen:
+            continue
+        own, imports = _file_info(p)
+        seen[p] = own
+        todo += [str(Path(i).resolve()) for i in imports]
+    h = hashlib.sha256()
+    for p in sorted(seen):
+        h.update(f"{Path(p).name}:{seen[p]}\n".encode())
+    return h.hexdigest()
+
+
+class _Stamped:
+    """A numba locator whose freshness stamp is :func:`stamp` (its file and what it imports)."""
+
+    _py_file: str
+
+    def get_source_stamp(self) -> str:
+        return stamp(self._py_file)
+
+
+_LOCATORS = [type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
+             for base in (_PROVIDED, _IN_TREE, _USER_WIDE)]
+
+
+class _Impl(caching.CompileResultCacheImpl):
+    _locator_classes = _LOCATORS
+
+
+class KernelCache(caching.FunctionCache):
+    """numba's per-function disk cache, stamped by :func:`stamp`, that also reads read-only caches.
+
+    Loads look in the folder numba writes to, then in ``$NUMBA_CACHE_DIR`` and beside the
+    source, which may have been warmed ahead and made read-only.
+    """
+
+    _impl_class = _Impl
+
+    def __init__(self, py_func: Any) -> None:
+        super().__init__(py_func)
+        source = self._impl.locator._py_file
+        folders = [os.path.join(os.path.dirname(source), "__pycache__")]
+        if caching.config.CACHE_DIR:
+            folders.insert(0, os.path.join(caching.config.CACHE_DIR, _PROVIDED.get_suitable_cache_subpath(source)))
+        self._read_only = [caching.IndexDataCacheFile(f, self._impl.filename_base, self._impl.locator.get_source_stamp())
+                           for f in folders if f != self._cache_path and os.path.isdir(f)]
+
+    def _load_overload(self, sig: Any, target_context: Any) -> Any:
+        data = super()._load_overload(sig, target_context)
+        if data is None and self._enabled and self._read_only:
+            key = self._index_key(sig, target_context.codegen())
+            for cache in self._read_only:
+                if (payload := cache.load(key)) is not None:
+                    return self._impl.rebuild(target_context, payload)
+        return data
+
+
+def _private(folder: Path) -> bool:
+    """Whether ``folder`` exists (made 0700 if it did not), is a real folder, is ours and only we may write to it."""
+    try:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = os.lstat(folder)
+        ok = stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o022
+        return ok and os.access(folder, os.W_OK)
+    except OSError:
+        return False
+
+
+_TEMPORARY: list[Path] = []
+
+
+def private_folder(name: str) -> Path:
+    """A folder for generated source that only this user can write: beside the package's caches, in the
+    user's cache folder (``$XDG_CACHE_HOME/mjkin`` or ``~/.cache/mjkin``), or a new temporary one for this process.
+    """
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    for folder in (Path(root) / "mjkin" / name if root else PACKAGE / "__pycache__" / name, Path(xdg) / "mjkin" / name):
+        if _private(folder):
+            return folder
+    if not _TEMPORARY:  # a fresh folder of our own (mkdtemp makes it 0700): generated anew in each process
+        _TEMPORARY.append(Path(tempfile.mkdtemp(prefix="mjkin-")))
+    return _TEMPORARY[0]
