@@ -25,16 +25,16 @@ import hashlib
 import os
 import stat
 import tempfile
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any
 
-from numba.core import caching
+from numba.core import caching, config
 
 PACKAGE = Path(__file__).resolve().parent
 
 
-def _locator(*names: str) -> type:  # numba 0.61 dropped the leading underscore of these names
+def _locator(*names: str) -> Any:  # numba 0.61 dropped the leading underscore of these names
     return next(getattr(caching, n) for n in names if hasattr(caching, n))
 
 
@@ -43,7 +43,7 @@ _IN_TREE = _locator("InTreeCacheLocator", "_InTreeCacheLocator")
 _USER_WIDE = _locator("UserWideCacheLocator", "_UserWideCacheLocator")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _read(path: str, mtime_ns: int, size: int) -> tuple[str, tuple[str, ...]]:
     """A source file's own digest and the files it imports (keyed by its mtime and size: an edit reads it again)."""
     text = Path(path).read_bytes()
@@ -120,7 +120,7 @@ class _Stamped:
         return stamp(self._py_file)
 
 
-_LOCATORS = [type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
+_LOCATORS: list[Any] = [type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
              for base in (_PROVIDED, _IN_TREE, _USER_WIDE)]
 
 
@@ -141,9 +141,11 @@ class KernelCache(caching.FunctionCache):
         super().__init__(py_func)
         source = self._impl.locator._py_file
         folders = [os.path.join(os.path.dirname(source), "__pycache__")]
-        if caching.config.CACHE_DIR:
-            folders.insert(0, os.path.join(caching.config.CACHE_DIR, _PROVIDED.get_suitable_cache_subpath(source)))
-        self._read_only = [caching.IndexDataCacheFile(f, self._impl.filename_base, self._impl.locator.get_source_stamp())
+        root = getattr(config, "CACHE_DIR", "")  # numba's reading of $NUMBA_CACHE_DIR
+        if root:
+            folders.insert(0, os.path.join(root, _PROVIDED.get_suitable_cache_subpath(source)))
+        fresh = self._impl.locator.get_source_stamp()
+        self._read_only = [caching.IndexDataCacheFile(f, self._impl.filename_base, fresh)
                            for f in folders if f != self._cache_path and os.path.isdir(f)]
 
     def _load_overload(self, sig: Any, target_context: Any) -> Any:
@@ -171,8 +173,10 @@ _TEMPORARY: list[Path] = []
 
 
 def private_folder(name: str) -> Path:
-    """A folder for generated source that only this user can write: beside the package's caches, in the
-    user's cache folder (``$XDG_CACHE_HOME/mjkin`` or ``~/.cache/mjkin``), or a new temporary one for this process.
+    """A folder for generated source that only this user can write.
+
+    Beside the package's caches (or under ``$NUMBA_CACHE_DIR``), else in the user's cache folder
+    (``$XDG_CACHE_HOME/mjkin`` or ``~/.cache/mjkin``), else a new temporary one for this process.
     """
     root = os.environ.get("NUMBA_CACHE_DIR")
     xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")

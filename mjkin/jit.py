@@ -64,7 +64,7 @@ def cfunc(signature: Any) -> Callable[[Callable], CFunc]:
 
     def decorate(fn: Callable) -> CFunc:
         c = CFunc(fn, sigutils.normalize_signature(signature), locals={}, options={})
-        c._cache = KernelCache(fn)
+        c._cache = KernelCache(fn)  # type: ignore[attr-defined]
         return c
 
     return decorate

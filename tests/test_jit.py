@@ -8,7 +8,6 @@ from mjkin.goals import Position
 from mjkin.ik.packed import FIELDS, Packed
 from mjkin.jit import borrowed, borrowed_fields, entry, keep_alive
 
-
 # a package of two files: a kernel in kern.py that inlines a helper from help.py (as the IK loop inlines FK)
 _HELP = "from mjkin.jit import njit_inline\n\n\n@njit_inline\ndef shift(x):\n    return x + {k}\n"
 _KERN = "from mjkin.jit import njit\n\nfrom .help import shift\n\n\n@njit\ndef kernel(x):\n    return shift(x) * 2.0\n"
@@ -121,10 +120,14 @@ def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
     from mjkin.ik import compiled
 
     text = compiled.source((Pose.code,))
-    assert "mjkin.goals.pose import residual" in text and text.count("ga.kind[i] ==") == 1
+    assert "mjkin.goals.pose import residual" in text and text.count("ga.kind[i] ==") == 1  # the source of Pose alone
     assert "clearance" not in text and "com import" not in text
     both = compiled.source((Clearance.code, HalfSpace.code))
     assert both.count("ga.kind[i] ==") == 2 and "mjkin.goals.clearance import residual" in both
+    # a problem's loop: its kinds and the common ones (cheap), so Pose and Position problems share one
+    common = compiled.loop_kinds((Pose.code,))
+    assert common == compiled.loop_kinds((HalfSpace.code,)) and Clearance.code not in common
+    assert compiled.loop_kinds((Clearance.code,)) == tuple(sorted((*common, Clearance.code)))
 
 
 def test_warmup_compiles_every_kernel_mjkin_runs():

@@ -25,6 +25,7 @@ class Aim(FrameGoal):
     axis: ArrayLike = (1.0, 0.0, 0.0)
     point: ArrayLike = (0.0, 0.0, 0.0)
     rows: ClassVar[int] = 3
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = RADIANS
     _batched: ClassVar[tuple[str, ...]] = ("point",)
 

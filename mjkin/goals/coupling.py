@@ -30,6 +30,7 @@ class Coupling(Goal):
     coefficients: Mapping[str, float] = field(default_factory=dict)
     value: float = 0.0
     rows: ClassVar[int] = 1
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = JOINT_UNITS
 
     def key(self) -> tuple:  # noqa: D102

@@ -22,6 +22,7 @@ class HalfSpace(Plane):
     """
 
     hard: ClassVar[bool] = True
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
 
 
 @njit_inline

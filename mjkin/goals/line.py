@@ -23,6 +23,7 @@ class Line(FrameGoal):
     point: ArrayLike = (0.0, 0.0, 0.0)
     direction: ArrayLike = (0.0, 0.0, 1.0)
     rows: ClassVar[int] = 3
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = METRES
     _batched: ClassVar[tuple[str, ...]] = ("point", "direction")
 

@@ -33,6 +33,7 @@ class Orientation(FrameGoal):
     quat: ArrayLike = (1.0, 0.0, 0.0, 0.0)
     axes: str = "xyz"
     rows: ClassVar[int] = 3
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = RADIANS
     _batched: ClassVar[tuple[str, ...]] = ("quat",)
     _cores: ClassVar[tuple[int, ...]] = (2,)

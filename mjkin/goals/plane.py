@@ -22,6 +22,7 @@ class Plane(FrameGoal):
     point: ArrayLike = (0.0, 0.0, 0.0)
     normal: ArrayLike = (0.0, 0.0, 1.0)
     rows: ClassVar[int] = 1
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = METRES
     _batched: ClassVar[tuple[str, ...]] = ("point", "normal")
 

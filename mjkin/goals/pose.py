@@ -24,6 +24,7 @@ class Pose(FrameGoal):
 
     T: ArrayLike = field(default_factory=lambda: np.eye(4))
     rows: ClassVar[int] = 6
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = METRES_AND_RADIANS
     _batched: ClassVar[tuple[str, ...]] = ("T",)
     _cores: ClassVar[tuple[int, ...]] = (2, 1)

@@ -23,6 +23,7 @@ class Position(FrameGoal):
 
     xyz: ArrayLike = (0.0, 0.0, 0.0)
     rows: ClassVar[int] = 3
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = METRES
     _batched: ClassVar[tuple[str, ...]] = ("xyz",)
     _cores: ClassVar[tuple[int, ...]] = (1,)

@@ -32,6 +32,7 @@ class Rest(Goal):
     q_rest: ArrayLike = ()
     stiffness: ArrayLike = 1.0
     rows: ClassVar[int] = -1
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = JOINT_UNITS
     counted: ClassVar[bool] = False
     joint_target: ClassVar[bool] = True

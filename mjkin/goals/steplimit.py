@@ -34,6 +34,7 @@ class StepLimit(Goal):
     q_prev: ArrayLike = ()
     max_step: ArrayLike = np.inf
     rows: ClassVar[int] = -1
+    common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = JOINT_UNITS
     hard: ClassVar[bool] = True
     joint_target: ClassVar[bool] = True

@@ -28,8 +28,9 @@ one-q pose, not at import: after that a ``q`` of another dtype or layout raises
 ``Tree.pose`` and ``Tree.fk`` skip numba's Python wrapper too: :data:`pose_of` and
 :data:`poses_of` come from the small C module :mod:`mjkin.kinematics._posecall`
 (``_posecall.c``), which checks ``q``, makes the output and calls the kernels as
-numba cfuncs through C function pointers (bound by :func:`ready`; until then it returns None) (the wrapper's unboxing of three arrays
-costs ~0.2 µs, as much as a 7-DoF pose). Without a C compiler at install they are
+numba cfuncs through C function pointers, bound by :func:`ready` (before that it
+returns None). numba's wrapper's unboxing of three arrays costs ~0.2 µs, as much
+as a 7-DoF pose. Without a C compiler at install they are
 :func:`pose_numba` and :func:`poses_numba`, which call numba's compiled entry from
 Python (:func:`mjkin.jit.entry`). Both return None for any ``q`` but a native float64
 ndarray, 1-D and C-contiguous, or one the kernel refuses: the caller's checked path
@@ -211,7 +212,7 @@ def _is_plain(q: object) -> bool:
 
 
 def pose_numba(chain: Array, q: object) -> Array | None:
-    """:func:`chain_pose` into a new ``(4, 4)``, or None for any other ``q`` or one it refuses (or before :func:`ready`).
+    """:func:`chain_pose` into a new ``(4, 4)``, or None for any other ``q``, one it refuses, or before :func:`ready`.
 
     What :data:`pose_of` is when :mod:`mjkin.kinematics._posecall` was not built (no C compiler).
     """

@@ -15,8 +15,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
-from . import qspace
 from . import chain as chains
+from . import qspace
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
