@@ -8,31 +8,35 @@ import types
 
 import numba
 
+import mjkin
 from mjkin.apps import warmup
 from mjkin.apps.cli import main
 from mjkin.goals import Pose
 from mjkin.ik.compiled import kernels
 
 
-def test_warmup_compiles_the_solver_and_reports_seconds(capsys):
+def test_warmup_fills_the_cache_the_next_solve_loads(capsys):
+    """The groups compile in processes of their own; this process then loads the IK loop, compiling nothing."""
     assert main(["warmup"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith("preparing mjkin's kernels")
+    assert out[0].startswith("preparing mjkin's kernels (5 groups")
     done = r"\((compiled \d+ kernels?|none compiled: cached or loaded)\)"
     assert re.fullmatch(rf"kernels ready in \d+\.\d s {done}", out[1])
-    solver = kernels((Pose.code,)).solve_packed  # the Pose loop's one entry from Python
-    assert isinstance(solver, numba.core.registry.CPUDispatcher) and len(solver.signatures) >= 1
+    tree = mjkin.load("arm7")
+    mjkin.solve(tree, Pose("ee", T=tree.pose(tree.qpos0, "ee")))
+    solver = kernels((Pose.code,)).solve_packed  # the loop's one entry from Python
+    assert isinstance(solver, numba.core.registry.CPUDispatcher) and solver.signatures
+    assert sum(solver.stats.cache_hits.values()) >= 1 and not sum(solver.stats.cache_misses.values())
 
 
 def test_warmup_says_whether_it_compiled(capsys, monkeypatch):
     """A second warmup compiles nothing and says so; a kernel compiled during the warmup is counted."""
     assert main(["warmup"]) == 0
-    assert main(["warmup"]) == 0
+    assert main(["warmup", "--jobs", "1"]) == 0
     assert capsys.readouterr().out.splitlines()[-1].endswith("(none compiled: cached or loaded)")
     probe = types.ModuleType("mjkin._warmup_probe")
     probe.kernel = numba.njit(lambda x: x + 1)  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, probe.__name__, probe)
-    steps = warmup._steps
-    monkeypatch.setattr(warmup, "_steps", lambda *a: [*steps(*a), ("probe", lambda: probe.kernel(1.5))])
-    assert main(["warmup"]) == 0
+    monkeypatch.setitem(warmup.GROUPS, "probe", lambda chain, figure: probe.kernel(1.5))
+    assert main(["warmup", "--jobs", "1"]) == 0
     assert capsys.readouterr().out.splitlines()[-1].endswith("(compiled 1 kernel)")

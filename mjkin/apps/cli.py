@@ -481,13 +481,12 @@ def cmd_play(args: argparse.Namespace) -> int:
 
 def cmd_warmup(args: argparse.Namespace) -> int:
     """Compile every kernel once (or load it from the cache), so later runs start at once."""
-    from .warmup import compilations, warmup
+    from .warmup import GROUPS, warmup
 
-    print("preparing mjkin's kernels (compiling them takes minutes, loading them from the cache a second)...",
-          flush=True)
-    before = compilations()
-    seconds = warmup()
-    compiled = compilations() - before
+    jobs = args.jobs or len(os.sched_getaffinity(0))
+    print(f"preparing mjkin's kernels ({len(GROUPS)} groups, {min(jobs, len(GROUPS))} at a time; compiling them "
+          "takes a minute or two, loading them from the cache a second)...", flush=True)
+    seconds, compiled = warmup(jobs)
     done = f"compiled {compiled} kernel{'s' * (compiled > 1)}" if compiled else "none compiled: cached or loaded"
     print(f"kernels ready in {seconds:.1f} s ({done})")
     return 0
@@ -647,6 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(run=cmd_play)
 
     s = sub.add_parser("warmup", help="compile every kernel ahead of use (a Dockerfile or CI cache step)")
+    s.add_argument("--jobs", type=positive_int, help="processes at a time (default: the cores available)")
     s.set_defaults(run=cmd_warmup)
     return p
 

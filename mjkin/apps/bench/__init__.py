@@ -21,7 +21,7 @@ ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``mjkin bench`` subcommands and their options (called by :func:`mjkin.apps.cli.build_parser`)."""
     sub = parser.add_subparsers(dest="which", required=True,
-                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,solutions,constraints,all}",
+                                metavar="{fk,ik,realtime,render,env,play,seeds,retarget,solutions,constraints,startup,all}",
                                 help="which benchmark (each takes --json FILE; see mjkin bench NAME -h)")
 
     def common(s: argparse.ArgumentParser) -> None:
@@ -98,5 +98,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="clearance, m (default 0.005: the Panda's link0-link1 pair is never more than 8 mm apart)")
     common(s)
 
-    s = sub.add_parser("all", help="every benchmark above with its defaults (--json: one file, keyed by name)")
+    s = sub.add_parser("startup", help="a first run from an empty kernel cache and a second one warm, in child "
+                                       "processes: import, first call, compile seconds, peak memory")
+    s.add_argument("--entries", nargs="+", choices=["solve", "pose", "retarget", "env", "render"],
+                   default=["solve", "pose", "retarget", "env", "render"], help="entry points (default all)")
+    common(s)
+
+    s = sub.add_parser("all", help="every benchmark above but startup, with its defaults (--json: one file, keyed "
+                                   "by name)")
     common(s)

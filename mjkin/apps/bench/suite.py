@@ -384,6 +384,12 @@ def run(args: argparse.Namespace) -> Report:
         from .play import measure
 
         return Report(measure())
+    if args.which == "startup":
+        from .retarget import CLIPS, mocap_dir
+        from .startup import bench_startup
+
+        folder = mocap_dir()
+        return bench_startup(tuple(args.entries), None if folder is None else folder / CLIPS[0])
     return bench_seeds(Path(args.out))
 
 

@@ -1,0 +1,128 @@
+"""``mjkin bench startup``: what a first run costs, from an empty kernel cache, in a child process per entry point.
+
+Each entry point runs in a fresh copy of the installed package (its sources and
+the C call path, no ``__pycache__``: as after ``pip install``) with its own empty
+caches, then once more in that copy, now warm: the second process is what every
+later run costs. A child reports import seconds, its entry's first call, the
+seconds numba spent compiling each top-level function (its ``"numba:compile"``
+events) and the process's peak memory (``ru_maxrss``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from ...cache import PACKAGE
+from .report import Report, Row
+
+# the child: times the import and one entry point's first call, counts numba's compile events, prints one JSON line
+_CHILD = r'''
+import json, resource, sys, time
+from collections import Counter
+from numba.core import event
+compiled, depth = Counter(), []
+class Listener(event.Listener):
+    def on_start(self, e):
+        depth.append(time.perf_counter())
+    def on_end(self, e):
+        seconds = time.perf_counter() - depth.pop()
+        if not depth:  # a top-level compile: the seconds of what it compiled in too
+            f = getattr(e.data.get("dispatcher"), "py_func", None)
+            compiled[f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', '?')}"] += seconds
+event.register("numba:compile", Listener())
+t0 = time.perf_counter()
+import mjkin
+imported = time.perf_counter() - t0
+import numpy as np
+from mjkin import goals as G
+entry = sys.argv[1]
+t1 = time.perf_counter()
+if entry == "solve":  # the first 6-D pose solve on the Panda (its target made from a known q without mjkin's FK)
+    import mujoco
+    tree = mjkin.load("panda")
+    data = mujoco.MjData(tree.model)
+    data.qpos[:] = tree.random_q(np.random.default_rng(0), 1)[0]
+    mujoco.mj_kinematics(tree.model, data)
+    site = tree.model.site("flange").id
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = data.site_xmat[site].reshape(3, 3), data.site_xpos[site]
+    t1 = time.perf_counter()
+    ok = bool(mjkin.solve(tree, G.Pose("flange", T=T)).success)
+elif entry == "pose":  # one tree.pose of one q (the C call path's kernels)
+    tree = mjkin.load("panda")
+    t1 = time.perf_counter()
+    ok = bool(np.isfinite(tree.pose(tree.qpos0, "flange")).all())
+elif entry == "retarget":
+    tree = mjkin.load("primate")
+    t1 = time.perf_counter()
+    ok = len(mjkin.retarget(sys.argv[2], tree).q) > 0
+elif entry == "env":
+    import gymnasium as gym
+    import mjkin.envs  # noqa: F401
+    env = gym.make("mjkin/Reach-v0")
+    t1 = time.perf_counter()
+    env.reset(seed=0)
+    ok = all(np.isfinite(env.step(env.action_space.sample())[0]).all() for _ in range(3))
+elif entry == "render":
+    import mjkin.render
+    tree = mjkin.load("arm7")
+    qs = tree.random_q(np.random.default_rng(0), 3)
+    t1 = time.perf_counter()
+    ok = len(list(mjkin.render.frames(tree, qs, 160, 120))) == 3
+first = time.perf_counter() - t1
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"import_s": imported, "first_s": first, "ok": ok, "compile_s": sum(compiled.values()),
+                  "compiled": compiled.most_common(4), "peak_mb": peak}))
+'''
+
+ENTRIES = ("solve", "pose", "retarget", "env", "render")
+
+
+def fresh_copy(folder: Path) -> Path:
+    """A copy of the installed package in ``folder`` (sources and the built C module, no caches); returns ``folder``."""
+    shutil.copytree(PACKAGE, folder / PACKAGE.name, ignore=shutil.ignore_patterns("__pycache__"))
+    return folder
+
+
+def run_child(root: Path, entry: str, *args: str, timeout: float = 1800) -> dict:
+    """Run the entry ``entry`` in a child that imports mjkin from ``root`` with no outside kernel cache."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env["XDG_CACHE_HOME"] = str(root / "xdg")  # nothing cached per user either
+    done = subprocess.run([sys.executable, "-c", _CHILD, entry, *args], capture_output=True, text=True, env=env,
+                          cwd=root, timeout=timeout)
+    if done.returncode:
+        raise RuntimeError(f"bench startup {entry}: the child failed: {done.stderr.strip().splitlines()[-1:]}")
+    return dict(json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+def bench_startup(entries: tuple[str, ...] = ENTRIES, clip: Path | None = None) -> Report:
+    """Cold and warm rows for each entry point (``retarget`` needs a BVH ``clip``; without one it is skipped)."""
+    rows: list[Row] = []
+    skipped = []
+    for entry in entries:
+        if entry == "retarget" and clip is None:
+            skipped.append("retarget (no clip: the shared mocap folder is not here)")
+            continue
+        args = (str(clip),) if entry == "retarget" else ()
+        with tempfile.TemporaryDirectory(prefix="mjkin-startup-") as tmp:
+            root = fresh_copy(Path(tmp))
+            for cache in ("empty", "warm"):
+                r = run_child(root, entry, *args)
+                rows.append({"entry": entry, "cache": cache, "import_s": round(r["import_s"], 2),
+                             "first_call_s": round(r["first_s"], 2),
+                             "total_s": round(r["import_s"] + r["first_s"], 2),
+                             "compile_s": round(r["compile_s"], 1), "peak_mb": round(r["peak_mb"]),
+                             "ok": r["ok"], "most_compile": ", ".join(f"{name.rsplit('.', 1)[-1]} {s:.1f} s"
+                                                                      for name, s in r["compiled"][:3])})
+    settings: dict[str, object] = {"package": str(PACKAGE), "cpus": os.cpu_count(),
+                                   "load average (1, 5, 15 min) after": ", ".join(f"{x:.2f}" for x in os.getloadavg())}
+    if skipped:
+        settings["skipped"] = "; ".join(skipped)
+    return Report({"startup (a fresh copy of the package; empty caches, then the same copy warm)": rows}, settings)
