@@ -20,7 +20,7 @@ from numba.core import event
 
 T = TypeVar("T")
 
-COMPILING = "compiling kernels (first run only, a few minutes)..."
+COMPILING = "compiling kernels for their first use (cached for later runs; a minute or two)..."
 
 _enabled = False
 _said = False  # COMPILING was printed in this process

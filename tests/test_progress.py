@@ -70,11 +70,15 @@ def test_the_notice_prints_off_a_terminal_too_but_no_bar(terminal, monkeypatch):
 
 def test_a_cold_cache_says_it_compiles_and_a_warm_one_is_silent(tmp_path):
     """The command's stderr is a pipe here, as in CI: the line is there when numba compiles, and only then."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    from mjkin.apps.bench.startup import fresh_copy
+
+    root = fresh_copy(tmp_path)  # as after pip install: no kernel cache anywhere
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(PYTHONPATH=str(root), XDG_CACHE_HOME=str(tmp_path / "xdg"))
     command = [sys.executable, "-m", "mjkin.apps.cli", "fk", "planar_2link", "--frame", "tip"]
-    cold = subprocess.run(command, env=env, capture_output=True, text=True)
+    cold = subprocess.run(command, env=env, capture_output=True, text=True, cwd=root)
     assert cold.returncode == 0 and cold.stderr == f"mjkin: {progress.COMPILING}\n"
-    warm = subprocess.run(command, env=env, capture_output=True, text=True)
+    warm = subprocess.run(command, env=env, capture_output=True, text=True, cwd=root)
     assert warm.returncode == 0 and warm.stderr == "" and warm.stdout == cold.stdout
 
 
