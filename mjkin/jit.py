@@ -51,8 +51,9 @@ njit = _jit()
 # and cached: numba's own inlining (``inline="always"``) typed the callee again at every call site, the better part
 # of the IK loop's compile time. Called from Python it behaves like ``njit``.
 njit_inline = _jit(forceinline=True)
-# Inlined into its caller by numba, in numba's IR: only for what must live in the caller's own frame
-# (:func:`on_stack`) and the IK loop's single-call layers (see mjkin.ik.loop).
+# Inlined into its caller by numba, in numba's IR: for what must live in the caller's own frame (:func:`on_stack`)
+# and for kernels called at one place only (the IK loop's layers, the goal kinds' residuals): typed once there, as
+# a function of its own would be, and not also compiled and optimised on its own (about a second each).
 njit_ir_inline = _jit(inline="always")
 # Short entries called from Python once per configuration keep the GIL: releasing and taking it back costs ~0.1 µs
 # a call, a third of a 7-DoF pose.

@@ -14,7 +14,7 @@ from conftest import background, tree_of
 from mjkin import goals as G
 from mjkin.goals.base import METRES, FrameGoal, Units
 from mjkin.ik import evaluate
-from mjkin.jit import njit_inline
+from mjkin.jit import njit_ir_inline
 from mjkin.kinematics.jacobian import jacobian_kernel
 
 
@@ -40,7 +40,7 @@ class Distance(FrameGoal):
         data[:, 1:4] = tree.frame_body(self.other)[1][:3, 3]  # the other frame's origin in its body
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err):
     """One row: ``|p - p_other| - length``."""
     J6, pt = ws[0], ws[1]

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import matvec3, njit_inline
+from ..jit import matvec3, njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, array, unit
 from .compiled import skew_times
 
@@ -36,7 +36,7 @@ class Aim(FrameGoal):
         return [array(self.point, (3,), "Aim point"), axis]
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the frame axis minus the unit direction from the frame point to the target point."""

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..checks import check_count
 from ..errors import GoalError, UnknownNameError
-from ..jit import njit, njit_inline, on_stack, unshared
+from ..jit import njit, njit_ir_inline, on_stack, unshared
 from ..kinematics.distance import distance_gradient, pair_distance_normal
 from ..kinematics.geoms import (
     BOX,
@@ -181,7 +181,7 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
             g[r] = best[j, 0] - margin
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """The ``closest`` nearest pairs' ``d - margin`` (m), unweighted, and their gradients."""

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import njit, njit_inline
+from ..jit import njit, njit_ir_inline
 from ..kinematics.com import com_kernel
 from ..kinematics.jacobian import jacobian_kernel
 from .base import METRES, Array, Goal, Units, array
@@ -253,7 +253,7 @@ def balance_rows(kin: Kinematics, support: np.ndarray, support_pos: Array, i: in
                 J[r0, j] -= u3 * (Jc[q3, j] - JP[a, q3, j])
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """``w (c - xyz)``, three rows; the error is the distance (m)."""
@@ -268,7 +268,7 @@ def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array,
                         + (c[2] - ga.data[b, i, 2]) ** 2)
 
 
-@njit_inline
+@njit_ir_inline
 def balance_residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array,
                      i: int, b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """The support polygon's edge rows ``s`` (m), unweighted, and their gradients."""

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from ..errors import GoalError
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from ..kinematics.qspace import HINGE, SLIDE
 from .base import JOINT_UNITS, Array, Goal, Units
 
@@ -61,7 +61,7 @@ class Coupling(Goal):
         data[:, 0] = self.value
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: ``w (Σ coef_j q_j - value)``; the error in the goal's column."""

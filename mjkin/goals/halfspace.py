@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from .base import Array
 from .plane import Plane, signed_distance
 
@@ -25,7 +25,7 @@ class HalfSpace(Plane):
     common: ClassVar[bool] = True  # cheap: in the shared IK loop
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: the signed distance ``s`` from the wall (unweighted) and the normal's part of the point Jacobian."""

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from .base import METRES, Array, FrameGoal, Units, array, unit
 
 if TYPE_CHECKING:
@@ -31,7 +31,7 @@ class Line(FrameGoal):
         return [array(self.point, (3,), "Line point"), unit(self.direction, "Line direction")]
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the frame point's offset from the line, perpendicular to it."""

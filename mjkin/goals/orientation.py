@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, rotation
 from .compiled import orientation_rows, skew_times
 
@@ -58,7 +58,7 @@ class Orientation(FrameGoal):
         data[:, 3:12] = self.targets()[0].reshape(-1, 9)
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Three rows: the rotation vector to the target, or (one axis) the frame axis minus the target's."""

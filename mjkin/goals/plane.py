@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from numpy.typing import ArrayLike
 
-from ..jit import njit_inline
+from ..jit import njit_inline, njit_ir_inline
 from .base import METRES, Array, FrameGoal, Units, array, unit
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ def distance_row(ga: GoalArrays, ws: tuple, i: int, b: int, s: float, g: Array, 
     err[i, 0] = abs(s)
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row: the signed distance from the plane."""

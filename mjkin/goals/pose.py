@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation_matrix
 from .compiled import orientation_rows, position_rows
 
@@ -39,7 +39,7 @@ class Pose(FrameGoal):
         data[:, 3:12] = R.reshape(-1, 9)
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """Six rows: position, then the rotation vector to the target."""

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from numpy.typing import ArrayLike
 
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from .base import METRES, Array, FrameGoal, Units, array
 from .compiled import position_rows
 
@@ -35,7 +35,7 @@ class Position(FrameGoal):
         data[:, 0:3] = self.targets()[0]
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """``w (p - xyz)``, three rows."""

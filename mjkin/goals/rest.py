@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError, MjkinError
-from ..jit import njit_inline
+from ..jit import njit_ir_inline
 from ..kinematics.qspace import BALL, FREE, difference_kernel
 from .base import JOINT_UNITS, Array, Goal, Units, array
 from .compiled import left_jacobian_inverse
@@ -61,7 +61,7 @@ class Rest(Goal):
             raise GoalError(str(e)) from None
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row per dof: the weighted, stiffness-scaled difference ``q ⊖ q_rest`` (never an error)."""

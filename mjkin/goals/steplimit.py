@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError, MjkinError
-from ..jit import njit_inline
+from ..jit import njit_inline, njit_ir_inline
 from ..kinematics.qspace import BALL, FREE, HINGE, SLIDE, difference_kernel
 from .base import JOINT_UNITS, Array, Goal, Units
 
@@ -88,7 +88,7 @@ def _norm_row(dv: Array, d: int, n: int, limit: float, g: Array, J: Array, r: in
         J[r, d + k] = -dv[0, d + k] / a if a > 0.0 else 0.0
 
 
-@njit_inline
+@njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
     """One row per joint (two for a free joint): ``max_step - |q ⊖ q_prev|``, its gradient on the joint's dofs.
