@@ -155,6 +155,18 @@ def test_bad_options_found_by_a_new_user(kwargs, text):
         mjkin.solve(tree, G.Position("tip", (10.0, 5.0, 0.0)), **kwargs)
 
 
+@pytest.mark.parametrize("make, text", [
+    (lambda: mjkin.ik.LM(foo=1), "method 'lm' takes no option 'foo'; its options: damping, goal_step, halving, "),
+    (lambda: mjkin.ik.CCD(*range(9)), "method 'ccd' takes at most 4 options, 9 given by position; its options: "),
+    (lambda: mjkin.solve(tree_of("planar_3link"), G.Position("tip", (1.0, 0.0, 0.0)), method="lm", foo=1),
+     "method 'lm' takes no option 'foo'; its options: damping, goal_step, halving, "),
+])
+def test_a_method_object_with_an_unknown_option_gives_the_line_its_name_gives(make, text):
+    """``mjkin.ik.LM(foo=1)`` was a bare TypeError from the dataclass; now the same one line as ``method="lm"``."""
+    with pytest.raises(mjkin.InputError, match=text.replace("(", r"\(")):
+        make()
+
+
 def test_goals_that_are_not_goals_are_a_goal_error():
     with pytest.raises(mjkin.GoalError, match="goals must be a mjkin.goals goal or a list of them, got NoneType"):
         mjkin.solve(tree_of("planar_3link"), None)

@@ -45,8 +45,25 @@ class Problem(Protocol):
     starts: Array  # (K, nq) restart configurations
 
 
+class _Options(type):
+    """The method classes' type: an unknown option is the one-line error that lists the options.
+
+    ``LM(foo=1)`` says what ``method="lm", foo=1`` says, not the bare TypeError of a dataclass's ``__init__``.
+    """
+
+    def __call__(cls, *args: Any, **options: Any) -> Any:
+        known = [f.name for f in fields(cls)]  # type: ignore[arg-type]  # every Method is a dataclass
+        unknown = sorted(set(options) - set(known))
+        if unknown or len(args) > len(known):
+            wrong = (f"no option {', '.join(map(repr, unknown))}" if unknown
+                     else f"at most {len(known)} options, {len(args)} given by position")
+            raise InputError(f"method {getattr(cls, 'name', cls.__name__)!r} takes {wrong}; its options: "
+                             f"{', '.join(sorted(known)) or 'none'}")
+        return super().__call__(*args, **options)
+
+
 @dataclass(frozen=True)
-class Method:
+class Method(metaclass=_Options):
     """An IK method and its options; subclasses are frozen dataclasses with a ``name``.
 
     ``restarts``: random restarts (within the limits, only of the joints that move a
@@ -84,9 +101,4 @@ class Method:
     @classmethod
     def with_options(cls, options: dict[str, Any]) -> Method:
         """The method made from keyword options, one line naming any it does not take."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(options) - known)
-        if unknown:
-            raise InputError(f"method {cls.name!r} takes no option {', '.join(map(repr, unknown))}; its options: "
-                             f"{', '.join(sorted(known)) or 'none'}")
         return cls(**options)
