@@ -251,9 +251,19 @@ def test_ik_json_is_strict_json_even_for_absurd_targets(capsys):
     def refuse(name):
         raise ValueError(f"{name} is not JSON")
 
-    assert main(["ik", "arm7", "--frame", "ee", "--pos", "1e308,0,0", "--json", "--method", "dls"]) == 0
+    tree = mjkin.load("arm7")
+    far = tree.model.stat.center[0] + 999 * tree.model.stat.extent  # just inside the bound: a finite miss
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", f"{far},0,0", "--json", "--method", "dls"]) == 0
     out = json.loads(capsys.readouterr().out, parse_constant=refuse)
-    assert out["success"] is False and out["error"][0] is None  # an infinite error is null
+    assert out["success"] is False and out["error"][0] > 900 * tree.model.stat.extent
+
+
+@pytest.mark.parametrize("pos", ["1e308,0.2,0.5", "2e3,0,0", "-1e200,0,0"])
+def test_ik_refuses_targets_beyond_a_thousand_model_extents_in_one_line(pos, capsys):
+    """``--pos 1e308,...`` searched 24 restarts and printed ``position error inf m``; now one line, exit 2."""
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", pos]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "more than 1000 model extents" in err and f"--pos {pos}" in err
 
 
 def test_negative_numbers_in_vector_options(capsys):
@@ -575,3 +585,4 @@ def test_no_negative_zeros_and_unlimited_hinges_wrapped(capsys):
 def test_a_still_is_called_a_still(tmp_path, capsys):
     assert main(["render", "planar_2link", "-o", str(tmp_path / "prim.png"), "--width", "64", "--height", "48"]) == 0
     assert capsys.readouterr().out == f"wrote {tmp_path / 'prim.png'} (still, 64x48)\n"
+

@@ -34,6 +34,7 @@ from mjkin.apps.play.session import Playground, recordings_folder, view_camera
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
 from mjkin.files import strict_json as to_strict_json
 from mjkin.kinematics import build
+from mjkin.kinematics import tree as tree_module
 
 IK_TOL = 1e-6
 W, H = 320, 240
@@ -408,7 +409,7 @@ def test_targets_beyond_far_are_refused_and_nearer_ones_solve_to_finite_numbers(
     """1e308 m away the position error overflowed to inf (sent as Infinity); the solvers are finite up to FAR."""
     tree, view = arm(), arm_view()
     state = core.initial_state(tree)
-    centre, reach = tree.model.stat.center, core.FAR * tree.model.stat.extent
+    centre, reach = tree.model.stat.center, tree_module.FAR * tree.model.stat.extent
     for event in (core.Place("ee", (1e308, 0.1, 0.4)), core.Place("ee", tuple(centre + [0, 0, 1.001 * reach])),
                   core.Push("ee", 1e308), core.Push("ee", -2 * reach), core.Drag("ee", (0.5, 1e6))):
         with pytest.raises(InputError, match=r"more than 1000 model extents \(1\.43e\+03 m\) from the model"):
@@ -435,7 +436,7 @@ def test_a_placed_target_anywhere_is_refused_or_solved_to_finite_numbers(pos):
         solved = core.apply(tree, arm_view(), core.initial_state(tree), core.Place("ee", tuple(pos)))
     except InputError as e:
         assert "model extents" in str(e) and "\n" not in str(e)
-        assert math.hypot(*(np.array(pos) - tree.model.stat.center)) > core.FAR * tree.model.stat.extent
+        assert math.hypot(*(np.array(pos) - tree.model.stat.center)) > tree_module.FAR * tree.model.stat.extent
         return
     assert np.isfinite([*solved.q, *solved.error, *solved.singular]).all()
 

@@ -226,7 +226,9 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if name is not None:
             tree.id(name, "body")
     q0 = tree.qpos0.copy() if args.q0 is None else parse_q(args.q0, tree, args.deg, args.seed, "--q0")
-    goals: list[Goal] = [Position(args.frame, _vec(args.pos, "--pos"))]
+    pos = _vec(args.pos, "--pos")
+    tree.check_near(pos, f"--pos {args.pos}")
+    goals: list[Goal] = [Position(args.frame, pos)]
     if args.quat is not None:
         quat = _numbers(args.quat, 4, "--quat", "w,x,y,z")
         norm = _normalise(quat)

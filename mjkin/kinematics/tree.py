@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -207,6 +208,21 @@ class Tree:
         """The body a frame is fixed to and the frame's pose in that body ``(4, 4)`` (read-only)."""
         return self.frames[self.frame(name, kind)]
 
+    def check_near(self, pos: ArrayLike, what: str) -> None:
+        """Refuse a target point ``pos (3,)`` (world, m) farther than :data:`FAR` model extents from the model.
+
+        No figure reaches it, and at ~1e154 m its squared distance overflows. ``what`` names it in the error.
+
+        Raises:
+            InputError: the point is that far, or not finite.
+        """
+        p = np.asarray(pos, dtype=float)
+        reach = FAR * (float(self.model.stat.extent) or 1.0)
+        if not math.hypot(*(p - self.model.stat.center)) <= reach:  # hypot: no overflow on the way
+            at = ", ".join(f"{x:.3g}" for x in p)
+            raise InputError(f"{what} would be at [{at}], more than {FAR:g} model extents ({reach:.3g} m) from the "
+                             "model; keep targets within that")
+
     # ------------------------------------------------------------------ joints
     def check_q(self, q: ArrayLike, name: str = "q") -> Array:
         """``q`` as float64 ``(..., nq)``; raises :class:`InputError` for a wrong shape or NaN/inf."""
@@ -313,6 +329,7 @@ _FINITE = (("body", "body_pos", "pos"), ("body", "body_quat", "quat"), ("joint",
            ("joint", "jnt_axis", "axis"), ("joint", "jnt_range", "range"), ("site", "site_pos", "pos"),
            ("site", "site_quat", "quat"), ("geom", "geom_pos", "pos"), ("geom", "geom_quat", "quat"),
            ("geom", "geom_size", "size"))
+FAR = 1000.0  # model extents (MjModel.stat.extent) from the model's centre past which a target point is refused
 _NAME_ADR = {"body": "name_bodyadr", "joint": "name_jntadr", "site": "name_siteadr", "geom": "name_geomadr"}
 
 

@@ -38,9 +38,8 @@ PANEL_METHODS = tuple(m for m in ("auto", "dls", "pinv", "transpose", "ccd", "re
 GOAL_KINDS = ("position", "pose", "aim")
 AUTO_ITERS = 200  # auto follows without restarts, so it gets more iterations than its 50 per restart
 AIM_AXIS = (0.0, 0.0, 1.0)  # the effector axis that aim goals point at the target (z: out of the flange)
-# targets farther than this many model extents from the model's centre are refused: no figure reaches them, and
-# at ~1e154 m the position error overflows (every panel method still gives finite results at this distance)
-FAR = 1000.0
+# targets farther than FAR model extents from the model's centre are refused (Tree.check_near): no figure reaches
+# them, and at ~1e154 m the position error overflows (every panel method still gives finite results at FAR)
 
 
 # ---------------------------------------------------------------------- camera
@@ -283,15 +282,6 @@ def frame_target(tree: Tree, q: Array, frame: str) -> Array:
     return np.concatenate([T[:3, 3], spatial.mat_to_quat(T[:3, :3])])
 
 
-def check_near(tree: Tree, frame: str, pos: Array) -> None:
-    """Refuse a target of ``frame`` at ``pos (3,)`` farther than :data:`FAR` model extents from the model's centre."""
-    centre, reach = tree.model.stat.center, FAR * (float(tree.model.stat.extent) or 1.0)
-    if not math.hypot(*(np.asarray(pos, float) - centre)) <= reach:  # hypot: no overflow on the way
-        at = ", ".join(f"{x:.3g}" for x in pos)
-        raise InputError(f"the target of {frame!r} would be at [{at}], more than {FAR:g} model extents "
-                         f"({reach:.3g} m) from the model; keep targets within that")
-
-
 def initial_state(tree: Tree, frames: Sequence[str] | None = None, method: str = "auto") -> State:
     """The first keyframe (else ``qpos0``), with targets where the effector frames are."""
     q = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
@@ -326,7 +316,7 @@ def with_goal(state: State, goal: str) -> State:
 def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
     """Forward kinematics: set one hinge or slide joint (clipped to its range); the targets follow the frames.
 
-    A slide that would take a frame beyond :data:`FAR` is refused.
+    A slide that would take a frame beyond :data:`mjkin.kinematics.tree.FAR` model extents is refused.
     """
     j = tree.id(joint, "joint")
     if int(tree.jnt_type[j]) not in (HINGE, SLIDE):
@@ -338,13 +328,13 @@ def with_joint(tree: Tree, state: State, joint: str, value: float) -> State:
     q = tree.clip(q)
     targets = {f: frame_target(tree, q, f) for f in state.targets}
     for f, t in targets.items():
-        check_near(tree, f, t[:3])
+        tree.check_near(t[:3], f"the target of {f!r}")
     return replace(state, q=q, targets=targets, error=(0.0, 0.0), iterations=0, status="converged",
                    success=True, stalled=False)
 
 
 def move(tree: Tree, view: View, state: State, event: Event) -> State:
-    """New targets after a drag, a push, a turn or a placement (``q`` unchanged); none beyond :data:`FAR`."""
+    """New targets after a drag, a push, a turn or a placement (``q`` unchanged); none too far (``Tree.check_near``)."""
     if event.frame not in state.targets:
         tree.frame(event.frame)  # an unknown name: the error lists the names that exist
         state = with_frames(tree, state, [*state.targets, event.frame])
@@ -374,7 +364,7 @@ def move(tree: Tree, view: View, state: State, event: Event) -> State:
                 raise InputError(f"quat must be 4 finite numbers [w, x, y, z], not all zero, got {event.quat!r}")
             quat = quat / np.abs(quat).max()  # first to ~1: the norm of [1e308, 0, 0, 1e308] would overflow
             new[3:] = quat / np.linalg.norm(quat)
-    check_near(tree, event.frame, new[:3])
+    tree.check_near(new[:3], f"the target of {event.frame!r}")
     return pending(replace(state, targets={**state.targets, event.frame: new}))
 
 
