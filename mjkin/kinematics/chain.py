@@ -128,7 +128,7 @@ def _local(chain: Array) -> Array:
 
 
 _CHAIN = types.Array(types.float64, 1, "C")
-_Q = (types.Array(types.float64, 1, "C"), types.Array(types.float64, 1, "C", readonly=True))
+_Q = types.Array(types.float64, 1, "C")  # q of the compiled entries
 
 
 @njit_gil
@@ -190,11 +190,12 @@ def ready() -> None:
     if _direct:
         return
     for kernel, ndim in ((chain_pose, 2), (chain_poses, 3)):
-        for q in _Q:  # float64, and read-only too: neither writes q
-            kernel.compile((_CHAIN, q, types.Array(types.float64, ndim, "C")))
+        # one version: a read-only q is read through it too (the same memory; neither writes q), so it is not
+        # compiled twice (2.4 s of a first pose)
+        kernel.compile((_CHAIN, _Q, types.Array(types.float64, ndim, "C")))
         kernel.disable_compile()  # any other q: TypeError, for the caller's checked path
-    _direct.extend(entry(k, _CHAIN, _Q[0], types.Array(types.float64, n, "C")) for k, n in ((chain_pose, 2),
-                                                                                           (chain_poses, 3)))
+    _direct.extend(entry(k, _CHAIN, _Q, types.Array(types.float64, n, "C")) for k, n in ((chain_pose, 2),
+                                                                                        (chain_poses, 3)))
     if _posecall is not None:
         _pose_cfunc.compile()
         _poses_cfunc.compile()

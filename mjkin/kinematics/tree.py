@@ -273,7 +273,7 @@ class Tree:
         if q.ndim == 1:
             chains.ready()  # the one-q entries, compiled (or loaded) on the first one-q pose
             T = np.empty((4, 4))
-            if chain_pose(self._chain(name, kind), np.ascontiguousarray(q), T):
+            if chain_pose(self._chain(name, kind), np.require(q, requirements=["C", "W"]), T):  # its one version
                 return T
         return self.kinematics(q).pose(*self.frame(name, kind))  # a batch (or a chain too long for chain_pose)
 
