@@ -49,6 +49,8 @@ def test_fk_degrees(capsys):
     (["fk", "arm7", "--frame", "hand"], "unknown site or body 'hand'"),
     (["info", "no_such_model"], "model file not found"),
     (["fk", "arm7", "--q", "0 0 0 nan 0 0 0"], "NaN"),
+    # a folder said "model file not found"
+    (["info", str(mjkin.bundled_models()["arm7"].parent)], "is a folder, not a model file: give the MJCF/URDF file "),
 ])
 def test_user_mistakes_exit_2_with_one_line(argv, text, capsys):
     assert main(argv) == 2
@@ -586,3 +588,10 @@ def test_a_still_is_called_a_still(tmp_path, capsys):
     assert main(["render", "planar_2link", "-o", str(tmp_path / "prim.png"), "--width", "64", "--height", "48"]) == 0
     assert capsys.readouterr().out == f"wrote {tmp_path / 'prim.png'} (still, 64x48)\n"
 
+
+def test_ik_seed_help_says_what_each_default_is(capsys):
+    """``ik --help`` said --seed "defaults to seed 0" and "a new draw each run" in one breath."""
+    assert main(["ik", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "without it the restarts use seed 0, so a run repeats" in text
+    assert "without it --q0 random is a new draw each run" in text and "default: a new draw" not in text

@@ -516,7 +516,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       f"quaternion that is not unit is normalised, with a warning; default {default}")
         s.add_argument("--deg", action="store_true", help=f"hinge values in {flag} are degrees")
         s.add_argument("--seed", type=nonnegative_int,
-                       help=f"seed (>= 0) for {flag} random{seed_help} (default: a new draw each run)")
+                       help=f"seed (>= 0) for {flag} random{seed_help}; without it {flag} random is a new draw "
+                            "each run")
 
     s = sub.add_parser("info", help="outline a model's bodies, joints and sites")
     s.add_argument("model", help=model_help)
@@ -540,7 +541,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frame", required=True, help="the site or body to place")
     s.add_argument("--pos", required=True, help="target position x,y,z in metres, world frame")
     s.add_argument("--quat", help="target orientation w,x,y,z, world frame (default: position only)")
-    q_options(s, "--q0", "qpos0", s, " and for the IK restarts (those default to seed 0)")
+    q_options(s, "--q0", "qpos0", s, " and for the IK restarts (without it the restarts use seed 0, so a run "
+                                     "repeats)")
     s.add_argument("--root", metavar="BODY", help="a body that keeps its pose from --q0 (a planted foot); the free "
                                                   "root joint then moves the rest (default: the free root moves too)")
     s.add_argument("--joints", metavar="J1,J2,...", help="only these joints move (default: all)")

@@ -395,6 +395,10 @@ def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:
         path = Path(text)
         if not path.exists() and path.suffix == "" and text in bundled_models():
             path = bundled_models()[text]
+        if path.is_dir():
+            found = sorted(p.name for p in path.glob("*.xml"))[:8]
+            raise MjkinIOError(f"{text!r} is a folder, not a model file: give the MJCF/URDF file in it"
+                               + (f" ({', '.join(found)})" if found else ""))
         if not path.is_file():
             hint = ", ".join(bundled_models())
             raise MjkinIOError(f"model file not found: {text!r} (give an MJCF/URDF path or one of: {hint})")
