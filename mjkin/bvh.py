@@ -4,7 +4,8 @@ A BVH file (Biovision Hierarchy) holds a tree of joints, each with an ``OFFSET``
 from its parent and ``CHANNELS`` (any of ``Xposition Yposition Zposition
 Xrotation Yrotation Zrotation`` in any order, usually 3 or 6), ``End Site``
 leaves with an offset only, then ``Frames:``, ``Frame Time:`` and one line of
-channel values per frame. A joint's local transform is ``Trans(t) @ R``: ``t`` is
+channel values per frame (the frame time in seconds, from 1e-4 to 10: ``FRAME_TIME``;
+joints may nest to any depth). A joint's local transform is ``Trans(t) @ R``: ``t`` is
 its offset, with each axis that has a position channel taken from that channel
 (so 6-channel joints whose channels repeat the offset read the same as 3-channel
 ones); ``R`` is the product of the rotation channels in the order listed
@@ -28,6 +29,7 @@ from .errors import InputError, MjkinIOError
 Array = NDArray[np.float64]
 CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")
 END = "_End"  # an End Site is named after its joint with this suffix
+FRAME_TIME = (1e-4, 10.0)  # the Frame Time: a file may give, seconds (10000 to 0.1 frames per second)
 
 
 class BvhError(MjkinIOError):
@@ -169,7 +171,8 @@ class _Tokens:
             raise self.error(f"expected {what}")
         return " ".join(words)
 
-    def number(self, what: str) -> float:
+    def number(self, what: str, between: tuple[float, float] | None = None, unit: str = "") -> float:
+        """The next token as a finite number; with ``between``, one in that closed range (of ``unit``)."""
         if self.peek() is None:
             raise self.error(f"file ends early; expected {what}")
         tok = self.take()
@@ -178,6 +181,10 @@ class _Tokens:
         except ValueError:
             self.i -= 1
             raise self.error(f"expected a number ({what}), got {tok!r}") from None
+        if between is not None and not between[0] <= value <= between[1]:  # nan and inf fail too
+            self.i -= 1
+            raise self.error(f"{what} must be a finite number of {unit} from {between[0]:g} to {between[1]:g}, "
+                             f"got {tok!r}")
         if not np.isfinite(value):
             self.i -= 1
             raise self.error(f"{what} must be finite, got {tok!r}")
@@ -198,11 +205,11 @@ def parse(text: str, source: str = "<string>") -> Clip:
     channels: list[tuple[str, ...]] = []
     ends: list[bool] = []
 
-    def joint(parent: int, end: bool) -> None:
+    def joint(parent: int, end: bool) -> tuple[int, str, bool]:
+        """Read a joint's name, OFFSET and CHANNELS (up to its children) and add it; its index, name, kind."""
         name = f"{names[parent]}{END}" if end else tk.rest_of_line("a joint name")
         if name in names:
             raise tk.error(f"joint name {name!r} appears twice")
-        me = len(names)
         names.append(name)
         parents.append(parent)
         ends.append(end)
@@ -223,21 +230,24 @@ def parse(text: str, source: str = "<string>") -> Clip:
             if len(set(chans)) != len(chans):
                 raise tk.error(f"joint {name!r} lists a channel twice: {' '.join(chans)}")
         channels.append(chans)
-        while (tok := tk.peek()) is not None and tok != "}":
-            word = tk.take().upper()
-            if word == "JOINT" and not end:
-                joint(me, False)
-            elif word == "END" and not end:
-                tk.take("Site")
-                joint(me, True)
-            else:
-                tk.i -= 1
-                raise tk.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {tok!r}")
-        tk.take("}")
+        return len(names) - 1, name, end
 
     while (tk.peek() or "").upper() == "ROOT":
         tk.take("ROOT")
-        joint(-1, False)
+        open_joints = [joint(-1, False)]  # a stack, not recursion: hierarchies of any depth
+        while open_joints:
+            me, name, end = open_joints[-1]
+            word = (tk.peek() or "}").upper()  # at the end of the file, take("}") says what is missing
+            if word == "}":
+                tk.take("}")
+                open_joints.pop()
+            elif word in ("JOINT", "END") and not end:
+                tk.take()
+                if word == "END":
+                    tk.take("Site")
+                open_joints.append(joint(me, word == "END"))
+            else:
+                raise tk.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {tk.peek()!r}")
     if not names:
         raise tk.error("expected ROOT after HIERARCHY")
     tk.take("MOTION")
@@ -247,9 +257,7 @@ def parse(text: str, source: str = "<string>") -> Clip:
         raise tk.error(f"Frames: must be a whole number >= 1, got {n_frames:g}")
     tk.take("Frame")
     tk.take("Time:")
-    frame_time = tk.number("the frame time in seconds")
-    if frame_time <= 0:
-        raise tk.error(f"Frame Time: must be > 0 seconds, got {frame_time:g}")
+    frame_time = tk.number("Frame Time:", FRAME_TIME, "seconds")
     counts = np.array([len(c) for c in channels], dtype=np.int64)
     n_cols = int(counts.sum())
     data = [t for t, _ in tk.items[tk.i:]]

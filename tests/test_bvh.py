@@ -97,7 +97,7 @@ def test_units_from_height() -> None:
     (("OFFSET 0 10 0", "OFFSET 0 ten 0"), "line 8: expected a number"),
     (("Zrotation Xrotation Yrotation", "Zrotation Xrotation Wrotation"), "unknown channel 'wrotation'"),
     (("Frames: 2", "Frames: 3"), "needs 27 numbers, found 18"),
-    (("Frame Time: 0.0083333", "Frame Time: 0"), "Frame Time: must be > 0"),
+    (("Frame Time: 0.0083333", "Frame Time: 0"), "Frame Time: must be a finite number of seconds"),
     (("1 2 3 90 0 0 90 0 0", "1 2 3 90 0 0 90 x 0"), "expected a channel value"),
     (("  }\n}\nMOTION", "  }\nMOTION"), "expected JOINT, End Site or '}'"),
     (("MOTION", "MOTIONS"), "expected 'MOTION'"),
@@ -108,6 +108,42 @@ def test_malformed_files_are_one_line_errors(edit: tuple[str, str], message: str
         bvh.parse(small().replace(*edit), "bad.bvh")
     assert "\n" not in str(e.value) and "bad.bvh" in str(e.value)
     assert isinstance(e.value, MjkinError)
+
+
+@pytest.mark.parametrize("bad", ["0", "-0.0083333", "nan", "inf", "1e-320", "11"])
+def test_frame_time_outside_1e_4_to_10_seconds_is_a_one_line_error(bad: str) -> None:
+    with pytest.raises(bvh.BvhError) as e:
+        bvh.parse(small().replace("Frame Time: 0.0083333", f"Frame Time: {bad}"), "bad.bvh")
+    assert str(e.value) == (f"BVH 'bad.bvh' line 18: Frame Time: must be a finite number of seconds from 0.0001 "
+                            f"to 10, got {bad!r}")
+    assert isinstance(e.value, MjkinError)
+
+
+@pytest.mark.parametrize("good", [repr(1 / 120), "0.0001", "10"])
+def test_frame_times_in_range_are_kept(good: str) -> None:
+    clip = bvh.parse(small().replace("Frame Time: 0.0083333", f"Frame Time: {good}"))
+    assert clip.frame_time == float(good)
+
+
+def chain(depth: int) -> str:
+    """A BVH chain of ``depth`` joints, each nested in the one before and 1 unit above it, ending in an End Site."""
+    opening = "".join(f"{'ROOT' if k == 0 else 'JOINT'} J{k}\n{{\n  OFFSET 0 1 0\n  CHANNELS 3 Zrotation Xrotation "
+                      "Yrotation\n" for k in range(depth))
+    closing = "}\n" * depth
+    return (f"HIERARCHY\n{opening}End Site\n{{\n  OFFSET 0 1 0\n}}\n{closing}MOTION\nFrames: 1\n"
+            f"Frame Time: 0.0083333\n{'0 ' * (3 * depth)}\n")
+
+
+def test_a_1000_deep_chain_loads() -> None:
+    clip = bvh.parse(chain(1000))
+    assert clip.names[-2:] == ("J999", "J999_End") and len(clip.names) == 1001
+    assert clip.parents.tolist() == list(range(-1, 1000))
+    np.testing.assert_allclose(clip.positions()[0, :, 1], np.arange(1, 1002))
+
+
+def test_an_unclosed_chain_names_the_missing_brace() -> None:
+    with pytest.raises(bvh.BvhError, match=r"line 19: file ends early; expected }$"):
+        bvh.parse(chain(3).split("MOTION")[0][:-2])  # the root left open
 
 
 def test_truncated_and_missing_files(tmp_path: Path) -> None:
