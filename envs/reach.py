@@ -11,13 +11,12 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-import mjkin
 from mjkin import goals as G
 from mjkin import spatial
 from mjkin.checks import check_choice, check_count
 from mjkin.render import Overlay, Painter, default_camera
 
-from .task import ReachTask
+from .task import ReachTask, check_action
 
 EXPERT_CLEARANCE = 0.005  # m: what the expert keeps between every pair MuJoCo would collide, with obstacles
 
@@ -87,7 +86,7 @@ class ReachEnv(gym.Env):
 
     ## Starting state
     ``q`` is the model's first keyframe (else ``qpos0``) moved by uniform noise in
-    ``[-start_noise, start_noise]`` rad (or m) per dof, clipped into the limits.
+    ``[-start_noise, start_noise]`` rad (or m) per dof (``start_noise`` from 0 to π), clipped into the limits.
     The target is the effector goal of a random in-limit configuration that is
     free of contacts (so always reachable), inside ``target_region`` (``(low,
     high)`` boxes, world m) when given and outside every obstacle; resampled
@@ -116,14 +115,15 @@ class ReachEnv(gym.Env):
     | ``obstacles`` | none | ``[(center, radius), ...]`` spheres added to the MuJoCo model (contacts, frames, penalty) |
     | ``table`` | ``None`` | height (world z, m) of a table top added under the arm |
     | ``target_region`` | anywhere | ``(low, high)`` box the targets are drawn in |
-    | ``start_noise`` | 0.1 | start noise around the keyframe |
+    | ``start_noise`` | 0.1 | start noise around the keyframe (0 to π) |
     | ``max_joint_speed`` | ``None`` | cartesian actions: joint speed limit (rad/s, m/s; per joint or one) per step |
     | ``render_mode`` | ``None`` | ``"rgb_array"``; ``"human"``: a window where a display exists (else a warning) |
     | ``width``, ``height`` | 480, 360 | frame size |
 
     Every argument is checked when the env is made: a bad one raises a one-line :class:`mjkin.InputError`
-    naming it (numbers finite, sizes and tolerances positive, ``target_region`` low < high on every axis,
-    the ``table`` no higher than the arm's lowest moving body at home nor than the top of ``target_region``).
+    naming it (numbers finite, sizes and tolerances positive, ``start_noise`` at most π, ``target_region``
+    low < high on every axis, the ``table`` no higher than the arm's lowest moving body at home nor than the top
+    of ``target_region``). A bad action (not numbers, another shape, NaN or inf) raises one at ``step``.
 
     ``max_joint_speed`` is a hard :class:`mjkin.goals.StepLimit` of ``max_joint_speed / render_fps``
     in each cartesian step's IK: no joint changes more than that from one step to the next.
@@ -225,11 +225,7 @@ class ReachEnv(gym.Env):
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         """Apply an action (see the class docstring); bad actions raise and change nothing."""
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise mjkin.InputError(f"action has shape {a.shape}; expected {self.action_space.shape}")
-        if not np.isfinite(a).all():
-            raise mjkin.InputError("action contains NaN or inf")
+        a = check_action(action, self.action_space, "action")
         info, reward = self._settle(self.task.move(self.q[None], a[None], self._R, self._achieved[None]))
         return self._observe(), reward, info["is_success"], False, info
 

@@ -31,6 +31,7 @@ from mjkin.scene import Scene
 
 Array = NDArray[np.float64]
 
+START_NOISE_MAX = np.pi  # rad (or m): ±π reaches every angle of a hinge; wider noise is clipped into limits anyway
 OBSTACLE_RGBA = (0.85, 0.25, 0.2, 0.6)
 TABLE_RGBA = (0.55, 0.42, 0.3, 1.0)
 
@@ -138,6 +139,9 @@ class ReachTask:
         self.success_bonus = check_number(success_bonus, "success_bonus", 0.0)
         self.collision_penalty = check_number(collision_penalty, "collision_penalty", 0.0)
         self.start_noise = check_number(start_noise, "start_noise", 0.0)
+        if self.start_noise > START_NOISE_MAX:
+            raise mjkin.InputError(f"start_noise must be a finite number from 0 to pi ({START_NOISE_MAX:.6g}) rad "
+                                   f"(or m), got {shown(start_noise)}")
         self.table = None if table is None else check_number(table, "table")
         self.obstacles = check_obstacles(obstacles)
         self.target_region = None if target_region is None else check_region(target_region)
@@ -427,6 +431,23 @@ class ReachTask:
         raise mjkin.InputError(f"no reachable, collision-free target found in 1000 draws inside target_region="
                                f"{region}, above table={self.table} and outside the "
                                f"{len(self.obstacles)} obstacles; widen target_region or move the obstacles")
+
+
+def check_action(action: Any, space: spaces.Space[Any], what: str) -> Array:
+    """``action`` as a finite float64 array of ``space``'s shape; else a one-line error naming ``what``, the space."""
+    want = f"{what} must be an array of numbers of shape {space.shape}, dtype {space.dtype} (the action space)"
+    try:
+        raw = np.asarray(action)
+    except (TypeError, ValueError):  # ragged nested lists
+        raise mjkin.InputError(f"{want}, got {shown(action)}") from None
+    if raw.dtype.kind not in "biuf":  # strings, None, objects: numpy would parse "1" as 1 or fail with its own error
+        raise mjkin.InputError(f"{want}, got {shown(action)}")
+    if raw.shape != space.shape:
+        raise mjkin.InputError(f"{want}, got shape {raw.shape}")
+    a = raw.astype(np.float64)
+    if not np.isfinite(a).all():
+        raise mjkin.InputError(f"{what} must be finite; it contains NaN or inf")
+    return a
 
 
 def check_obstacles(obstacles: Any) -> list[tuple[Array, float]]:

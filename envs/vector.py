@@ -14,6 +14,7 @@ import mjkin
 from mjkin.checks import check_count
 
 from .reach import ReachEnv
+from .task import check_action
 
 Array = NDArray[np.float64]
 
@@ -106,11 +107,7 @@ class ReachVectorEnv(VectorEnv):
 
     def step(self, actions: Any) -> tuple[Any, Array, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
         """Step all envs; those whose episode ended on the previous step are reset instead."""
-        a = np.asarray(actions, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise mjkin.InputError(f"actions have shape {a.shape}; expected {self.action_space.shape}")
-        if not np.isfinite(a).all():
-            raise mjkin.InputError("actions contain NaN or inf")
+        a = check_action(actions, self.action_space, "actions")
         resetting = self.autoreset.copy()
         self.q = self.task.move(self.q, a, self.R, self.achieved)
         for i in np.flatnonzero(resetting).tolist():

@@ -110,6 +110,21 @@ def test_bad_actions_raise_and_change_nothing():
     np.testing.assert_array_equal(env.q, before)
 
 
+@pytest.mark.parametrize("vector", [False, True], ids=["single", "vector"])
+@pytest.mark.parametrize("bad", ["a string", None, ["0"] * 7, [[0.0], [0.0, 0.0]], {"a": 1}, np.zeros(7, complex)],
+                         ids=["string", "None", "strings", "ragged", "dict", "complex"])
+def test_a_non_numeric_action_raises_one_line_naming_the_action_space(bad, vector):
+    env = gym.make_vec("mjkin/Reach-v0", 2, vectorization_mode="vector_entry_point") if vector else \
+        gym.make("mjkin/Reach-v0").unwrapped
+    env.reset(seed=0)
+    before = env.q.copy()
+    want = r"^actions? must be an array of numbers of shape " + (r"\(2, 7\)" if vector else r"\(7,\)")
+    with pytest.raises(mjkin.InputError, match=want + r", dtype float32 \(the action space\), got ") as err:
+        env.step(bad)
+    assert isinstance(err.value, ValueError) and "\n" not in str(err.value)  # gymnasium's kind for a bad action
+    np.testing.assert_array_equal(env.q, before)
+
+
 def test_observation_layout_reward_and_info():
     env = gym.make("mjkin/Reach-v0", sparse=True).unwrapped
     obs, info = env.reset(seed=1)
@@ -468,7 +483,8 @@ BAD_ARGS = {
     "rot_tol": positive_bad(optional=False),
     "success_bonus": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
     "collision_penalty": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
-    "start_noise": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none(),
+    "start_noise": NEGATIVE | NON_FINITE | NOT_NUMBERS | st.none()
+    | st.floats(min_value=np.pi, exclude_min=True, allow_infinity=False),
     "table": NON_FINITE | NOT_NUMBERS | st.floats(2.0, 1e9),  # every arm's lowest moving body is below 2
     "obstacles": st.sampled_from([0.1, "sphere", {"center": [0, 0, 1], "radius": 0.1}, ([0.3, 0.0, 0.5], 0.1)])
     | vector_bad().map(lambda c: [(c, 0.1)])
@@ -534,6 +550,21 @@ def test_a_region_out_of_reach_names_the_settings_at_reset():
     with pytest.raises(mjkin.InputError, match=r"inside target_region=\[\[5\.0, 5\.0, 5\.0\], \[6\.0, 6\.0, 6\.0\]\], "
                                                r"above table=0\.0 and outside the 0 obstacles"):
         env.reset(seed=0)
+
+
+@pytest.mark.parametrize("vector", [False, True], ids=["single", "vector"])
+@pytest.mark.parametrize("bad", [1e308, 3.2, INF, NAN])
+def test_start_noise_beyond_pi_is_refused_when_made(bad, vector):
+    with pytest.raises(mjkin.InputError, match=r"^start_noise must be a finite number") as err:
+        make("mjkin/Reach-v0", vector, start_noise=bad)
+    if np.isfinite(bad):
+        assert str(err.value) == f"start_noise must be a finite number from 0 to pi (3.14159) rad (or m), got {bad!r}"
+
+
+def test_start_noise_of_pi_is_allowed():
+    env = gym.make("mjkin/Reach-v0", start_noise=np.pi).unwrapped
+    env.reset(seed=0)
+    assert np.all((env.q >= env.task.q_lo) & (env.q <= env.task.q_hi))
 
 
 @pytest.mark.parametrize("bad", [-1, 0, NAN, INF])
