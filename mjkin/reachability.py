@@ -38,6 +38,7 @@ from .kinematics.tree import Tree, fingerprint
 
 Array = NDArray[np.float64]
 VERSION = 1  # of the cache files' contents
+MAX_PLACEMENTS = 1_000_000  # base placements (grid cells x yaws) place_base scores at most
 SAMPLES = 20_000  # random configurations: the box, and the start of each voxel's solves
 NEAREST = 8  # of the samples nearest a voxel, the start is the one whose z axis is nearest the asked direction
 # restarts of a voxel's solve: on the Panda's map (0.15 m, 12 directions) agreement with brute-force IK (64 restarts)
@@ -165,6 +166,8 @@ def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientation
     path = None if cache is None else _cache_file(cache, tree, parts)
     if path is not None and path.is_file():
         return _load(path, frame)
+    if path is not None and not path.parent.is_dir():  # before minutes of work, not after them
+        raise MjkinIOError(f"the reachability cache folder {str(cache)!r} does not exist: create it, or give another")
     started = time.perf_counter()
     body = idx if kind_ == "body" else int(tree.site_body[idx])
     point = np.zeros(3) if kind_ == "body" else tree.site_pos[idx]
@@ -327,6 +330,10 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
     map_options = {k: options.pop(k) for k in map_keys if k in options}
     cap = capability or reachability(tree, frame, kind=kind, tol=tol, rot_tol=rot_tol, **map_options)
     h = cap.resolution if step is None else check_number(step, "step (m)", 0, strict=True)
+    cells = ((box[2] - box[0]) / h + 1) * ((box[3] - box[1]) / h + 1) * check_count(yaws, "yaws")  # float: no overflow
+    if cells > MAX_PLACEMENTS:  # a region of 2e6 m at 0.1 m tried to allocate a 22.7 PiB grid
+        raise InputError(f"region and step give {cells:.3g} base placements (x, y, yaw), more than {MAX_PLACEMENTS:,}: "
+                         "a smaller region, a coarser step or fewer yaws")
     gx = np.arange(box[0], box[2] + 0.5 * h, h) if box[2] > box[0] else box[:1]
     gy = np.arange(box[1], box[3] + 0.5 * h, h) if box[3] > box[1] else box[1:2]
     turns = np.arange(check_count(yaws, "yaws")) * (2 * np.pi / yaws)

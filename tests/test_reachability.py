@@ -57,6 +57,25 @@ def test_whole_orientations_from_quaternions(ur, ur_map):
     assert np.mean(full.reached <= ur_map.reached) > 0.99
 
 
+def test_a_missing_cache_folder_is_refused_before_any_work(ur, tmp_path, monkeypatch):
+    """It computed the whole map (minutes for a fine one), then raised that the folder does not exist."""
+    def work(*args, **kwargs):
+        raise RuntimeError("the map was computed")
+
+    monkeypatch.setattr(importlib.import_module("mjkin.reachability"), "solve", work)
+    with pytest.raises(mjkin.MjkinIOError, match="the reachability cache folder .* does not exist: create it"):
+        mjkin.reachability(ur, "ee", cache=tmp_path / "missing", **SMALL)
+
+
+@pytest.mark.parametrize("region, step", [([-1e6, -1e6, 1e6, 1e6], None), ([0, 0, 1e308, 1e308], 1e-300),
+                                          ([0, 0, 1000, 1000], 0.1)])
+def test_a_base_grid_past_its_bound_is_one_line_not_a_memory_error(ur, ur_map, region, step):
+    """A region of 2e6 m tried to allocate a 22.7 PiB grid (MemoryError)."""
+    poses = ur.pose(ur.random_q(np.random.default_rng(0), 2), "ee")
+    with pytest.raises(mjkin.InputError, match=r"base placements \(x, y, yaw\), more than 1,000,000: a smaller"):
+        mjkin.place_base(ur, "ee", poses, region, step=step, capability=ur_map)
+
+
 def test_cache_round_trip(ur, ur_map, tmp_path, monkeypatch):
     first = mjkin.reachability(ur, "ee", cache=tmp_path, **SMALL)
     assert len(list(tmp_path.glob("reachability-*.npz"))) == 1
