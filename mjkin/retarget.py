@@ -137,8 +137,9 @@ def source_mapping(clip: bvh.Clip, given: dict[str, str] | None = None) -> dict[
                 break
     missing = [r for r in REQUIRED if r not in found]
     if missing:
+        shown = ", ".join(clip.names[:40]) + (f", ... ({len(clip.names) - 40} more)" if len(clip.names) > 40 else "")
         raise InputError(f"cannot map {', '.join(missing)} of BVH {clip.source or 'clip'} by joint names; give a "
-                         f"mapping file with those roles (its joints: {', '.join(clip.names)})")
+                         f"mapping file with those roles (its joints: {shown})")
     return found
 
 

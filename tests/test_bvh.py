@@ -164,3 +164,14 @@ def test_shared_clips(name: str, frames: int, joints: int, root: str) -> None:
     p = clip.positions()
     height = p[0, :, 1].max() - p[0, :, 1].min()
     assert 140 < height < 200 and np.isfinite(p).all()  # a person in centimetres, upright along y
+
+
+def test_the_cli_on_a_1000_deep_chain_says_one_short_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """It printed a RecursionError traceback; then a line listing all 1001 joints: now the first 40 and a count."""
+    from mjkin.apps.cli import main
+
+    clip = tmp_path / "deep.bvh"
+    clip.write_text(chain(1000))
+    assert main(["retarget", str(clip), "--model", "primate", "-o", str(tmp_path / "out.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot map" in err and "(961 more)" in err and len(err) < 1500
