@@ -12,6 +12,7 @@ from hypothesis.extra.numpy import arrays
 import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin.kinematics.qspace import BALL, HINGE, SLIDE
+from mjkin.kinematics.tree import ReversedRangeWarning
 
 TWO_LINK = """<mujoco><worldbody><body name="a"><joint name="j1" axis="0 0 1"/><geom size=".1"/>
 <body name="b" pos="1 0 0"><joint name="j2" axis="0 0 1" range="-1 1"/><geom size=".1"/>
@@ -269,3 +270,20 @@ def test_periodic_difference_takes_unlimited_hinges_the_short_way():
     arm = tree_of("arm7")  # limited hinges: their values are never wrapped, their differences never either
     a, b = arm.random_q(0, 2)
     np.testing.assert_array_equal(arm.difference(a, b, periodic=True), arm.difference(a, b))
+
+
+def test_a_reversed_joint_range_warns_once_naming_the_joint():
+    """``range="1 -1"`` compiles unlimited in MuJoCo, silently: ik then returned q = 1.57 for that joint."""
+    xml = ('<mujoco><worldbody><body><joint name="elbow" type="hinge" range="1 -1"/><geom size="0.1"/>'
+           '<body pos="0 0 1"><joint name="ok" type="hinge" range="-1 1"/><geom size="0.1"/></body></body>'
+           '</worldbody></mujoco>')
+    with pytest.warns(ReversedRangeWarning) as seen:
+        tree = mjkin.load(xml)
+    assert len(seen) == 1 and "'elbow' (1 -1)" in str(seen[0].message) and "'ok'" not in str(seen[0].message)
+    assert not tree.jnt_limited[0]  # as MuJoCo compiled it: the warning says so, mjkin does not guess
+
+
+@pytest.mark.filterwarnings("error::mjkin.kinematics.tree.ReversedRangeWarning")
+def test_no_bundled_model_has_a_reversed_range():
+    for name in mjkin.bundled_models():
+        mjkin.load(name)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -123,6 +124,7 @@ class Tree:
             ModelError: a number the tree reads is NaN or inf (MuJoCo compiles them with a warning only).
         """
         check_finite(model)
+        _warn_reversed_ranges(model)
         return cls(
             model=model,
             body_parent=_ro(model.body_parentid, np.int64),
@@ -329,6 +331,22 @@ _FINITE = (("body", "body_pos", "pos"), ("body", "body_quat", "quat"), ("joint",
            ("joint", "jnt_axis", "axis"), ("joint", "jnt_range", "range"), ("site", "site_pos", "pos"),
            ("site", "site_quat", "quat"), ("geom", "geom_pos", "pos"), ("geom", "geom_quat", "quat"),
            ("geom", "geom_size", "size"))
+class ReversedRangeWarning(UserWarning):
+    """A hinge or slide's ``range`` has its lower bound above its upper one, so MuJoCo left it unlimited."""
+
+
+def _warn_reversed_ranges(model: mujoco.MjModel) -> None:
+    """Warn, once per model, about joints written ``range="1 -1"``: MuJoCo compiles them unlimited, silently."""
+    lo, hi = model.jnt_range[:, 0], model.jnt_range[:, 1]
+    ranged = model.jnt_type >= int(mujoco.mjtJoint.mjJNT_SLIDE)  # slides and hinges
+    bad = np.flatnonzero(~model.jnt_limited.astype(bool) & (lo > hi) & ranged)
+    if len(bad):
+        named = ", ".join(f"{model.joint(int(j)).name or int(j)!r} ({lo[j]:g} {hi[j]:g})" for j in bad[:8])
+        warnings.warn(f"joint range with its lower bound above the upper one, which MuJoCo compiles as unlimited: "
+                      f"{named}{' ...' if len(bad) > 8 else ''}; write it lower first (range=\"-1 1\")",
+                      ReversedRangeWarning, stacklevel=3)
+
+
 FAR = 1000.0  # model extents (MjModel.stat.extent) from the model's centre past which a target point is refused
 _NAME_ADR = {"body": "name_bodyadr", "joint": "name_jntadr", "site": "name_siteadr", "geom": "name_geomadr"}
 
