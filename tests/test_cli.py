@@ -595,3 +595,15 @@ def test_ik_seed_help_says_what_each_default_is(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "without it the restarts use seed 0, so a run repeats" in text
     assert "without it --q0 random is a new draw each run" in text and "default: a new draw" not in text
+
+
+def test_ik_text_output_names_every_joint_with_its_values(capsys):
+    """The primate's 37 numbers came without names: each joint now has its line, its values as in the q line."""
+    assert main(["ik", "primate", "--frame", "left_hand", "--pos", "0.2,0.3,1.1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    q = [float(v) for v in lines[2].split()[1:]]
+    tree = mjkin.load("primate")
+    rows = lines[3:]
+    assert len(rows) == tree.model.njnt and rows[0].split()[:2] == ["root", "free"]
+    values = [float(v) for row in rows for v in row.split()[2:]]
+    assert values == q and len(q) == tree.nq

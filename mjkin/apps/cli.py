@@ -251,7 +251,20 @@ def cmd_ik(args: argparse.Namespace) -> int:
         print(f"position error {res.error[0]:.3g} m, rotation error {res.error[1]:.3g} rad"
               + ("" if args.quat is not None else " (not a goal)"))
         print("q " + fixed(q))
+        print(by_joint(tree, q))
     return 0
+
+
+def by_joint(tree: Tree, q: np.ndarray) -> str:
+    """``q (nq,)`` one joint a line: its name (or ``joint <id>``), type and values (a free joint's 7, a ball's 4)."""
+    names = tree.names("joint")
+    width = max((len(n) for n in names), default=0) + 2
+    kinds = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
+    lines = []
+    for j, (adr, kind) in enumerate(zip(tree.jnt_qadr, tree.jnt_type, strict=True)):
+        n = {0: 7, 1: 4}.get(int(kind), 1)
+        lines.append(f"  {(names[j] or f'joint {j}'):<{width}}{kinds[int(kind)]:<6}{fixed(q[adr:adr + n], sign=True)}")
+    return "\n".join(lines)
 
 
 def _points(text: str) -> np.ndarray:
