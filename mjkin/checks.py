@@ -33,16 +33,18 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
     return x
 
 
-def check_count(value: Any, what: str, least: int = 1, whole_floats: bool = False) -> int:
-    """``value`` as an int: a whole number ``>= least`` (not a bool; a float only if ``whole_floats`` and whole).
+def check_count(value: Any, what: str, least: int = 1, whole_floats: bool = False, most: int | None = None) -> int:
+    """``value`` as an int: a whole number ``>= least`` and, if given, ``<= most`` (not a bool; a float only if
+    ``whole_floats`` and whole).
 
     Integers are taken exactly, however large (a seed of 2**64 + 1 stays that).
-    """
+    """  # noqa: D205
     ok = not isinstance(value, (bool, np.bool_)) and (
         isinstance(value, (int, np.integer))
         or (whole_floats and isinstance(value, (float, np.floating)) and np.isfinite(value) and value == int(value)))
-    if not ok or value < least:
-        raise InputError(f"{what} must be a whole number >= {least}, got {shown(value)}")
+    if not ok or value < least or (most is not None and value > most):
+        bound = f">= {least}" if most is None else f"from {least} to {most:,}"
+        raise InputError(f"{what} must be a whole number {bound}, got {shown(value)}")
     return int(value)
 
 

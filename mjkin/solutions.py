@@ -35,6 +35,7 @@ from .kinematics.tree import Tree
 Array = NDArray[np.float64]
 STARTS = 128  # seeded starts per round
 ROUNDS = 8  # rounds of starts at most: another while the last found a new solution
+MAX_STARTS = 1_000_000  # starts over all rounds at most (starts x rounds; they are drawn ahead)
 SPREAD_POOL = 4  # with max_solutions = k, rounds stop once 4 k distinct solutions are there to spread from
 MAX_ITERS = 200  # near a wrist singularity LM creeps: at 50 iterations 7 % of starts converged, at 200 most
 MERGE = 1e-3  # solutions closer than this (largest joint difference, rad or m) are one
@@ -70,7 +71,7 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
         max_solutions: return at most this many, the most spread out (farthest-point
             sampling from the one nearest ``qpos0``); None: all found.
         starts: seeded starts per round.
-        rounds: most rounds of starts.
+        rounds: most rounds of starts (``starts * rounds`` at most :data:`MAX_STARTS`).
         merge: largest joint difference (rad or m) of two configurations counted as one.
         seed: seeds the starts (the same seed, the same answer).
         **options: :class:`mjkin.Problem` options (``method``, ``tol``, ``rot_tol``,
@@ -87,7 +88,9 @@ def solutions(tree: Tree, goal: Goal | Sequence[Goal], *, max_solutions: int | N
         GoalError: batched targets (give one goal; solve several goals in a loop).
         InputError: bad options.
     """
-    n = check_count(starts, "starts")
+    n = check_count(starts, "starts", most=MAX_STARTS)
+    if n * check_count(rounds, "rounds", most=MAX_STARTS) > MAX_STARTS:  # drawn ahead: (starts * rounds, nq) floats
+        raise InputError(f"starts x rounds must be at most {MAX_STARTS:,}, got {n} x {rounds}")
     if max_solutions is not None:
         check_count(max_solutions, "max_solutions")
     merge = check_number(merge, "merge", 0, strict=True)

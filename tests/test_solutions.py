@@ -222,3 +222,13 @@ def test_limits_proven_for_a_single_hinge_and_slide():
     slide = single_joint("slide")  # the tip at x = 1 + s, s in [-0.5, 0.5]
     res = mjkin.solve(slide, G.Position("ee", [[2.0, 0, 0], [0.2, 0, 0], [1.3, 0, 0], [1.2, 0.5, 0]]))
     assert list(res.reason) == ["out_of_reach", "limits", "", "not_found"]  # past 1.5 m the bound proves it first
+
+
+@pytest.mark.parametrize("options, text", [({"rounds": 10**6}, "starts x rounds must be at most 1,000,000, got 128 x"),
+                                           ({"starts": 10**6, "rounds": 2}, "starts x rounds must be at most"),
+                                           ({"starts": 10**7}, "starts must be a whole number from 1 to 1,000,000")])
+def test_work_past_the_documented_bound_is_refused_before_it_starts(options, text):
+    """solutions(rounds=10**6) grew to 24 GB until the out-of-memory killer ended it."""
+    tree = mjkin.load("arm7")
+    with pytest.raises(mjkin.InputError, match=text):
+        mjkin.solutions(tree, mjkin.goals.Position("ee", (0.3, 0.1, 0.4)), **options)

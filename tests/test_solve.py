@@ -602,3 +602,13 @@ def test_a_huge_quaternion_is_normalised_without_overflow():
     np.testing.assert_allclose(tree.fk(q0), tree.fk(np.r_[1.0, 1.0, 0.0, 0.0, q0[4:]]), atol=1e-15)
     res = mjkin.solve(tree, G.Position("tip", tree.pose(tree.random_q(2), "tip")[:3, 3]), q0)
     assert res.success
+
+
+@pytest.mark.parametrize("make", [lambda: mjkin.ik.LM(restarts=10**7), lambda: mjkin.ik.Auto(restarts=10_001)])
+def test_restarts_past_their_bound_are_one_line_not_minutes(make):
+    """restarts=10**7 drew 10**7 starts and ran for minutes; the bound is documented (MAX_RESTARTS)."""
+    from mjkin.ik.method import MAX_RESTARTS
+
+    with pytest.raises(mjkin.InputError, match=f"restarts must be a whole number from 0 to {MAX_RESTARTS:,}, got"):
+        make()
+    assert mjkin.ik.LM(restarts=MAX_RESTARTS).restarts == MAX_RESTARTS

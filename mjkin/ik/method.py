@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from .result import Result
 
 Array = NDArray[np.float64]
+MAX_RESTARTS = 10_000  # restarts a method takes at most: their starts are drawn ahead, (restarts, nq) floats
 
 
 class Problem(Protocol):
@@ -67,7 +68,7 @@ class Method(metaclass=_Options):
     """An IK method and its options; subclasses are frozen dataclasses with a ``name``.
 
     ``restarts``: random restarts (within the limits, only of the joints that move a
-    goal frame) when a run stalls; ``None`` lets the method choose.
+    goal frame) when a run stalls, at most :data:`MAX_RESTARTS`; ``None`` lets the method choose.
     """
 
     name: ClassVar[str]
@@ -75,7 +76,7 @@ class Method(metaclass=_Options):
 
     def __post_init__(self) -> None:
         if self.restarts is not None:
-            check_count(self.restarts, "restarts", 0, whole_floats=True)
+            check_count(self.restarts, "restarts", 0, whole_floats=True, most=MAX_RESTARTS)
 
     def restart_count(self, timed: bool) -> int:
         """How many restart starts a problem prepares (``timed``: a time limit is set)."""
