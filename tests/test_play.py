@@ -1197,9 +1197,9 @@ def play_process(out) -> tuple[subprocess.Popen, Client]:
     return proc, Client(int(found[1]), found[2])
 
 
-def stop_process(proc: subprocess.Popen) -> str:
-    """Ctrl-C; its stderr."""
-    proc.send_signal(signal.SIGINT)
+def stop_process(proc: subprocess.Popen, sig: int = signal.SIGINT) -> str:
+    """Ctrl-C (or another signal ``sig``); its stderr, once it stopped cleanly (status 0, the line "stopped")."""
+    proc.send_signal(sig)
     try:
         _, err = proc.communicate(timeout=60)
     finally:
@@ -1236,6 +1236,21 @@ def test_cli_serves_and_stops_cleanly_on_ctrl_c_saving_the_recording_that_was_on
     assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
     # a first run's compilation says so itself (mjkin.progress); a start with the kernels cached says nothing of it
     assert "mjkin play: loading arm7...\n" in err and "first run compiles" not in err
+
+
+def test_sigterm_saves_the_take_prints_stopped_and_exits_0(tmp_path):
+    """``kill``, ``docker stop``, ``systemctl stop``: SIGTERM stops the playground just as Ctrl-C does."""
+    proc, client = play_process(tmp_path)
+    try:
+        assert client.post("/record")[0] == 200
+        path, lines = journal_lines(tmp_path)  # a take is being recorded
+    finally:
+        err = stop_process(proc, signal.SIGTERM)  # status 0 and "mjkin play: stopped", not killed (-15)
+    script = tmp_path / path.name.replace(".journal.jsonl", ".json")
+    assert f"mjkin play: the recording that was on is saved as {str(script)!r} from its journal" in err
+    assert list(tmp_path.iterdir()) == [script]  # saved now, not left to a later mjkin play to recover
+    traj = motion.Trajectory.load(script, arm())
+    assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
 
 
 def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_journal(tmp_path):

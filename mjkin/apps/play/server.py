@@ -56,6 +56,7 @@ import ipaddress
 import json
 import os
 import secrets
+import signal
 import socket
 import sys
 import threading
@@ -63,6 +64,7 @@ import webbrowser
 from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib.resources import files
 from pathlib import Path
+from types import FrameType
 from typing import Any
 from urllib.parse import parse_qs
 
@@ -491,7 +493,12 @@ class IdleClosingH11(H11Protocol):
 
 
 class _Uvicorn(uvicorn.Server):
-    """uvicorn's server; its shutdown ends the streams first (they would run until the playground closes)."""
+    """uvicorn's server; its shutdown ends the streams first (they would run until the playground closes).
+
+    SIGTERM (``kill``, ``docker stop``, ``systemctl stop``) is taken as Ctrl-C: uvicorn shuts down gracefully on
+    either, then raises the signal again once its handlers are restored, and a SIGTERM raised again would kill the
+    process before :func:`serve` saves the take; a SIGINT raised again is the ``KeyboardInterrupt`` it expects.
+    """
 
     def __init__(self, config: uvicorn.Config, routes: Routes) -> None:
         super().__init__(config)
@@ -501,6 +508,10 @@ class _Uvicorn(uvicorn.Server):
         """End the streams, then shut down as uvicorn does."""
         self.routes.end_streams()
         await super().shutdown(sockets)
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        """A signal to stop: SIGTERM is handled as SIGINT (a second one forces the exit, as a second Ctrl-C)."""
+        super().handle_exit(signal.SIGINT if sig == signal.SIGTERM else sig, frame)
 
 
 class PlayServer:
@@ -527,7 +538,7 @@ class PlayServer:
         return f"http://{f'[{host}]' if ':' in host else host}:{port}/?token={self.token}"
 
     def serve_forever(self) -> None:
-        """Serve until :meth:`shutdown` or, in the main thread, Ctrl-C (then SIGTERM's handler, too, is uvicorn's)."""
+        """Serve until :meth:`shutdown` or, in the main thread, Ctrl-C or SIGTERM (taken as Ctrl-C)."""
         self.server.run(sockets=[self.socket])
 
     def shutdown(self) -> None:
@@ -616,7 +627,7 @@ def say(line: str) -> None:
 
 def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int = 8765, browser: bool = True,
           out_dir: str | Path = ".") -> int:
-    """Run ``mjkin play`` until Ctrl-C: print the URL (with its token), open a browser when there is a display."""
+    """Run ``mjkin play`` until Ctrl-C or SIGTERM: print the URL (with its token), open a browser on a display."""
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, got {port}")
     tree = model if isinstance(model, Tree) else load(model)
@@ -637,7 +648,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if browser and has_display():
         threading.Thread(target=webbrowser.open, args=(server.url,), daemon=True).start()
     try:
-        with contextlib.suppress(KeyboardInterrupt):  # uvicorn takes Ctrl-C, shuts down and returns
+        with contextlib.suppress(KeyboardInterrupt):  # uvicorn takes Ctrl-C (and SIGTERM), shuts down and returns
             server.serve_forever()
         say("stopped")
     finally:
