@@ -24,7 +24,7 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
     """
     bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
     is_number = type(value) in (float, int) or (  # the common case first: solve checks options on every call
-        np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes))
+        not isinstance(value, (bool, np.bool_, str, bytes, list, tuple, dict, set)) and np.ndim(value) == 0
         and np.issubdtype(np.asarray(value).dtype, np.number) and np.isrealobj(value))
     x = float(value) if is_number else np.nan
     if math.isnan(x) or (math.isinf(x) and not infinite) or (minimum is not None and (x <= minimum if strict

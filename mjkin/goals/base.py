@@ -85,7 +85,11 @@ def unit(value: ArrayLike, what: str) -> Array:
 
 def rotation(value: ArrayLike, what: str) -> Array:
     """A rotation given as quaternion(s) ``(..., 4)`` or matrix(es) ``(..., 3, 3)`` → matrices."""
-    a = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+    try:
+        a = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+    except (TypeError, ValueError):
+        raise GoalError(f"{what} must be numbers: a quaternion (4,) or a rotation matrix (3, 3), or a batch of "
+                        f"them") from None
     if a.shape[-1:] == (4,):
         q = array(a, (4,), what)
         n = np.linalg.norm(q, axis=-1, keepdims=True)

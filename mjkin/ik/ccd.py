@@ -32,7 +32,7 @@ from ..kinematics.tree import Tree
 from ..parallel import parallel_chunks
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk
-from .method import Method, Problem
+from .method import MAX_ITERS, Method, Problem
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
@@ -222,8 +222,8 @@ class CCD(Method):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
-        check_count(self.patience, "patience", whole_floats=True)
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
+        check_count(self.patience, "patience", whole_floats=True, most=MAX_ITERS)
         if self.sweep not in SWEEPS:
             raise GoalError(f"sweep must be 'tip_to_base' or 'base_to_tip', not {self.sweep!r}")
         if SWEEPS[self.sweep] != self.sweep:

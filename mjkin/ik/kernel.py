@@ -86,8 +86,10 @@ def settings(tol: float, rot_tol: float, damping: float, lm_factor: float = 0.0,
 
 
 def timeout_ns(timeout: float | None) -> int:
-    """A time limit in seconds as the compiled loops take it: nanoseconds, 0 for none."""
-    return 0 if timeout is None else max(1, int(round(timeout * 1e9)))
+    """A time limit in seconds as the compiled loops take it: nanoseconds, 0 for none (so is one past ~146 years)."""
+    if timeout is None or not timeout * 1e9 < 2**62:  # int64 nanoseconds; 1e300 s overflowed
+        return 0
+    return max(1, int(round(timeout * 1e9)))
 
 
 # ------------------------------------------------------------------ kinematics

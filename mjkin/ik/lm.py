@@ -15,11 +15,12 @@ import numba
 import numpy as np
 
 from ..checks import check_count, check_flag, check_number
+from ..errors import InputError
 from ..jit import entry
 from ..parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
-from .method import Array, Method, Problem
+from .method import MAX_ITERS, Array, Method, Problem
 from .packed import Packed, pack
 from .result import History, Result, result_of
 
@@ -38,6 +39,7 @@ LM_MU, LM_MAX_STEP = 0.1, 1.0
 # Same protocol: mean iterations Panda 20.1 -> 13.4, UR5e 21.0 -> 15.3, xArm7 14.4 -> 10.9, batched solves/s
 # x1.4-1.5, success 100 %; from `home` at 1e-4 likewise.
 LM_PATIENCE, LM_PROGRESS = 4, 0.1
+MAX_HISTORY = 100_000  # iterations per run at most with history=True: every iterate is kept, (targets, iters, nq)
 
 
 @dataclass(frozen=True)
@@ -69,8 +71,8 @@ class Jacobian(Method):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
-        check_count(self.patience, "patience", whole_floats=True)
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
+        check_count(self.patience, "patience", whole_floats=True, most=MAX_ITERS)
         check_flag(self.halving, "halving")
         if self.damping is not None:
             check_number(self.damping, "damping", 0, strict=True)
@@ -90,7 +92,14 @@ class Jacobian(Method):
         return 0.0
 
     def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
-        """The compiled loop with this problem's settings, made once."""
+        """The compiled loop with this problem's settings, made once.
+
+        Raises:
+            InputError: ``history`` with more than :data:`MAX_HISTORY` iterations a run.
+        """
+        if problem.history and self.max_iters > MAX_HISTORY:
+            raise InputError(f"history keeps every iterate: max_iters must be at most {MAX_HISTORY:,} with it, "
+                             f"got {self.max_iters}")
         return Loop(problem, self.code, self.settings(problem), int(self.max_iters))
 
 

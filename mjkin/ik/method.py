@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 MAX_RESTARTS = 10_000  # restarts a method takes at most: their starts are drawn ahead, (restarts, nq) floats
+MAX_ITERS = 10**9  # iterations (and patience) a run takes at most: hours of work, and within the loops' int64
 
 
 class Problem(Protocol):

@@ -34,7 +34,7 @@ from ..kinematics.qspace import HINGE, SLIDE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
 from .kernel import BINDING, CONSTRAINT, CONVERGED, HARD_TOL, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
-from .method import Method, Problem
+from .method import MAX_ITERS, Method, Problem
 from .result import Result, package
 
 Array = NDArray[np.float64]
@@ -234,7 +234,7 @@ class Optimize(Method):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
 
     def default_timeout(self) -> float | None:  # noqa: D102
         return OPTIMIZE_TIMEOUT

@@ -43,7 +43,7 @@ from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk
-from .method import Method, Problem
+from .method import MAX_ITERS, Method, Problem
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
@@ -344,7 +344,7 @@ class Reach(Method):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_count(self.max_iters, "max_iters", 0, whole_floats=True)
+        check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
 
     def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:  # noqa: D102
         prog = problem.structure
