@@ -29,6 +29,7 @@ from .errors import InputError, MjkinIOError
 Array = NDArray[np.float64]
 CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")
 END = "_End"  # an End Site is named after its joint with this suffix
+MAX_FRAMES = 100_000_000  # frames a file may hold (over a day at 1000 Hz; 'Frames: 1e300' ended in StopIteration)
 FRAME_TIME = (1e-4, 10.0)  # the Frame Time: a file may give, seconds (10000 to 0.1 frames per second)
 
 
@@ -253,8 +254,8 @@ def parse(text: str, source: str = "<string>") -> Clip:
     tk.take("MOTION")
     tk.take("Frames:")
     n_frames = tk.number("the number of frames")
-    if n_frames != int(n_frames) or n_frames < 1:
-        raise tk.error(f"Frames: must be a whole number >= 1, got {n_frames:g}")
+    if not (n_frames == int(n_frames) and 1 <= n_frames <= MAX_FRAMES):
+        raise tk.error(f"Frames: must be a whole number from 1 to {MAX_FRAMES:,}, got {n_frames:g}")
     tk.take("Frame")
     tk.take("Time:")
     frame_time = tk.number("Frame Time:", FRAME_TIME, "seconds")
@@ -269,7 +270,9 @@ def parse(text: str, source: str = "<string>") -> Clip:
     try:
         values = np.array(data[: F * n_cols], dtype=np.float64).reshape(F, n_cols)
     except ValueError:
-        bad = next(t for t in data if not _is_number(t))
+        bad = next((t for t in data if not _is_number(t)), None)
+        if bad is None:
+            raise BvhError(f"BVH {source!r}: cannot read {F} frames of {n_cols} channel values") from None
         tk.i += data.index(bad)
         raise tk.error(f"expected a channel value (a number), got {bad!r}") from None
     if not np.isfinite(values).all():

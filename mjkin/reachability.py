@@ -32,13 +32,15 @@ from .checks import check_count, check_number, shown
 from .errors import InputError, MjkinIOError
 from .files import atomic_path
 from .ik.evaluate import singular_values
+from .ik.method import MAX_RESTARTS
 from .ik.reasons import reach_bound
 from .ik.solve import solve
-from .kinematics.tree import Tree, fingerprint
+from .kinematics.tree import FAR, Tree, fingerprint
 
 Array = NDArray[np.float64]
 VERSION = 1  # of the cache files' contents
 MAX_PLACEMENTS = 1_000_000  # base placements (grid cells x yaws) place_base scores at most
+MAX_VOXELS = 1_000_000  # voxels a capability map holds at most (each one a batch of solves)
 SAMPLES = 20_000  # random configurations: the box, and the start of each voxel's solves
 NEAREST = 8  # of the samples nearest a voxel, the start is the one whose z axis is nearest the asked direction
 # restarts of a voxel's solve: on the Panda's map (0.15 m, 12 directions) agreement with brute-force IK (64 restarts)
@@ -158,8 +160,13 @@ def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientation
         MjkinIOError: the cache folder cannot be read or written.
     """
     res = check_number(resolution, "resolution (m)", 0, strict=True)
+    if res > FAR * (float(tree.model.stat.extent) or 1.0):
+        raise InputError(f"resolution (m) must be at most {FAR:g} model extents, got {res:g}")
     rots, axes = _orientations(orientations)
     n = check_count(samples, "samples", 2)
+    seed = check_count(seed, "seed", 0)
+    restarts = check_count(restarts, "restarts", 0, most=MAX_RESTARTS)
+    tol, rot_tol = check_number(tol, "tol", 0, strict=True), check_number(rot_tol, "rot_tol", 0, strict=True)
     kind_, idx = tree.frame(frame, kind)  # type: ignore[arg-type]
     parts = (frame, kind_, res, axes, n, seed, float(tol), float(rot_tol), int(restarts),
              sorted(options.items()), rots)
@@ -180,7 +187,11 @@ def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientation
     T = tree.pose(q, frame, kind_)
     pts = T[:, :3, 3]
     origin = pts.min(0) - res
-    shape = tuple(int(s) for s in np.ceil((pts.max(0) + res - origin) / res).astype(np.int64) + 1)
+    cells = np.ceil((pts.max(0) + res - origin) / res) + 1  # per axis, float: no overflow
+    if not np.prod(cells) <= MAX_VOXELS:  # a resolution of 1e-5 m tried to allocate 69 TiB
+        raise InputError(f"resolution {res:g} m gives {np.prod(cells):.3g} voxels over the frame's reach, more than "
+                         f"{MAX_VOXELS:,}: a coarser resolution")
+    shape = tuple(int(s) for s in cells)
     centres = origin + res * np.stack(np.meshgrid(*(np.arange(s) for s in shape), indexing="ij"), -1).reshape(-1, 3)
     anchor, bound = reach_bound(tree, body, point, active, tree.qpos0[None])
     inside = np.linalg.norm(centres - anchor[0], axis=-1) <= bound[0] + tol
@@ -283,7 +294,10 @@ def _base_poses(xy: Array, yaw: Array) -> Array:
 
 def _poses(poses: ArrayLike) -> Array:
     """Target poses ``(n, 4, 4)`` from 4x4 matrices or ``(n, 7)`` rows ``x, y, z, qw, qx, qy, qz``."""
-    p = np.asarray(poses, dtype=np.float64)
+    try:
+        p = np.asarray(poses, dtype=np.float64)
+    except (TypeError, ValueError):
+        p = np.zeros(0)
     if p.ndim == 2 and p.shape[1] == 7 and len(p) and np.all(np.isfinite(p)):
         if np.any(np.linalg.norm(p[:, 3:], axis=-1) < 1e-9):
             raise InputError("a target pose has a zero quaternion; use (1, 0, 0, 0) for no rotation")
@@ -323,7 +337,10 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
         InputError: malformed poses or region, bad options.
     """
     targets = _poses(poses)
-    box = np.asarray(region, dtype=np.float64)
+    try:
+        box = np.asarray(region, dtype=np.float64)
+    except (TypeError, ValueError):
+        box = np.zeros(0)
     if box.shape != (4,) or not np.all(np.isfinite(box)) or box[2] < box[0] or box[3] < box[1]:
         raise InputError(f"region must be x_min, y_min, x_max, y_max with min <= max, got {shown(region)}")
     map_keys = ("resolution", "orientations", "samples", "seed", "cache", "restarts")

@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import bvh, spatial
 from . import goals as G
-from .checks import check_number
+from .checks import check_number, shown
 from .errors import InputError, MjkinIOError
 from .ik import Problem
 from .ik.kernel import HARD_TOL
@@ -92,6 +92,7 @@ FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its bod
 FIGURE_LEAN = {"g1": 1.0}
 
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
+SCALE = (1e-6, 1e6)  # metres per BVH unit a clip may be given (micrometres to thousands of kilometres)
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
 # Each frame is one warm-started solve of MAX_ITERS iterations at most, all goals in one priority level (a second
 # level costs a projection per iteration: 1.7-2x the time), the feet's toe and heel points weighted FOOT_WEIGHT
@@ -304,9 +305,10 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
     mapping = mapping or {}
     roles = source_mapping(clip, mapping.get("source"))
     bodies = figure_mapping(tree, mapping.get("figure"))
-    unit = bvh.unit_scale(clip)[0] if scale is None else float(scale)
-    if not (np.isfinite(unit) and unit > 0):
-        raise InputError(f"scale must be a positive number of metres per BVH unit, got {scale!r}")
+    unit = bvh.unit_scale(clip)[0] if scale is None else check_number(scale, "scale (metres per BVH unit)", 0,
+                                                                       strict=True)
+    if not SCALE[0] <= unit <= SCALE[1]:  # 1e-300 divided by zero further on
+        raise InputError(f"scale must be from {SCALE[0]:g} to {SCALE[1]:g} metres per BVH unit, got {scale!r}")
     p = _facing(clip.positions() @ Z_UP.T * unit, roles)
     rest = _facing(clip.positions(rest=True) @ Z_UP.T * unit, roles)[0]
     F = clip.frames
@@ -427,7 +429,11 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     clip = source if isinstance(source, bvh.Clip) else bvh.read(source)
     if mapping is not None and not isinstance(mapping, dict):
         mapping = read_mapping(mapping)
-    speed = np.broadcast_to(np.asarray(max_speed, float), (tree.nv,))
+    try:
+        speed = np.broadcast_to(np.asarray(max_speed, float), (tree.nv,))
+    except (TypeError, ValueError):
+        raise InputError(f"max_speed must be one number or {tree.nv} (one a dof), rad/s, got "
+                         f"{shown(max_speed)}") from None
     if not (np.isfinite(speed).all() and (speed > 0).all()):
         raise InputError(f"max_speed must be positive rad/s, got {max_speed!r}")
     if tree.nq < 7 or tree.layout.free_q.size == 0:

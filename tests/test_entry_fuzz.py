@@ -7,8 +7,7 @@ numbers, odd shapes and dtypes, strings, dropped or changed BVH lines. The call 
 subclass; any other exception type (ValueError, TypeError, LinAlgError, MemoryError, StopIteration, ...) fails.
 Sizes and budgets are small so every example is fast, and a watchdog turns a hang into a failure.
 
-Inputs that fail today are pinned below as explicit cases marked ``xfail(strict=True)``, so each known bug
-stays visible and the file passes.
+Inputs that failed once are pinned below as explicit cases, so each bug found stays fixed.
 """
 
 from __future__ import annotations
@@ -148,38 +147,6 @@ def q_starts(nq: int) -> st.SearchStrategy[Any]:
     return st.none() | shapes.flatmap(lambda s: hnp.arrays(np.float64, s, elements=extreme)) | junk
 
 
-def numeric(value: Any) -> bool:
-    try:
-        np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        return False
-    return True
-
-
-def ragged(value: Any) -> bool:
-    """A nested list numpy cannot make an array of (``[1, [2, 3]]``)."""
-    try:
-        np.asarray(value)
-    except ValueError:
-        return True
-    return False
-
-
-def known_solve_bug(kind: str, target: Any) -> bool:
-    """Inputs pinned in test_solve_pinned (known failures), left out of the property."""
-    return kind == "orientation" and not numeric(target)
-
-
-def known_option_bug(option: str, value: Any) -> bool:
-    """Option values pinned in test_solve_option_pinned (known failures), left out of the property."""
-    if ragged(value):
-        return True
-    real = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if option == "timeout" and real and math.isfinite(value) and value > 9e9:  # ns past int64
-        return True
-    return option == "max_iters" and isinstance(value, int) and value >= 2**63
-
-
 numbers = st.sampled_from([1e-6, 1e-3, 0.0, -1.0, NAN, INF, 1e300, 5e-324, "x", None])
 
 
@@ -187,7 +154,6 @@ numbers = st.sampled_from([1e-6, 1e-3, 0.0, -1.0, NAN, INF, 1e300, 5e-324, "x", 
 @given(case=goal_cases(), method=st.sampled_from(list(METHODS)), data=st.data())
 def test_solve_is_clean_or_raises_mjkin_error(case: tuple[str, str, Any], method: str, data: st.DataObject) -> None:
     kind, model, target = case
-    assume(not known_solve_bug(kind, target))
     t = tree(model)
     q0 = data.draw(q_starts(t.nq), "q0")
     tol = data.draw(st.sampled_from([1e-6, 1e-3]) | numbers, "tol")
@@ -205,7 +171,6 @@ def test_solve_is_clean_or_raises_mjkin_error(case: tuple[str, str, Any], method
                                                                      "timeout", "rot_tol", "history", "bogus"]),
        value=extreme | junk | st.sampled_from([0, 1, -1, 2**70, 3.5]))
 def test_solve_options_are_checked(method: str, option: str, value: Any) -> None:
-    assume(not known_option_bug(option, value))
     t = tree("arm7")
     if option == "restarts":
         assume(not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 4))  # time, not a bug
@@ -295,10 +260,6 @@ def mostly(valid: list[Any], bad: list[Any]) -> st.SearchStrategy[Any]:
        tol=mostly([1e-3], [0.0, -1.0, NAN, INF]))
 def test_reachability_is_clean_or_raises_mjkin_error(resolution: Any, orientations: Any, samples: Any, seed: Any,
                                                      restarts: Any, tol: Any) -> None:
-    # known bugs, pinned in test_reachability_pinned
-    assume(not (isinstance(seed, float) or (isinstance(seed, int) and seed < 0)))
-    assume(not (isinstance(restarts, str) or (isinstance(restarts, float) and math.isnan(restarts))))
-    assume(not (tol == INF and resolution == 1e300))
     t = tree("arm7")
     m = outcome(lambda: mjkin.reachability(t, "ee", resolution=resolution, orientations=orientations,
                                            samples=samples, seed=seed, restarts=restarts, tol=tol, timeout=0.5))
@@ -332,7 +293,6 @@ def test_place_base_is_clean_or_raises_mjkin_error(poses: Any, region: Any, step
                                                    verify: Any) -> None:
     t = tree("arm7")
     cap = capability()
-    assume(numeric(poses) and numeric(region))  # else a known bug: test_place_base_pinned
     p = outcome(lambda: mjkin.place_base(t, "ee", poses, region, step=step, yaws=yaws, verify=verify,
                                          capability=cap, timeout=0.5))
     if p is not None:
@@ -345,12 +305,9 @@ def test_place_base_is_clean_or_raises_mjkin_error(poses: Any, region: Any, step
 
 
 @pytest.mark.parametrize(("poses", "region"), [
-    pytest.param("abc", (-0.5, -0.5, 0.5, 0.5), id="poses-string", marks=pytest.mark.xfail(
-        strict=True, reason="place_base(poses='abc'): ValueError (could not convert string to float) in _poses")),
-    pytest.param([[0.3, 0, 0.5, 1, 0, 0, 0]], "abc", id="region-string", marks=pytest.mark.xfail(
-        strict=True, reason="place_base(region='abc'): ValueError (could not convert string to float)")),
-    pytest.param([[0.3, 0, 0.5, 1, 0, 0, 0]], {"a": 1}, id="region-dict", marks=pytest.mark.xfail(
-        strict=True, reason="place_base(region={'a': 1}): TypeError (float() argument must be ... not 'dict')")),
+    pytest.param("abc", (-0.5, -0.5, 0.5, 0.5), id="poses-string"),
+    pytest.param([[0.3, 0, 0.5, 1, 0, 0, 0]], "abc", id="region-string"),
+    pytest.param([[0.3, 0, 0.5, 1, 0, 0, 0]], {"a": 1}, id="region-dict"),
     pytest.param([[0.3, 0, 0.5, 1e300, 1e300, 0, 0]], (-0.5, -0.5, 0.5, 0.5), id="quaternion-1e300"),
 ])
 def test_place_base_pinned(poses: Any, region: Any) -> None:
@@ -361,23 +318,14 @@ def test_place_base_pinned(poses: Any, region: Any) -> None:
 
 
 @pytest.mark.parametrize("kwargs", [
-    pytest.param({"resolution": 1e-5}, id="resolution-1e-5", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(resolution=1e-5): numpy MemoryError (69 TiB voxel grid), no InputError")),
-    pytest.param({"resolution": 1e-9}, id="resolution-1e-9", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(resolution=1e-9): ValueError 'broadcast dimensions too large' (meshgrid)")),
-    pytest.param({"resolution": 5e-324}, id="resolution-5e-324", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(resolution=5e-324): ValueError 'can only specify one unknown dimension'")),
-    pytest.param({"resolution": 1e300, "tol": INF}, id="resolution-1e300-tol-inf", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(resolution=1e300, tol=inf): IndexError 'index 2 is out of bounds for "
-                            "axis 0 with size 2' (reachability.py:212)")),
-    pytest.param({"seed": -1}, id="seed-negative", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(seed=-1): ValueError 'expected non-negative integer' from default_rng")),
-    pytest.param({"seed": 1.5}, id="seed-float", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(seed=1.5): TypeError 'SeedSequence expects int ...' from default_rng")),
-    pytest.param({"restarts": NAN}, id="restarts-nan", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(restarts=nan): ValueError 'cannot convert float NaN to integer'")),
-    pytest.param({"restarts": "x"}, id="restarts-string", marks=pytest.mark.xfail(
-        strict=True, reason="reachability(restarts='x'): ValueError 'invalid literal for int()'")),
+    pytest.param({"resolution": 1e-5}, id="resolution-1e-5"),
+    pytest.param({"resolution": 1e-9}, id="resolution-1e-9"),
+    pytest.param({"resolution": 5e-324}, id="resolution-5e-324"),
+    pytest.param({"resolution": 1e300, "tol": INF}, id="resolution-1e300-tol-inf"),
+    pytest.param({"seed": -1}, id="seed-negative"),
+    pytest.param({"seed": 1.5}, id="seed-float"),
+    pytest.param({"restarts": NAN}, id="restarts-nan"),
+    pytest.param({"restarts": "x"}, id="restarts-string"),
 ])
 def test_reachability_pinned(kwargs: dict[str, Any]) -> None:
     """Billions of voxels must be a MjkinError at once (not MemoryError, not a solve of every voxel); bad seeds too."""
@@ -474,9 +422,7 @@ def test_bvh_parse_is_clean_or_raises_bvh_error(text: str) -> None:
 
 
 @pytest.mark.parametrize("text", [
-    pytest.param(NO_CHANNELS_HUGE_FRAMES, id="no-channels-frames-1e300", marks=pytest.mark.xfail(
-        strict=True, reason="bvh.parse: 'Frames: 1e300' with 0 channels raises StopIteration (reshape's ValueError "
-                            "is caught, then next() finds no bad token)")),
+    pytest.param(NO_CHANNELS_HUGE_FRAMES, id="no-channels-frames-1e300"),
     pytest.param(SMALL_BVH.replace("Frames: 2", "Frames: 1e300"), id="frames-1e300"),
     pytest.param(SMALL_BVH.replace("OFFSET 0 10 0", "OFFSET 0 1e308 0"), id="offset-1e308"),
 ])
@@ -547,12 +493,9 @@ def test_retarget_is_clean_or_raises_mjkin_error(text: str, scale: Any, max_spee
 
 
 @pytest.mark.parametrize("kwargs", [
-    pytest.param({"scale": 1e-300}, id="scale-1e-300", marks=pytest.mark.xfail(
-        strict=True, reason="retarget(scale=1e-300): ZeroDivisionError 'float division by zero'")),
-    pytest.param({"max_speed": "x"}, id="max_speed-string", marks=pytest.mark.xfail(
-        strict=True, reason="retarget(max_speed='x'): ValueError 'could not convert string to float'")),
-    pytest.param({"max_speed": (1.0, 2.0)}, id="max_speed-2-values", marks=pytest.mark.xfail(
-        strict=True, reason="retarget(max_speed=(1, 2)): ValueError 'operands could not be broadcast' (nv=30)")),
+    pytest.param({"scale": 1e-300}, id="scale-1e-300"),
+    pytest.param({"max_speed": "x"}, id="max_speed-string"),
+    pytest.param({"max_speed": (1.0, 2.0)}, id="max_speed-2-values"),
     pytest.param({"scale": 0.01}, id="scale-cm"),
 ])
 def test_retarget_pinned(kwargs: dict[str, Any]) -> None:
