@@ -26,10 +26,12 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from test_bvh import small
 
 import mjkin
 from mjkin import bvh
 from mjkin import goals as G
+from mjkin.bvh import _is_number
 from mjkin.ik.methods import METHODS
 
 T = TypeVar("T")
@@ -336,39 +338,11 @@ def test_reachability_pinned(kwargs: dict[str, Any]) -> None:
 
 
 # ----------------------------------------------------------------------------------------------------------- BVH
-SMALL_BVH = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
-  JOINT Knee
-  {
-    OFFSET 0 10 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    End Site
-    {
-      OFFSET 0 0 5
-    }
-  }
-}
-MOTION
-Frames: 2
-Frame Time: 0.0083333
-1 2 3 0 0 0 0 0 0
-1 2 3 90 0 0 90 0 0
-"""
+SMALL_BVH = small(order="Zrotation Xrotation Yrotation")  # test_bvh's two-joint clip
 
 EXTREME_TOKENS = ["1e308", "-1e308", "1e309", "nan", "inf", "-inf", "1e-320", "9" * 400, "0", "-0", "0x10", "1_0",
                   "7.", "1e99999", "-1", "6", "7", "2.5", "999999999999", "1e18", "", "{", "}", "End", "JOINT", "ROOT",
                   "MOTION", "Frames:", "CHANNELS", "Site", "OFFSET", "Xrotation", "xposition", "Wrotation"]
-
-
-def _is_num(tok: str) -> bool:
-    try:
-        float(tok)
-    except ValueError:
-        return False
-    return True
 
 
 @st.composite
@@ -380,7 +354,7 @@ def mutated_bvh(draw: st.DrawFn, base: str = SMALL_BVH) -> str:
         i = draw(st.integers(0, len(lines) - 1))
         words = lines[i].split()
         if op in ("token", "number") and words:
-            numeric = [k for k, w in enumerate(words) if _is_num(w)]
+            numeric = [k for k, w in enumerate(words) if _is_number(w)]
             pool = numeric if op == "number" and numeric else range(len(words))
             k = draw(st.sampled_from(list(pool)))
             words[k] = draw(st.sampled_from(EXTREME_TOKENS) | st.text(max_size=6))
