@@ -12,6 +12,15 @@ speckled it with black dots where it shadowed itself. The trail is decimated to 
 video. Frames are made one at a time and go straight to the encoder (ffmpeg via
 imageio-ffmpeg, for .mp4 and .gif), so memory does not grow with the length of
 a clip; the video is written to a temporary file that is renamed when complete.
+
+A model that lacks what a picture needs is staged (:class:`Stage`) as MuJoCo
+Menagerie's scene.xml stages its robots, without changing the model, its poses
+or contacts: with no light its headlight is raised while each frame's scene is
+made; with no plane geom and no skybox a checker floor under the figure and a sky
+gradient are drawn; links with nothing visible (mesh-free models) get capsule
+bones between their bodies' origins. These are geoms put into each frame's
+scene, as the markers are; a model with a light, a floor and visible links is
+drawn exactly as it was.
 """
 
 from __future__ import annotations
@@ -19,7 +28,9 @@ from __future__ import annotations
 import itertools
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +52,13 @@ CAMERA_CHUNK = 256  # frames whose bounding points are made at once while placin
 SIDE_VIEW = (135.0, -20.0)  # azimuth, elevation (degrees) for figures that are not planar chains
 WALK_VIEW = (90.0, -8.0)  # from the figure's right side, world x (the walking direction) to the right
 Caption = str | Sequence[str] | Callable[[int], str] | None
+HEADLIGHT = (0.3, 0.6)  # ambient, diffuse: the least headlight of a model without lights (Menagerie's scene.xml)
+FLOOR_RGBA = ((0.2, 0.3, 0.4, 1.0), (0.1, 0.2, 0.3, 1.0))  # checker squares (Menagerie's "groundplane")
+FLOOR_GLOW = 0.5  # the floor's emission: what Menagerie's light from above adds to it (a headlight grazes it)
+SKY_RGB = ((0.3, 0.5, 0.7), (0.0, 0.0, 0.0))  # zenith and nadir of the sky gradient (Menagerie's "skybox")
+BONE_RGBA = (0.7, 0.7, 0.72, 1.0)  # the colour of bones: Menagerie's "metallic"
+SKY_BANDS = 32  # the sky is drawn as this many bands of the image, each of one colour
+FLOOR_SQUARES = 200  # at most this many dark squares in the checker (larger squares for a figure that travels far)
 
 
 @dataclass
@@ -178,10 +196,14 @@ def _recentre(pts: NDArray[np.float64], radius: NDArray[np.float64], lookat: NDA
 
 def _spheres(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float64] | None,
              extra_radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Per-frame bounding points ``(T, P, 3)`` and radii ``(P,)``: the geoms' box corners and ``extra (T, n, 3)``."""
+    """Per-frame bounding points ``(T, P, 3)`` and radii ``(P,)``: the geoms' box corners, the ends of
+    :func:`bare_links` and ``extra (T, n, 3)``.
+    """  # noqa: D205
     pts = geom_corners(tree, qs).reshape(len(qs), -1, 3)
     if pts.shape[1] == 0:  # no visible geom: frame the bodies
         pts = tree.fk(qs)[:, 1:, :3, 3]
+    elif len(ends := np.unique(bare_links(tree.model))):
+        pts = np.concatenate([pts, tree.fk(qs)[:, ends][..., :3, 3]], axis=1)
     radius = np.zeros(pts.shape[1])
     if extra is not None and extra.shape[1]:
         pts = np.concatenate([pts, extra], axis=1)
@@ -298,6 +320,214 @@ def default_camera(tree: Tree, qs: NDArray[np.float64], extra: NDArray[np.float6
     return camera_path(tree, qs, extra, aspect=aspect, view=view, follow=False)[0]
 
 
+# ---------------------------------------------------------------------- stage
+@dataclass(frozen=True, eq=False)
+class Floor:
+    """A checker floor at height ``z``: dark squares of side ``tile`` centred at ``centres (n, 2)`` (world x, y) on
+    a light ground that reaches ``reach`` m from ``middle (2,)`` every way.
+    """  # noqa: D205
+
+    z: float
+    tile: float
+    centres: NDArray[np.float64]
+    middle: NDArray[np.float64]
+    reach: float
+
+
+@dataclass(frozen=True, eq=False)
+class Stage:
+    """What a :class:`Painter` adds to a model that lacks it, drawn into each frame's scene (the model is untouched).
+
+    ``light``: the model has no light, so its headlight is turned on, at least :data:`HEADLIGHT`, while a
+    frame's scene is made. ``backdrop``: it has no plane geom and no skybox, so a checker floor under the
+    figure and a sky gradient are drawn. ``bones`` ``(k, 2)``: :func:`bare_links`, drawn as capsules of
+    ``radius`` (m) between the two body origins. ``size``: the diagonal (m) of the figure's box at ``qpos0``.
+    """
+
+    light: bool = False
+    backdrop: bool = False
+    bones: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    radius: float = 0.0
+    size: float = 1.0
+
+    @classmethod
+    def of(cls, tree: Tree) -> Stage:
+        """The stage ``tree``'s model needs (nothing for a model with lights, a floor or sky and visible links)."""
+        m = tree.model
+        bones = bare_links(m)
+        lo, hi = _figure_box(tree, tree.qpos0[None])
+        size = max(float(np.linalg.norm(hi - lo)), 1e-3)
+        length = np.linalg.norm(m.body_pos[bones[:, 1]], axis=1)
+        radius = min(0.2 * float(np.median(length)), 0.03 * size) if len(bones) else 0.0
+        skybox = (m.tex_type == mujoco.mjtTexture.mjTEXTURE_SKYBOX).any()
+        return cls(light=m.nlight == 0, backdrop=not (m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE).any() and not skybox,
+                   bones=bones, radius=radius, size=size)
+
+
+def bare_links(model: mujoco.MjModel) -> NDArray[np.int64]:
+    """Bones ``(k, 2)``: parent and child body ids of the links with nothing visible to show them.
+
+    A link runs from a (non-world) body's origin to its child's; it is bare when neither body's
+    :func:`figure_geoms` reach halfway along it from their origins (mesh-free models: no geoms,
+    hidden ones, or a dot at the origin).
+    """
+    ids = figure_geoms(model)
+    reach = np.zeros(model.nbody)  # how far each body's visible geometry reaches from its origin
+    np.maximum.at(reach, model.geom_bodyid[ids], np.linalg.norm(model.geom_pos[ids], axis=1) + model.geom_rbound[ids])
+    child = np.arange(1, model.nbody)
+    parent = model.body_parentid[child]
+    keep = (parent > 0) & (2 * np.maximum(reach[parent], reach[child]) < np.linalg.norm(model.body_pos[child], axis=1))
+    return np.stack([parent[keep], child[keep]], axis=1).astype(np.int64)
+
+
+def _figure_box(tree: Tree, qs: NDArray[np.float64], bones: NDArray[np.int64] | None = None,
+                radius: float = 0.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """World box ``(lo (3,), hi (3,))`` of the figure over ``qs (T, nq)``: its geoms (or body origins) and bones."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for part, pts, _ in _chunks(tree, qs, None, 0.0):
+        if bones is not None and len(bones):
+            ends = tree.fk(qs[part])[:, np.unique(bones)][..., :3, 3].reshape(-1, 3)
+            pts = np.concatenate([pts.reshape(-1, 3), ends - radius, ends + radius])
+        lo, hi = np.minimum(lo, pts.reshape(-1, 3).min(0)), np.maximum(hi, pts.reshape(-1, 3).max(0))
+    return lo, hi
+
+
+def _nice(x: float) -> float:
+    """The smallest of 1, 2, 5 times a power of ten that is at least ``x > 0``."""
+    e = 10.0 ** np.floor(np.log10(x))
+    return float(next(f * e for f in (1, 2, 5, 10) if f * e >= x * (1 - 1e-9)))
+
+
+def fit_floor(tree: Tree, qs: ArrayLike, stage: Stage) -> Floor:
+    """The floor under the figure in every pose of ``qs (T, nq)``: at z = 0 when the figure stands on it (its
+    lowest point from 5 % of its size below to 10 % above), else at its lowest point; checker squares of about a
+    tenth of its size over its path and a figure's size around, the squares larger when the path is long.
+    """  # noqa: D205
+    qs = np.atleast_2d(tree.check_q(qs))
+    lo, hi = _figure_box(tree, qs, stage.bones, stage.radius)
+    z = 0.0 if -0.05 * stage.size <= lo[2] <= 0.1 * stage.size else float(lo[2])
+    tile = _nice(stage.size / 10)
+    while True:
+        first, last = np.floor((lo[:2] - stage.size) / tile), np.ceil((hi[:2] + stage.size) / tile)
+        if np.prod(last - first) <= 2 * FLOOR_SQUARES:
+            break
+        tile = _nice(1.01 * tile)
+    i, j = np.meshgrid(np.arange(first[0], last[0]), np.arange(first[1], last[1]), indexing="ij")
+    dark = (i + j) % 2 == 1
+    centres = (np.stack([i[dark], j[dark]], axis=-1) + 0.5) * tile
+    far = float(tree.model.vis.map.zfar * tree.model.stat.extent)
+    return Floor(z, tile, centres, 0.5 * (first + last) * tile, far)
+
+
+_LENDING = threading.Lock()  # one headlight lent at a time: painters of one model in two threads put back the same
+
+
+@contextmanager
+def _headlight(model: mujoco.MjModel, on: bool) -> Iterator[None]:
+    """While open: ``model``'s headlight on and at least :data:`HEADLIGHT` bright (when ``on``); then as it was."""
+    if not on:
+        yield
+        return
+    light = model.vis.headlight
+    with _LENDING:
+        kept = light.active, light.ambient.copy(), light.diffuse.copy()
+        light.active = 1
+        light.ambient[:], light.diffuse[:] = np.maximum(kept[1], HEADLIGHT[0]), np.maximum(kept[2], HEADLIGHT[1])
+        try:
+            yield
+        finally:
+            light.active, light.ambient[:], light.diffuse[:] = kept
+
+
+def _stage_geom(scene: mujoco.MjvScene, kind: int, size: ArrayLike, pos: ArrayLike, mat: ArrayLike,
+                rgba: ArrayLike) -> mujoco.MjvGeom | None:
+    """Append a stage geom (no shadow, left out of segmentation); None when the scene is full."""
+    g = _add(scene, kind, size, pos, rgba)
+    if g is not None:
+        g.mat[:] = np.asarray(mat, dtype=np.float32).reshape(3, 3)
+        g.segid = -1
+    return g
+
+
+def _eye(scene: mujoco.MjvScene) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Position, forward and up (world, ``(3,)`` each) of the scene's camera as drawn (both eyes' middle)."""
+    cam = scene.camera[0]
+    pos = 0.5 * (np.asarray(cam.pos, np.float64) + np.asarray(scene.camera[1].pos, np.float64))
+    return pos, np.asarray(cam.forward, np.float64), np.asarray(cam.up, np.float64)
+
+
+def _in_view(scene: mujoco.MjvScene, aspect: float, points: NDArray[np.float64], radius: float) -> NDArray[np.bool_]:
+    """``(n,)``: which balls ``(points (n, 3), radius)`` reach into the view of the scene's camera (its frustum)."""
+    cam = scene.camera[0]
+    pos, fwd, up = _eye(scene)
+    rel = points - pos
+    d, x, y = rel @ fwd, rel @ np.cross(fwd, up), rel @ up
+    half_w = cam.frustum_width or 0.5 * aspect * (cam.frustum_top - cam.frustum_bottom)
+    seen = d + radius > cam.frustum_near
+    for v, lo, hi in ((x, cam.frustum_center - half_w, cam.frustum_center + half_w),
+                      (y, cam.frustum_bottom, cam.frustum_top)):
+        for edge, sign in ((hi, 1.0), (lo, -1.0)):  # a side plane: v = slope * d + offset
+            slope, offset = (0.0, edge) if cam.orthographic else (edge / cam.frustum_near, 0.0)
+            seen &= sign * (v - slope * d - offset) <= radius * np.hypot(1.0, slope)
+    return seen
+
+
+def _add_floor(scene: mujoco.MjvScene, floor: Floor, aspect: float) -> None:
+    """The checker: a light ground (top face at ``floor.z``) and the dark squares in view on it, ``floor.tile`` / 500
+    higher. It glows by :data:`FLOOR_GLOW` (emission), as if lit from above.
+    """  # noqa: D205
+    eye = np.eye(3)
+    thick = 0.01 * floor.tile
+    geoms = [_stage_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, [floor.reach, floor.reach, thick],
+                         [*floor.middle, floor.z - thick], eye, FLOOR_RGBA[0])]
+    half = [0.5 * floor.tile, 0.5 * floor.tile, thick]
+    centres = np.column_stack([floor.centres, np.full(len(floor.centres), floor.z + 0.002 * floor.tile - thick)])
+    for c in centres[_in_view(scene, aspect, centres, 0.75 * floor.tile)]:
+        geoms.append(_stage_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, half, c, eye, FLOOR_RGBA[1]))
+    for g in geoms:
+        if g is not None:
+            g.emission = FLOOR_GLOW
+
+
+def _add_sky(scene: mujoco.MjvScene, aspect: float, floor: Floor) -> None:
+    """A sky gradient behind everything: :data:`SKY_BANDS` bands across the view, half-way to the far plane.
+
+    Each band has the colour of the sky (:data:`SKY_RGB`, by the sine of the elevation, as a gradient
+    skybox) where its centre is seen. It is drawn as emission, so lights barely change it. Bands wholly
+    below the ``floor`` (seen from above it) are hidden by it and left out.
+    """
+    cam = scene.camera[0]
+    pos, fwd, up = _eye(scene)
+    right = np.cross(fwd, up)
+    half_w = cam.frustum_width or 0.5 * aspect * (cam.frustum_top - cam.frustum_bottom)
+    edges = np.linspace(1.05 * cam.frustum_bottom, 1.05 * cam.frustum_top, SKY_BANDS + 1)  # on the near plane
+    mat = np.stack([right, up, -fwd], axis=1)
+    zenith, nadir = np.asarray(SKY_RGB[0]), np.asarray(SKY_RGB[1])
+    glow = 100.0  # emission; the colour is divided by it, so lit it changes by (light / glow) of itself
+    for k, (a, b) in enumerate(itertools.pairwise(edges)):
+        y = 0.5 * (a + b)
+        ray = fwd if cam.orthographic else fwd * cam.frustum_near + y * up + cam.frustum_center * right
+        rgb = nadir + 0.5 * (1 + ray[2] / np.linalg.norm(ray)) * (zenith - nadir)
+        dist = (0.5 + 2e-3 * k) * cam.frustum_far  # each band a little further: where they overlap, one shows
+        scale = 1.0 if cam.orthographic else dist / cam.frustum_near  # from the near plane out to the band
+        size = [1.1 * half_w * scale, 0.6 * (b - a) * scale, 1e-4 * dist]  # bands overlap: no cracks
+        centre = pos + dist * fwd + scale * (y * up + cam.frustum_center * right)
+        if pos[2] > floor.z > centre[2] + size[0] * abs(right[2]) + size[1] * abs(up[2]):
+            continue
+        g = _stage_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, size, centre, mat, [*(rgb / glow), 1.0])
+        if g is not None:
+            g.emission, g.specular = glow, 0.0
+
+
+def _add_bones(scene: mujoco.MjvScene, xpos: NDArray[np.float64], stage: Stage) -> None:
+    """Capsules of ``stage.radius`` between the world origins ``xpos (nbody, 3)`` of each bone's two bodies."""
+    for a, b in xpos[stage.bones]:
+        g = _add(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0, 0, 0], a, BONE_RGBA)
+        if g is not None:
+            mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, stage.radius, a, b)
+            g.category, g.segid = mujoco.mjtCatBit.mjCAT_DYNAMIC, -1  # a part of the figure: it casts a shadow
+
+
 # ---------------------------------------------------------------------- frames
 def caption_at(caption: Caption, t: int) -> str:
     """The caption text of frame ``t`` ('' for none)."""
@@ -364,14 +594,20 @@ class Painter:
 
     Keep one for many frames (an environment, a video); call :meth:`close` (or use
     ``with``) to free the GL context. :attr:`added` is the number of overlay geoms
-    the last :meth:`draw` put into the scene.
+    the last :meth:`draw` put into the scene. :attr:`stage` is what it adds to a
+    model that lacks it (a light, floor and sky, bones: :class:`Stage`; none with
+    ``stage=False``), and :attr:`floor` the floor it draws, fitted to ``qpos0`` until
+    :meth:`fit` (or :meth:`cameras`) fits it to the poses of a video.
     """
 
-    def __init__(self, tree: Tree, width: int = 640, height: int = 480) -> None:
+    def __init__(self, tree: Tree, width: int = 640, height: int = 480, stage: bool = True) -> None:
         _check_size(width, height)
         model = tree.model
         self.tree, self.scene, self.added = tree, Scene(tree), 0
         self.width, self.height = width, height
+        self.stage = Stage.of(tree) if stage else Stage()
+        self.floor: Floor | None = None
+        self.fit(tree.qpos0)
         # the offscreen buffer (and its multisample resolve) is sized to the frame, not to the model's
         # offwidth x offheight, and the shadow map to what the frame can show (software GL pays for
         # every texel of MuJoCo's default 4096²); the model's settings are put back once the context exists
@@ -397,19 +633,34 @@ class Painter:
     def cameras(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
                 points: NDArray[np.float64] | None = None, view: tuple[float, float] | None = None,
                 follow: bool | None = None) -> list[mujoco.MjvCamera | int]:
-        """One camera per frame: the one given, a model camera by name, or :func:`camera_path` (tracking)."""
+        """One camera per frame: the one given, a model camera by name, or :func:`camera_path` (tracking).
+
+        The floor is fitted to ``qs`` too (:meth:`fit`), so a still matches its frame of the video.
+        """
+        self.fit(qs)
         return cameras(self.tree, camera, qs, points, self.width / self.height, view, follow)
+
+    def fit(self, qs: ArrayLike) -> None:
+        """Place the floor (when the stage has one) under the figure in all poses ``qs (T, nq)``: :func:`fit_floor`."""
+        if self.stage.backdrop:
+            self.floor = fit_floor(self.tree, qs, self.stage)
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
              caption: str = "", lines: Sequence[tuple[ArrayLike, Sequence[float]]] = ()) -> NDArray[np.uint8]:
         """One RGB frame ``(height, width, 3)`` of ``q``: target ``points (n, 3)``, a ``trail (k, 3)``, a caption,
-        and ``lines``: polylines ``(k, 3)`` each with its RGBA.
+        and ``lines``: polylines ``(k, 3)`` each with its RGBA; on the :attr:`stage` (light, :attr:`floor`, sky, bones).
         """  # noqa: D205
         ov = overlay or Overlay()
         r = self.renderer
-        r.update_scene(self.scene.set(q), camera)
+        data = self.scene.set(q)
+        with _headlight(self.tree.model, self.stage.light):
+            r.update_scene(data, camera)
         _planes_cast_no_shadow(r.scene)
+        if self.floor is not None:
+            _add_floor(r.scene, self.floor, self.width / self.height)
+            _add_sky(r.scene, self.width / self.height, self.floor)
+        _add_bones(r.scene, data.xpos, self.stage)
         first = r.scene.ngeom
         for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
             _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
@@ -468,7 +719,8 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     for :func:`camera_path` (``view`` = its azimuth and elevation, ``follow`` = track
     the figure; default: when it travels). ``overlay.points``
     are ``(n, 3)`` for every frame or ``(T, n, 3)`` per frame; the trail grows frame
-    by frame, decimated to ``overlay.trail_points``.
+    by frame, decimated to ``overlay.trail_points``. The figure is staged (:class:`Stage`), its floor
+    under it in every frame.
     """
     qs = tree.check_q(qs)
     if qs.ndim == 1:
@@ -485,6 +737,7 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
 
     def draw() -> Iterator[NDArray[np.uint8]]:
         with Painter(tree, width, height) as painter:
+            painter.fit(qs)
             for t in track(range(len(qs)), desc, total=len(qs)):
                 yield painter.draw(qs[t], cams[t], points[t] if points.ndim == 3 else points,
                                    None if trail is None else trail[trail_indices(t, ov.trail_points)], ov,

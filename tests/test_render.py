@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import imageio.v3 as imageio
 import mujoco
 import numpy as np
@@ -17,7 +20,8 @@ from hypothesis import strategies as st
 from scipy.ndimage import binary_erosion
 
 import mjkin
-from conftest import GYM_ASSETS, bundled, model_id, tree_of
+import mjkin.envs  # noqa: F401  (registers the gymnasium environments)
+from conftest import GYM_ASSETS, bundled, model_id, shared, tree_of
 from mjkin import motion, render
 from mjkin.apps.cli import main
 from mjkin.files import write_text
@@ -577,3 +581,148 @@ def test_a_renderer_that_cannot_start_says_how_to_get_one(monkeypatch):
         render.Painter(tree, 64, 48)
     assert "\n" not in str(info.value) and "gladLoadGL error no context" in str(info.value)
     assert (tree.model.vis.global_.offwidth, tree.model.vis.quality.shadowsize) == kept
+
+
+# ------------------------------------------------------------------ stage
+BARE_CHAIN = """<mujoco><worldbody>
+<body name="base" pos="0 0 {z}"><joint name="x" type="slide" axis="1 0 0"/><joint name="yaw" axis="0 0 1"/>
+<geom type="cylinder" size="0.05 0.02" group="3"/>
+<body name="upper" pos="0 0 0.4"><joint name="shoulder" axis="0 1 0"/>
+<geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" group="3"/>
+<body name="lower" pos="0.3 0 0"><joint name="elbow" axis="0 1 0"/>
+<body name="hand" pos="0.25 0 0"><geom type="sphere" size="0.02" rgba="0.9 0.2 0.2 1"/></body>
+</body></body></body></worldbody></mujoco>"""  # no light, floor or sky; all geoms hidden (group 3) but the hand's
+NO_GEOMS = re.sub(r"<geom[^>]*/>", '<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>', BARE_CHAIN)
+POSE = np.array([0.0, 0.4, -0.5, 1.0])  # x, yaw, shoulder, elbow
+
+
+def bare_chain(z: float = 0.0, xml: str = BARE_CHAIN) -> mjkin.Tree:
+    return tree_of(xml.format(z=z))
+
+
+def grey(image: np.ndarray) -> np.ndarray:
+    """``(H, W)``: pixels of the bones' grey, lit (the floor and sky are blue, the hand red)."""
+    rgb = image.astype(int)
+    return (np.abs(rgb[..., 0] - rgb[..., 2]) < 20) & (np.abs(rgb[..., 0] - rgb[..., 1]) < 20) & (rgb.mean(-1) > 60)
+
+
+def pixels(cam: mujoco.MjvCamera, points: np.ndarray, fovy: float, width: int, height: int) -> np.ndarray:
+    """Image (column, row) ``(n, 2)`` of world ``points (n, 3)`` seen by a free camera."""
+    fwd, right, up = render._basis(cam.azimuth, cam.elevation)
+    rel = points - (np.asarray(cam.lookat) - cam.distance * fwd)
+    ty = np.tan(np.radians(fovy) / 2)
+    x, y = (rel @ right) / (rel @ fwd * ty * width / height), (rel @ up) / (rel @ fwd * ty)
+    return np.stack([(1 + x) / 2 * width, (1 - y) / 2 * height], axis=-1)
+
+
+def test_a_model_without_light_floor_or_sky_is_lit_and_staged():
+    """A mesh-free model with no light, floor or sky (unitree_g1 of the shared models) rendered black."""
+    tree = bare_chain()
+    stage = render.Stage.of(tree)
+    assert stage.light and stage.backdrop and stage.bones.tolist() == [[1, 2], [2, 3], [3, 4]]
+    with render.Painter(tree, **SMALL, stage=False) as painter:
+        unstaged = painter.draw(POSE, painter.cameras(None, POSE[None], view=(120.0, -5.0))[0])
+    assert unstaged.mean() < 3  # what the newcomer saw: a red dot on black
+    staged = clip(tree, POSE, view=(120.0, -5.0), **SMALL)[0]
+    assert staged.mean() > 40
+    sky, ground = staged[:20, :40].astype(int), staged[-30:, 60:].astype(int)  # corners clear of the figure
+    assert (sky[..., 2] - sky[..., 0] > 30).all()  # blue above
+    assert ground.mean() > 40 and (ground[..., 2] - ground[..., 0] > 15).all()  # the blue checker below
+    brightness = ground.sum(-1)
+    dark, bright = (brightness < np.median(brightness)).mean(), (brightness > np.median(brightness)).mean()
+    assert 0.2 < dark < 0.8 and 0.2 < bright < 0.8  # two colours of squares
+
+
+def test_a_model_without_lights_gets_a_headlight_and_keeps_its_own_settings():
+    floored = BARE_CHAIN.replace("<worldbody>", '<worldbody><geom type="plane" size="2 2 0.1" rgba="0.8 0.8 0.8 1"/>')
+    tree = bare_chain(xml=floored)
+    stage = render.Stage.of(tree)
+    assert stage.light and not stage.backdrop  # a floor: no checker and no sky
+    light = tree.model.vis.headlight
+    kept = light.active, light.ambient.copy(), light.diffuse.copy()
+    with render.Painter(tree, **SMALL) as painter:
+        cam = painter.camera(None, POSE[None])
+        lit = painter.draw(POSE, cam).astype(int)
+        painter.stage = dataclasses.replace(painter.stage, light=False)
+        dim = painter.draw(POSE, cam).astype(int)
+    assert lit.mean() > dim.mean() + 20 and lit.mean() > 60
+    assert (light.active, *light.ambient, *light.diffuse) == (kept[0], *kept[1], *kept[2])
+
+
+@pytest.mark.parametrize("name", ["arm7", "planar_2link", "primate", "panda"])
+def test_models_with_a_light_and_a_floor_render_as_before(name):
+    tree = tree_of(name)
+    stage = render.Stage.of(tree)
+    assert not stage.light and not stage.backdrop and len(stage.bones) == 0  # nothing to add
+    q = tree.random_q(np.random.default_rng(0))
+    with render.Painter(tree, **SMALL) as staged, render.Painter(tree, **SMALL, stage=False) as plain:
+        cam = staged.camera(None, q[None])
+        assert np.array_equal(staged.draw(q, cam), plain.draw(q, cam))
+
+
+def test_panda_reach_env_renders_lit_and_as_before(monkeypatch):
+    def frame():
+        env = gym.make("mjkin/PandaReach-v0", render_mode="rgb_array", width=160, height=120)
+        env.reset(seed=3)
+        image = env.render()
+        env.close()
+        return image
+
+    staged = frame()
+    monkeypatch.setattr(render.Stage, "of", classmethod(lambda cls, tree: cls()))  # nothing added
+    assert staged.mean() > 40 and np.array_equal(staged, frame())
+
+
+@pytest.mark.parametrize("xml", [BARE_CHAIN, NO_GEOMS], ids=["hidden-geoms", "no-geoms"])
+def test_bare_links_are_drawn_as_bones_between_body_origins(xml):
+    tree = bare_chain(xml=xml)
+    stage = render.Stage.of(tree)
+    assert stage.bones.tolist() == [[1, 2], [2, 3], [3, 4]] and 0 < stage.radius < 0.05
+    with render.Painter(tree, **SMALL) as painter:
+        cam = painter.camera(None, POSE[None])
+        boned = grey(painter.draw(POSE, cam))
+        painter.stage = dataclasses.replace(painter.stage, bones=np.zeros((0, 2), np.int64))
+        bare = grey(painter.draw(POSE, cam))
+    assert boned.sum() > bare.sum() + 150 and bare.sum() < 20
+    origins = tree.fk(POSE)[1:, :3, 3]
+    mids = pixels(cam, 0.5 * (origins[:-1] + origins[1:]), tree.model.vis.global_.fovy, **SMALL)
+    for col, row in mids.astype(int):  # each bone crosses its midpoint's pixel (or one beside it)
+        assert boned[row - 1:row + 2, col - 1:col + 2].any() and not bare[row - 1:row + 2, col - 1:col + 2].any()
+
+
+def test_the_floor_is_under_the_figure_over_the_whole_video():
+    standing = bare_chain()
+    assert render.fit_floor(standing, POSE, render.Stage.of(standing)).z == 0.0  # the base stands at z = 0
+    qs = np.stack([POSE, POSE + [0.0, 0.0, 1.2, 0.0]])
+    raised = bare_chain(z=1.0)
+    stage = render.Stage.of(raised)
+    floor = render.fit_floor(raised, qs, stage)
+    lowest = min(raised.fk(qs)[:, 1:, 2, 3].min() - stage.radius, render.geom_corners(raised, qs)[..., 2].min())
+    assert floor.z == pytest.approx(lowest) and lowest < 0.95  # the arm swings down below its base: under the hand
+    walk = np.repeat(POSE[None], 50, axis=0)
+    walk[:, 0] = np.linspace(0.0, 100.0, 50)  # 100 m: larger squares, no more of them
+    assert len(render.fit_floor(raised, walk, stage).centres) <= render.FLOOR_SQUARES
+    with render.Painter(raised, 32, 24) as painter:
+        painter.draw(walk[0], painter.camera(None, walk))
+        n = painter.renderer.scene.ngeom
+    assert n <= 1 + 1 + render.FLOOR_SQUARES + render.SKY_BANDS + 3  # the hand, the ground, 3 bones
+
+
+def test_a_still_matches_its_frame_of_the_video():
+    tree = bare_chain(z=1.0)
+    qs = np.stack([POSE, POSE + [0.0, 0.0, 1.2, 0.0]])
+    video = clip(tree, qs, **SMALL)
+    with render.Painter(tree, **SMALL) as painter:  # as `mjkin render --frame 0` draws it
+        still = painter.draw(qs[0], painter.camera(None, qs))
+    assert np.array_equal(still, video[0])
+
+
+G1 = [p for p in shared() if p.stem == "g1"]
+
+
+@pytest.mark.skipif(not G1, reason="the shared mesh-free robot models are not here")
+def test_cli_renders_the_mesh_free_g1_lit_on_a_floor_with_bones(tmp_path):
+    out = tmp_path / "g1.png"
+    assert main(["render", str(G1[0]), "-o", str(out), "--width", "160", "--height", "120"]) == 0
+    image = imageio.imread(out)
+    assert image.mean() > 35 and grey(image).sum() > 200  # was a few grey dots on black (mean 1)
