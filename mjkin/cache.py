@@ -14,8 +14,9 @@ warmed with ``mjkin warmup``) is still read: new versions go to the next
 writable place, as numba chooses it.
 
 Generated source (the IK loop of a set of goal kinds, :mod:`mjkin.ik.compiled`)
-is only ever imported from :func:`private_folder`: never from a folder that
-another user could write to.
+is only ever imported from a folder that no other user can write to
+(:func:`generated_file`): written where only this user can write, or found with
+the same text where it was written ahead (a read-only install warmed by root).
 """
 
 from __future__ import annotations
@@ -158,31 +159,61 @@ class KernelCache(caching.FunctionCache):
         return data
 
 
-def _private(folder: Path) -> bool:
-    """Whether ``folder`` exists (made 0700 if it did not), is a real folder, is ours and only we may write to it."""
+def _trusted(folder: Path) -> bool:
+    """Whether ``folder`` is a real folder of ours (or root's) that no other user may write to."""
     try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
         st = os.lstat(folder)
-        ok = stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o022
-        return ok and os.access(folder, os.W_OK)
     except OSError:
         return False
+    return stat.S_ISDIR(st.st_mode) and st.st_uid in (os.getuid(), 0) and not st.st_mode & 0o022
+
+
+def _private(folder: Path) -> bool:
+    """Whether ``folder`` exists (made 0700 if it did not), is ours, and only we may write to it, and we can."""
+    try:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return _trusted(folder) and os.lstat(folder).st_uid == os.getuid() and os.access(folder, os.W_OK)
 
 
 _TEMPORARY: list[Path] = []
 
 
-def private_folder(name: str) -> Path:
-    """A folder for generated source that only this user can write.
+def _places(name: str) -> tuple[Path, ...]:
+    """The folders for generated source ``name``, in order.
 
-    Beside the package's caches (or under ``$NUMBA_CACHE_DIR``), else in the user's cache folder
-    (``$XDG_CACHE_HOME/mjkin`` or ``~/.cache/mjkin``), else a new temporary one for this process.
+    Under ``$NUMBA_CACHE_DIR`` when set, beside the package's caches, in the user's cache folder
+    (``$XDG_CACHE_HOME/mjkin`` or ``~/.cache/mjkin``).
     """
     root = os.environ.get("NUMBA_CACHE_DIR")
-    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    for folder in (Path(root) / "mjkin" / name if root else PACKAGE / "__pycache__" / name, Path(xdg) / "mjkin" / name):
+    xdg = Path(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"))
+    return (*([Path(root) / "mjkin" / name] if root else []), PACKAGE / "__pycache__" / name, xdg / "mjkin" / name)
+
+
+def private_folder(name: str) -> Path:
+    """The first of :func:`_places` that only this user can write, else a new temporary one for this process."""
+    for folder in _places(name):
         if _private(folder):
             return folder
     if not _TEMPORARY:  # a fresh folder of our own (mkdtemp makes it 0700): generated anew in each process
         _TEMPORARY.append(Path(tempfile.mkdtemp(prefix="mjkin-")))
     return _TEMPORARY[0]
+
+
+def generated_file(folder: str, name: str, text: str) -> Path:
+    """The file ``name`` holding ``text`` in a trusted folder ``folder`` of :func:`_places`, written if none has it.
+
+    A file that is already there with this text is used where it is, read-only too (an install warmed by
+    ``mjkin warmup`` in a Docker image, run as another user or on a read-only file system); else the text is
+    written, atomically, into :func:`private_folder`.
+    """
+    for place in _places(folder):
+        path = place / name
+        if _trusted(place) and path.is_file() and not path.is_symlink() and path.read_text() == text:
+            return path
+    path = private_folder(folder) / name
+    tmp = path.with_name(f".{name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path

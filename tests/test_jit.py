@@ -114,6 +114,25 @@ def test_generated_code_is_never_taken_from_a_folder_another_user_can_write(tmp_
     assert not marker.exists()
 
 
+def test_generated_code_written_ahead_is_read_where_it_cannot_be_written(tmp_path, monkeypatch):
+    """A warmed install (the loop's module written by root, read-only at run time) is used as it is; the same text
+    in a folder others may write to is not."""
+    import os
+
+    from mjkin import cache
+
+    warmed, open_to_all, ours = tmp_path / "warmed", tmp_path / "open", tmp_path / "ours"
+    for folder in (warmed, open_to_all):
+        folder.mkdir(mode=0o700)
+        (folder / "loop.py").write_text("x = 1\n")
+    open_to_all.chmod(0o777)
+    monkeypatch.setattr(cache, "_places", lambda name: (open_to_all, warmed))
+    assert cache.generated_file("generated", "loop.py", "x = 1\n") == warmed / "loop.py"
+    monkeypatch.setattr(cache, "_places", lambda name: (open_to_all, ours))
+    made = cache.generated_file("generated", "loop.py", "x = 1\n")  # not the open folder's copy: a new one
+    assert made == ours / "loop.py" and made.read_text() == "x = 1\n" and not os.stat(ours).st_mode & 0o077
+
+
 def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
     """A Pose problem's loop dispatches to Pose alone: no distance or balance code is compiled for it."""
     from mjkin.goals import Clearance, HalfSpace, Pose

@@ -2,8 +2,8 @@
 
 numba resolves the functions a kernel calls when it compiles it, so the loop
 (:mod:`mjkin.ik.loop`) is written out once per set of goal kinds, with a dispatch
-branch per kind, to a module in a folder only this user can write
-(:func:`mjkin.cache.private_folder`), named by a digest of its text, and imported
+branch per kind, to a module in a folder no other user can write
+(:func:`mjkin.cache.generated_file`), named by a digest of its text, and imported
 from there. A problem compiles the loop of the kinds it holds and the common ones
 (:func:`loop_kinds`): a Pose problem compiles no Clearance or CenterOfMass code,
 and shares its loop with every problem of frame, line, plane and joint goals (the
@@ -17,13 +17,12 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import inspect
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from ..cache import PACKAGE, private_folder
+from ..cache import PACKAGE, generated_file
 from ..goals import registry
 
 PREFIX = "mjkin_loop_"  # the generated modules' names
@@ -71,13 +70,7 @@ def kernels(codes: Sequence[int]) -> ModuleType:
     if key in _LOADED:
         return _LOADED[key]
     text = source(key)
-    folder = private_folder("generated")
-    path = folder / f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py"
-    if not path.is_file() or path.read_text() != text:
-        tmp = folder / f".{path.name}.{os.getpid()}.tmp"
-        tmp.write_text(text)
-        tmp.replace(path)
-    module = _import(path)
+    module = _import(generated_file("generated", f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py", text))
     _LOADED[key] = module
     return module
 
