@@ -96,7 +96,7 @@ def test_unknown_frame_raised_in_the_driver_before_any_work(arm, monkeypatch):
 
 @pytest.mark.parametrize("options, error, text", [
     (dict(method="newton"), mjkin.InputError, "unknown IK method 'newton'"),
-    (dict(restarts=-1), mjkin.InputError, "restarts must be a whole number >= 0"),
+    (dict(restarts=-1), mjkin.InputError, "restarts must be a whole number from 0 to 10,000"),
     (dict(joints=["nope"]), mjkin.UnknownNameError, "unknown joint 'nope'"),
 ])
 def test_worker_errors_keep_their_type(options, error, text):
