@@ -187,9 +187,11 @@ def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientation
     T = tree.pose(q, frame, kind_)
     pts = T[:, :3, 3]
     origin = pts.min(0) - res
-    cells = np.ceil((pts.max(0) + res - origin) / res) + 1  # per axis, float: no overflow
-    if not np.prod(cells) <= MAX_VOXELS:  # a resolution of 1e-5 m tried to allocate 69 TiB
-        raise InputError(f"resolution {res:g} m gives {np.prod(cells):.3g} voxels over the frame's reach, more than "
+    with np.errstate(over="ignore"):  # 5e-324 m: inf voxels, refused below
+        cells = np.ceil((pts.max(0) + res - origin) / res) + 1  # per axis, float: no int overflow
+        voxels = np.prod(cells)
+    if not voxels <= MAX_VOXELS:  # a resolution of 1e-5 m tried to allocate 69 TiB
+        raise InputError(f"resolution {res:g} m gives {voxels:.3g} voxels over the frame's reach, more than "
                          f"{MAX_VOXELS:,}: a coarser resolution")
     shape = tuple(int(s) for s in cells)
     centres = origin + res * np.stack(np.meshgrid(*(np.arange(s) for s in shape), indexing="ij"), -1).reshape(-1, 3)
@@ -347,7 +349,8 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
     map_options = {k: options.pop(k) for k in map_keys if k in options}
     cap = capability or reachability(tree, frame, kind=kind, tol=tol, rot_tol=rot_tol, **map_options)
     h = cap.resolution if step is None else check_number(step, "step (m)", 0, strict=True)
-    cells = ((box[2] - box[0]) / h + 1) * ((box[3] - box[1]) / h + 1) * check_count(yaws, "yaws")  # float: no overflow
+    with np.errstate(over="ignore"):  # a region of 1e308 m at 1e-300: inf placements, refused below
+        cells = ((box[2] - box[0]) / h + 1) * ((box[3] - box[1]) / h + 1) * check_count(yaws, "yaws")
     if cells > MAX_PLACEMENTS:  # a region of 2e6 m at 0.1 m tried to allocate a 22.7 PiB grid
         raise InputError(f"region and step give {cells:.3g} base placements (x, y, yaw), more than {MAX_PLACEMENTS:,}: "
                          "a smaller region, a coarser step or fewer yaws")
