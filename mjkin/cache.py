@@ -121,8 +121,12 @@ class _Stamped:
         return stamp(self._py_file)
 
 
-_LOCATORS: list[Any] = [type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
-             for base in (_PROVIDED, _IN_TREE, _USER_WIDE)]
+# stamped where a kernel has a source file; numba's own for a notebook cell or a zipped module (a goal kind
+# written in a notebook is cached as numba caches it)
+_LOCATORS: list[Any] = [*(type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
+                          for base in (_PROVIDED, _IN_TREE, _USER_WIDE)),
+                        _locator("IPythonCacheLocator", "_IPythonCacheLocator"),
+                        _locator("ZipCacheLocator", "_ZipCacheLocator")]
 
 
 class _Impl(caching.CompileResultCacheImpl):
