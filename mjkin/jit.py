@@ -18,6 +18,7 @@ updates for an inlined kernel's array arguments; the IK loop passes
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -30,16 +31,21 @@ from numba.core.ccallback import CFunc
 from numba.experimental import structref
 from numba.extending import intrinsic
 
+from . import tier
 from .cache import KernelCache
 
 CLOCK_MONOTONIC = 1  # Linux
 
 
 def _jit(**options: Any) -> Callable[[Callable], Any]:
-    """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.cache.KernelCache`."""
+    """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.cache.KernelCache`.
+
+    The dispatcher is a :class:`mjkin.tier.Kernel`: its first small calls may run interpreted.
+    """
 
     def decorate(fn: Callable) -> Any:
         dispatcher = numba.njit(**{"nogil": True, "fastmath": False, **options})(fn)
+        dispatcher.__class__ = tier.Kernel
         dispatcher._cache = KernelCache(dispatcher.py_func)
         return dispatcher
 
@@ -253,6 +259,12 @@ def _stack_floats(typingctx, n):  # type: ignore[no-untyped-def]
     return types.CPointer(types.float64)(n), codegen
 
 
+tier.python_version(_borrowed, lambda x: x)
+tier.python_version(_keep_alive, lambda x: None)
+tier.python_version(_monotonic_ns, time.monotonic_ns)
+tier.python_version(_borrowed_fields, tuple)  # of a StructRef's Python stand-in: a named tuple of its fields
+
+
 @njit_inline
 def unshared(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.ndarray:
     """``buf[start:start + prod(shape)].reshape(shape)`` of a 1-D C-contiguous ``buf``, with no reference count.
@@ -282,3 +294,13 @@ def on_stack(n: int) -> np.ndarray:
     a function may be called any number of times; nothing may keep the array past that.
     """
     return numba.carray(_stack_floats(n), (n,))  # type: ignore[call-arg]  # typed by numba
+
+
+def unshared_python(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.ndarray:
+    """:func:`unshared` interpreted (:mod:`mjkin.tier`): a view."""
+    return buf[start:start + int(np.prod(shape))].reshape(shape)
+
+
+tier.python_version(unshared, unshared_python)
+tier.python_version(unshared_int64, lambda buf, start, shape: unshared_python(buf.view(np.int64), start, shape))
+tier.python_version(on_stack, np.empty)

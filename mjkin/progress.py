@@ -23,7 +23,7 @@ T = TypeVar("T")
 COMPILING = "compiling kernels for their first use (cached for later runs; a minute or two)..."
 
 _enabled = False
-_said = False  # COMPILING was printed in this process
+_said: set[str] = set()  # the notices printed in this process
 
 
 def shown() -> bool:
@@ -31,19 +31,23 @@ def shown() -> bool:
     return _enabled and sys.stderr.isatty()
 
 
-def compiling_notice() -> bool:
-    """Print :data:`COMPILING` on stderr once per process while enabled, terminal or not; True if it printed now."""
-    global _said
-    if _said or not _enabled:
+def notice(text: str) -> bool:
+    """Print ``mjkin: text`` on stderr once per process while enabled, terminal or not; True if it printed now."""
+    if text in _said or not _enabled:
         return False
-    _said = True
+    _said.add(text)
     if shown():
         from tqdm import tqdm
 
-        tqdm.write(f"mjkin: {COMPILING}", file=sys.stderr)  # above any bar being drawn
+        tqdm.write(f"mjkin: {text}", file=sys.stderr)  # above any bar being drawn
     else:
-        print(f"mjkin: {COMPILING}", file=sys.stderr, flush=True)
+        print(f"mjkin: {text}", file=sys.stderr, flush=True)
     return True
+
+
+def compiling_notice() -> bool:
+    """:func:`notice` of :data:`COMPILING`."""
+    return notice(COMPILING)
 
 
 class _CompileListener(event.Listener):

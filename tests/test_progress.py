@@ -26,7 +26,7 @@ def terminal(monkeypatch):
     Patched when the test body runs (pytest resets ``sys.stderr`` between fixture set-up and the test).
     """
     err = Terminal()
-    monkeypatch.setattr(progress, "_said", False)
+    monkeypatch.setattr(progress, "_said", set())
     progress.enable(True)
     yield lambda: monkeypatch.setattr(sys, "stderr", err) or err
     progress.enable(False)
@@ -53,7 +53,7 @@ def test_no_notice_without_compiling(terminal, monkeypatch):
     terminal = terminal()
     kernel = fresh_kernel()
     kernel(0)  # compiled (and announced) here
-    monkeypatch.setattr(progress, "_said", False)
+    monkeypatch.setattr(progress, "_said", set())
     for k in progress.track(range(3), "work"):
         kernel(k)  # already compiled: no compilation, no notice
     assert progress.COMPILING not in terminal.getvalue().split(progress.COMPILING, 1)[1]

@@ -484,7 +484,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """Run a benchmark, print its tables, and write them with ``--json``."""
     from .bench.suite import main as bench_main
 
-    return bench_main(args)
+    with tier.waiting():  # compiled code is timed, not interpreted code while a child compiles it
+        return bench_main(args)
 
 
 def cmd_play(args: argparse.Namespace) -> int:
@@ -501,7 +502,8 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     jobs = args.jobs or len(os.sched_getaffinity(0))
     print(f"preparing mjkin's kernels ({len(GROUPS)} groups, {min(jobs, len(GROUPS))} at a time; compiling them "
           "takes a minute or two, loading them from the cache a second)...", flush=True)
-    seconds, compiled = warmup(jobs)
+    with tier.waiting():
+        seconds, compiled = warmup(jobs)
     done = f"compiled {compiled} kernel{'s' * (compiled > 1)}" if compiled else "none compiled: cached or loaded"
     print(f"kernels ready in {seconds:.1f} s ({done})")
     return 0

@@ -47,6 +47,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import tier
 from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics, fk_kernel_in
 
@@ -167,6 +168,24 @@ def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array)
             for r in range(m):
                 acc += A[r, c] * b[r]
             x[c] = acc
+
+
+def _damped_solve_numpy(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
+    """:func:`_damped_solve` interpreted (:mod:`mjkin.tier`): LAPACK's Cholesky, not a Python loop per entry."""
+    from scipy.linalg import cho_factor, cho_solve
+
+    tall = A.shape[0] > A.shape[1]
+    G = A.T @ A if tall else A @ A.T
+    G[np.diag_indices_from(G)] += lam2
+    try:
+        y = cho_solve(cho_factor(G, lower=True), A.T @ e if tall else e)
+    except np.linalg.LinAlgError:  # not positive definite to LAPACK (λ = 0, rank-deficient): the kernel's own clamp
+        _damped_solve.py_func(A, e, lam2, x, M, b)
+        return
+    x[:] = y if tall else A.T @ y
+
+
+tier.python_version(_damped_solve, _damped_solve_numpy)
 
 
 @njit_inline

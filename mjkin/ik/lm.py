@@ -16,12 +16,13 @@ import numpy as np
 
 from ..checks import check_count, check_flag, check_number
 from ..errors import InputError
+from .. import tier
 from ..jit import entry
 from ..parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
 from .method import MAX_ITERS, Array, Method, Problem
-from .packed import Packed, pack
+from .packed import Packed, pack, packed_kernels
 from .result import History, Result, result_of
 
 if TYPE_CHECKING:
@@ -190,13 +191,6 @@ class Loop:
                 np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros((B, G, 2)), np.full((B, H, nq), np.nan),
                 np.zeros((B, H, 2)), np.empty((B, 2)), np.empty(B, dtype=bool))
 
-    def pack(self, arrays: tuple) -> Packed:
-        """:func:`mjkin.ik.packed.pack` of ``arrays`` (:meth:`arrays`) with the problem's constants."""
-        ga, q, starts, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
-        p = self.problem
-        return pack(p.tree.kin, ga, self.st, self.code, self.max_iters, starts, p.restart_q, p.active, q, iters,
-                    status, used, binding, err, hist_q, hist_err, worst, success)
-
     def __call__(self, prog: Program, q: Array) -> Result:
         """Solve every target of ``prog`` from ``q (B, nq)`` (overwritten; the result's ``q`` is a view of it)."""
         if prog.B == 1 and self.lock.acquire(blocking=False):
@@ -205,21 +199,43 @@ class Loop:
             finally:
                 self.lock.release()
         arrays = self.arrays(prog, q)
-        packed, solve_packed = self.pack(arrays), kernels(prog.structure.kinds).solve_packed
-        # the compiled code releases the GIL
-        parallel_chunks(lambda lo, hi: solve_packed(packed, lo, hi), prog.B)
+        solve_packed = kernels(prog.structure.kinds).solve_packed
+        if self.compiled(prog, arrays):
+            packed = self.pack(arrays)
+            # the compiled code releases the GIL
+            parallel_chunks(lambda lo, hi: solve_packed(packed, lo, hi), prog.B)
+        else:
+            tier.interpreted_call(solve_packed, self.fields(arrays), 0, prog.B)
         return self.result(prog, arrays)
+
+    def fields(self, arrays: tuple) -> tuple:
+        """The :data:`~mjkin.ik.packed.FIELDS` of a call's ``arrays`` (:meth:`arrays`), in order."""
+        ga, q, starts, iters, status, used, binding, err, hist_q, hist_err, worst, success = arrays
+        p = self.problem
+        return (p.tree.kin, ga, self.st, self.code, self.max_iters, starts, p.restart_q, p.active, q, iters, status,
+                used, binding, err, hist_q, hist_err, worst, success)
+
+    def pack(self, arrays: tuple) -> Packed:
+        """:func:`mjkin.ik.packed.pack` of ``arrays`` (:meth:`arrays`) with the problem's constants."""
+        return pack(*self.fields(arrays))
+
+    def compiled(self, prog: Program, arrays: tuple) -> bool:
+        """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.tier.compiled`)."""
+        return tier.compiled(packed_kernels(kernels(prog.structure.kinds).solve_packed, self.fields(arrays)),
+                             small=prog.B <= tier.SMALL_BATCH)
 
     def single(self, prog: Program, q: Array) -> Result:
         """One target through the arrays packed once (:meth:`__call__` holds the lock)."""
-        if self.one is None or self.solve_packed is None:
+        if self.one is None:
             arrays = self.arrays(prog, q.copy())
+            self.one, self.starts_in_one = (None, arrays), self.problem.starts
+        packed, arrays = self.one
+        if self.solve_packed is None and self.compiled(prog, arrays):
             packed = self.pack(arrays)
-            self.one, self.starts_in_one = (packed, arrays), self.problem.starts
+            self.one = (packed, arrays)
             # the packed arrays are always these types: the call skips numba's dispatch (mjkin.jit.entry)
             self.solve_packed = entry(kernels(prog.structure.kinds).solve_packed, numba.typeof(packed), numba.int64,
                                       numba.int64)
-        packed, arrays = self.one
         ga, q_in, starts = arrays[:3]
         ga.data[...] = prog.data
         if prog.structure.joint_targets:
@@ -230,7 +246,10 @@ class Loop:
         if self.H:
             arrays[8].fill(np.nan)
             arrays[9].fill(0.0)
-        self.solve_packed(packed, 0, 1)
+        if self.solve_packed is not None:
+            self.solve_packed(packed, 0, 1)
+        else:
+            tier.interpreted_call(kernels(prog.structure.kinds).solve_packed, self.fields(arrays), 0, 1)
         q[...] = q_in
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))

@@ -10,8 +10,9 @@ what compiled code writes into ``q``, ``err``... the caller reads from its array
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+import numba
 import numpy as np
 from numba import types
 from numba.experimental import structref
@@ -72,6 +73,15 @@ def _pack(kin: Kinematics, ga: GoalArrays, settings: Settings, method: int, max_
           success: NDArray[np.bool_]) -> Packed:
     return Packed(kin, ga, settings, method, max_iters, starts, restart_q, active, q, iters, status, used, binding, err,
                   hist_q, hist_err, worst, success)
+
+
+def packed_kernels(solve_packed: Any, fields: tuple) -> list[tuple[Any, tuple]]:
+    """The kernels a packed solve with these :data:`FIELDS` values calls from Python, and their argument types:
+    :func:`_pack`, and ``solve_packed`` (the problem's :func:`mjkin.ik.loop.solve_packed`).
+    """  # noqa: D205
+    typed = tuple(numba.typeof(v) for v in fields)
+    packed = PackedType(list(zip(FIELDS, typed)))
+    return [(_pack, typed), (solve_packed, (packed, numba.int64, numba.int64))]
 
 
 def pack(kin: Kinematics, ga: GoalArrays, st: Settings, method: int, max_iters: int, starts: Array,

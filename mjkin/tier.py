@@ -1,0 +1,306 @@
+"""Interpreted first, compiled behind: a cold kernel's first small calls run as Python while a child compiles it.
+
+From an empty cache numba spends ~50 s on the IK loop before a first solve on 2
+cores. With ``MJKIN_COMPILE=background`` (the default) a small first call
+(:func:`first_use`: a solve of a few targets, a one-q pose) whose kernel is
+neither compiled nor on disk runs the kernel's own Python source at once
+(:func:`interpreted`: no compile at all; an easy 7-DoF solve takes ~10-100 ms
+so), and a child process compiles the kernel into the disk cache. The first call
+after the child is done loads it from there (about a second) and from then on
+every call is compiled. The child outlives this process, so a short script still
+leaves the cache warm for the next run.
+
+Large calls and ``MJKIN_COMPILE=wait`` compile in this process first, as numba
+does (``wait`` is what tests and benchmarks use: every call compiled, the same
+bits each run). ``MJKIN_COMPILE=interpret`` runs every such call interpreted and
+compiles nothing for them (to debug a kernel in Python). The interpreted answers
+may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
+library calls).
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import importlib
+import importlib.util
+import os
+import pickle
+import subprocess
+import sys
+import threading
+import time
+import types as pytypes
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+from numba.core.registry import CPUDispatcher
+
+from . import progress
+from .errors import InputError
+
+MODES = ("background", "wait", "interpret")
+SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
+SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
+_local = threading.local()
+
+
+def mode() -> str:
+    """``$MJKIN_COMPILE``: ``background`` (the default), ``wait``, or ``interpret`` (see the module).
+
+    Raises:
+        InputError: another value (the message names the three).
+    """
+    value = os.environ.get("MJKIN_COMPILE", "background")
+    if value not in MODES:
+        raise InputError(f"MJKIN_COMPILE must be one of {', '.join(MODES)}, got {value!r}")
+    return value
+
+
+@contextlib.contextmanager
+def waiting() -> Iterator[None]:
+    """Within it, ``MJKIN_COMPILE=wait`` (and in the processes started meanwhile): for timings and ``mjkin warmup``."""
+    before = os.environ.get("MJKIN_COMPILE")
+    os.environ["MJKIN_COMPILE"] = "wait"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ["MJKIN_COMPILE"]
+        else:
+            os.environ["MJKIN_COMPILE"] = before
+
+
+@contextlib.contextmanager
+def first_use() -> Iterator[None]:
+    """Within it (this thread), small calls of kernels not yet compiled run interpreted (see the module)."""
+    _local.depth = getattr(_local, "depth", 0) + 1
+    try:
+        yield
+    finally:
+        _local.depth -= 1
+
+
+def _small(value: Any) -> bool:
+    """Whether ``value`` is a number, a string, or an array or tuple of them no larger than :data:`SMALL`."""
+    if isinstance(value, np.ndarray):
+        return value.size <= SMALL
+    if isinstance(value, tuple):
+        return all(_small(v) for v in value)
+    return isinstance(value, (int, float, bool, str, np.generic)) or value is None
+
+
+# ---- the Python versions of kernels
+
+
+PYTHON: dict[int, Any] = {}  # id of a numba-only object (an intrinsic, a StructRef class) -> its Python stand-in
+_KEEP: list[Any] = []  # those objects, so that their ids stay theirs
+_TWINS: dict[int, Callable] = {}
+_GLOBALS: dict[int, dict] = {}
+
+
+def python_version(obj: Any, stand_in: Any) -> None:
+    """Run ``stand_in`` wherever interpreted code names ``obj`` (an intrinsic or type only compiled code can call)."""
+    _KEEP.append(obj)
+    PYTHON[id(obj)] = stand_in
+
+
+def _stand_in(value: Any) -> Any:
+    if id(value) in PYTHON:
+        return PYTHON[id(value)]
+    if isinstance(value, Dispatcher):
+        return interpreted(value)
+    return value
+
+
+def _globals(namespace: dict) -> dict:
+    """A copy of a module's globals with every kernel in it interpreted (made once per module, filled lazily)."""
+    out = _GLOBALS.get(id(namespace))
+    if out is None:
+        out = _GLOBALS[id(namespace)] = {}
+        out.update({k: _stand_in(v) for k, v in namespace.items()})
+    return out
+
+
+def interpreted(kernel: Dispatcher) -> Callable:
+    """``kernel``'s Python source as a function whose calls of other kernels are interpreted too (nothing compiles)."""
+    twin = _TWINS.get(id(kernel))
+    if twin is None:
+        fn = kernel.py_func
+        closure = fn.__closure__ and tuple(pytypes.CellType(_stand_in(c.cell_contents)) for c in fn.__closure__)
+        twin = _TWINS[id(kernel)] = pytypes.FunctionType(fn.__code__, _globals(fn.__globals__), fn.__name__,
+                                                          fn.__defaults__, closure)
+        twin.__kwdefaults__ = fn.__kwdefaults__
+    return twin
+
+
+def interpreted_call(kernel: Dispatcher, *args: Any) -> Any:
+    """``interpreted(kernel)(*args)`` without numpy's floating-point warnings (compiled code has none)."""
+    with np.errstate(all="ignore"):
+        return interpreted(kernel)(*args)
+
+
+# ---- the child that compiles
+
+
+def _address(kernel: Dispatcher) -> tuple[str, str, str] | None:
+    """(module name, file, qualified name) by which a child process finds ``kernel``; None if it cannot."""
+    fn = kernel.py_func
+    module = sys.modules.get(fn.__module__)
+    path = getattr(module, "__file__", None)
+    if fn.__module__ == "__main__" or path is None or "<locals>" in fn.__qualname__:
+        return None
+    return fn.__module__, str(path), fn.__qualname__
+
+
+class _Compiler:
+    """Compiles kernels in one child process at a time, in the order asked, and tracks what each child did."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, done, failed
+        self.queue: list[tuple] = []  # (key, address, signature)
+        self.child: subprocess.Popen | None = None
+        self.running: list[tuple] = []
+        self.since: float | None = None  # when the first child started
+
+    def status(self, jobs: list[tuple[Dispatcher, tuple]], submit: bool = True) -> str:
+        """The least advanced state of ``jobs`` (kernel, argument types), asked for in a child if ``submit``.
+
+        ``failed`` where a child cannot find a kernel (one defined in ``__main__``) or its child failed;
+        ``unknown`` where one was never asked for.
+        """
+        with self.lock:
+            for kernel, sig in jobs if submit else ():
+                key = (id(kernel), sig)
+                if key not in self.state:
+                    address = _address(kernel)
+                    self.state[key] = "queued" if address else "failed"
+                    if address:
+                        self.queue.append((key, address, sig))
+            self._advance()
+            states = {self.state.get((id(k), s), "unknown") for k, s in jobs}
+        return next((s for s in ("failed", "unknown", "queued", "running") if s in states), "done")
+
+    def wait(self, jobs: list[tuple[Dispatcher, tuple]]) -> None:
+        """Wait until no child is compiling ``jobs`` any more."""
+        while self.status(jobs, submit=False) in ("queued", "running"):
+            time.sleep(0.05)
+
+    def _advance(self) -> None:
+        """Note what a finished child did, and start one for the queue if none runs."""
+        if self.child is not None:
+            if self.child.poll() is None:
+                return
+            for key in self.running:
+                self.state[key] = "done" if self.child.returncode == 0 else "failed"
+            self.child, self.running = None, []
+            if not self.queue and self.since is not None:
+                progress.notice(f"kernels compiled in the background in {time.monotonic() - self.since:.0f} s")
+        if self.queue:
+            if self.since is None:
+                self.since = time.monotonic()
+                progress.notice(BACKGROUND)
+            self.child = _spawn([(address, sig) for _, address, sig in self.queue])
+            self.running = [key for key, _, _ in self.queue]
+            self.queue = []
+            for key in self.running:
+                self.state[key] = "running"
+
+
+    def flush(self) -> None:
+        """Start a child for what is still queued (at exit: the cache is warm for the next run)."""
+        with self.lock:
+            if self.queue:
+                _spawn([(address, sig) for _, address, sig in self.queue])
+                self.queue = []
+
+
+_COMPILER = _Compiler()
+atexit.register(_COMPILER.flush)
+
+
+def _spawn(jobs: list[tuple]) -> subprocess.Popen:
+    """A child process (its own session: it outlives this one) that compiles ``jobs`` into the disk cache."""
+    env = {**os.environ, "MJKIN_COMPILE": "wait", "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    child = subprocess.Popen([sys.executable, "-m", "mjkin.tier"], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+    assert child.stdin is not None
+    child.stdin.write(pickle.dumps(jobs))
+    child.stdin.close()
+    return child
+
+
+BACKGROUND = ("compiling kernels for their first use in a background process (cached for later runs; a minute or "
+              "two); running them interpreted until then...")
+
+
+def _load(kernel: Dispatcher, sig: tuple) -> bool:
+    """Whether ``kernel`` has a version for ``sig`` in memory, after loading it from the disk cache if it is there."""
+    if sig in kernel.overloads:
+        return True
+    cres = kernel._cache.load_overload(sig, kernel.targetctx)
+    if cres is None:
+        return False
+    kernel._cache_hits[sig] += 1
+    kernel.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
+    kernel.add_overload(cres)
+    return True
+
+
+def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool) -> bool:
+    """Whether the caller should call ``jobs``' kernels compiled (True) or :func:`interpreted` (False).
+
+    Each job is a kernel and the numba types of its arguments. True when all are in memory or on
+    disk (loaded so), or else once they are compiled: here, as numba would, when the call is not
+    ``small`` or the mode is ``wait`` (by the child, when one is compiling them already). False
+    when a child is compiling them (started if need be) for a small call in ``background`` mode.
+    """
+    if mode() == "interpret":
+        return False
+    if mode() == "background":
+        if not all(_load(k, s) for k, s in jobs):
+            state = _COMPILER.status(jobs, submit=small)
+            if state in ("queued", "running"):
+                if small:
+                    return False
+                _COMPILER.wait(jobs)
+        if all(_load(k, s) for k, s in jobs):
+            return True
+    for kernel, sig in jobs:
+        kernel.compile(sig)
+    return True
+
+
+class Kernel(CPUDispatcher):
+    """numba's dispatcher, but a small call of a version not yet compiled runs interpreted within :func:`first_use`."""
+
+    def _compile_for_args(self, *args: Any, **kws: Any) -> Any:
+        if getattr(_local, "depth", 0) and not kws:
+            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], all(_small(a) for a in args)):
+                return lambda *a: interpreted_call(self, *a)
+        return super()._compile_for_args(*args, **kws)
+
+
+def _main() -> None:
+    """The child: compile each (address, signature) read from stdin into the disk cache."""
+    jobs = pickle.loads(sys.stdin.buffer.read())
+    for (name, path, qualname), sig in jobs:
+        try:
+            module = importlib.import_module(name)
+        except ImportError:
+            spec = importlib.util.spec_from_file_location(name, path)
+            assert spec is not None and spec.loader is not None
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+        kernel: Any = module
+        for part in qualname.split("."):
+            kernel = getattr(kernel, part)
+        kernel.compile(sig)
+
+
+if __name__ == "__main__":
+    _main()

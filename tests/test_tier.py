@@ -1,0 +1,127 @@
+"""Interpreted first, compiled behind (mjkin.tier): the Python versions solve as the compiled kernels do, a child
+compiles into the disk cache, and the first call after it runs compiled, loaded, not compiled here."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import mjkin
+import mjkin.goals as G
+from mjkin import tier
+from mjkin.errors import InputError
+
+PANDA_T = np.array([[1, 0, 0, 0.4], [0, -1, 0, 0.1], [0, 0, -1, 0.5], [0, 0, 0, 1.0]])
+
+
+def _goals(tree):
+    """One problem per common goal kind (and their mixes, priorities, a hard constraint) on the Panda."""
+    q = tree.qpos0
+    return {
+        "pose": [G.Pose("ee", PANDA_T)],
+        "position+orientation": [G.Position("ee", [0.3, -0.2, 0.6]), G.Orientation("ee", quat=[0, 1, 0, 0])],
+        "aim+line": [G.Aim("ee", axis=[0, 0, 1], point=[0.6, 0.0, 0.0]), G.Line("ee", point=[0.4, 0, 0.5])],
+        "plane+rest": [G.Plane("ee", point=[0, 0, 0.4]), G.Rest(q, 0.01)],
+        "halfspace (hard) under a priority": [G.Position("ee", [0.5, 0.1, 0.3]),
+                                              G.HalfSpace("ee", point=[0, 0, 0.35], normal=[0, 0, 1]),
+                                              G.Orientation("ee", quat=[0, 1, 0, 0], priority=1)],
+        "coupling+steplimit": [G.Position("ee", [0.4, 0.2, 0.5]), G.Coupling({"j1": 1.0, "j3": -1.0}),
+                               G.StepLimit(q, 2.0)],
+    }
+
+
+def _same(ran, want):
+    """The same outcome; the path may part in the last bits (numpy's sums and LAPACK, not LLVM's loops), which a
+    run that stops unconverged (at max_iters, against a constraint) can carry to ~1e-6."""
+    assert np.array_equal(ran.status, want.status) and np.array_equal(ran.success, want.success)
+    assert np.all(np.abs(np.asarray(ran.iterations) - want.iterations) <= 2)
+    np.testing.assert_allclose(ran.q, want.q, rtol=0, atol=1e-9 if np.all(want.success) else 1e-5)
+
+
+def _both(monkeypatch, solve):
+    """``solve()`` compiled (``wait``), then interpreted."""
+    monkeypatch.setenv("MJKIN_COMPILE", "wait")
+    want = solve()
+    monkeypatch.setenv("MJKIN_COMPILE", "interpret")
+    return solve(), want
+
+
+@pytest.mark.parametrize("method", ["auto", "dls", "pinv", "transpose"])
+@pytest.mark.parametrize("name", list(_goals(mjkin.load("panda"))))
+def test_the_interpreted_loop_solves_as_the_compiled_one(monkeypatch, name, method):
+    """The IK loop run as Python (no compile) solves as the compiled loop does."""
+    tree = mjkin.load("panda")
+    goals = _goals(tree)[name]
+    for q0 in (tree.qpos0, tree.qpos0 + 0.1):
+        _same(*_both(monkeypatch, lambda: mjkin.Problem(tree, goals, method=method, max_iters=30).solve(q0)))
+
+
+def test_a_small_batch_runs_interpreted_as_compiled(monkeypatch):
+    tree = mjkin.load("panda")
+    T = np.repeat(PANDA_T[None], 3, axis=0)
+    T[:, :3, 3] += np.array([[0.0, 0, 0], [0.05, -0.1, 0.0], [-0.1, 0.1, 0.1]])
+    _same(*_both(monkeypatch, lambda: mjkin.solve(tree, G.Pose("ee", T), seed=1)))
+
+
+def test_interpret_mode_compiles_nothing_for_a_solve(monkeypatch):
+    """MJKIN_COMPILE=interpret: a problem of a new goal mix solves with no numba compilation at all."""
+    from numba.core.event import install_recorder
+
+    monkeypatch.setenv("MJKIN_COMPILE", "interpret")
+    tree = mjkin.load("planar_3link")
+    with install_recorder("numba:compile") as rec:
+        res = mjkin.solve(tree, [G.Position("tip", [0.5, 0.9, 0.0]), G.Plane("tip", point=[0, 0, 0])], seed=3)
+    assert res.success and rec.buffer == []
+
+
+def test_a_bad_mode_says_which_there_are(monkeypatch):
+    monkeypatch.setenv("MJKIN_COMPILE", "later")
+    with pytest.raises(InputError, match="MJKIN_COMPILE must be one of background, wait, interpret, got 'later'"):
+        tier.mode()
+
+
+def test_a_kernel_a_child_cannot_import_is_never_sent_to_one():
+    from mjkin.jit import njit
+
+    @njit
+    def local(x):
+        return x + 1.0
+
+    assert tier._address(local) is None  # defined in a function: compiled in this process when it must be
+    assert tier._address(mjkin.kinematics.qspace.clip_kernel)[2] == "clip_kernel"
+
+
+_CHILD = textwrap.dedent("""
+    import sys, time
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin import progress, tier
+    from tiered import triple
+    progress.enable(True)
+    x = np.arange(3.0)
+    with tier.first_use():
+        first = triple(x)  # interpreted: nothing compiled here
+    compiled_here = len(triple.overloads)
+    sig = (triple.typeof_pyval(x),)
+    deadline = time.monotonic() + 240
+    while tier._COMPILER.status([(triple, sig)], submit=False) != "done" and time.monotonic() < deadline:
+        time.sleep(0.1)
+    with tier.first_use():
+        second = triple(x)  # compiled, loaded from the cache the child wrote
+    print(first.tolist(), second.tolist(), compiled_here, len(triple.overloads), sum(triple._cache_hits.values()))
+""")
+
+
+def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path):
+    (tmp_path / "tiered.py").write_text("from mjkin.jit import njit\n\n\n@njit\ndef triple(x):\n    return 3.0 * x\n")
+    env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path)], capture_output=True, text=True, env=env,
+                         timeout=300, check=True)
+    # the same answers; none compiled in the process before; one version after, loaded from the cache (a hit)
+    assert run.stdout.strip() == "[0.0, 3.0, 6.0] [0.0, 3.0, 6.0] 0 1 1"
+    notes = run.stderr.splitlines()
+    assert notes[0] == f"mjkin: {tier.BACKGROUND}" and notes[1].startswith("mjkin: kernels compiled in the background in ")
+    assert len(notes) == 2
