@@ -165,6 +165,7 @@ class _Compiler:
         self.child: subprocess.Popen | None = None
         self.running: list[tuple] = []
         self.since: float | None = None  # when the first child started
+        self.took: float | None = None  # seconds from then until the last child finished
 
     def status(self, jobs: list[tuple[Dispatcher, tuple]], submit: bool = True) -> str:
         """The least advanced state of ``jobs`` (kernel, argument types), asked for in a child if ``submit``.
@@ -198,7 +199,8 @@ class _Compiler:
                 self.state[key] = "done" if self.child.returncode == 0 else "failed"
             self.child, self.running = None, []
             if not self.queue and self.since is not None:
-                progress.notice(f"kernels compiled in the background in {time.monotonic() - self.since:.0f} s")
+                self.took = time.monotonic() - self.since
+                progress.notice(f"kernels compiled in the background in {self.took:.0f} s")
         if self.queue:
             if self.since is None:
                 self.since = time.monotonic()
@@ -210,6 +212,15 @@ class _Compiler:
                 self.state[key] = "running"
 
 
+    def settle(self) -> float | None:
+        """Wait until no child runs and none is queued; the seconds they took (None: none ran)."""
+        while True:
+            with self.lock:
+                self._advance()
+                if self.child is None and not self.queue:
+                    return self.took
+            time.sleep(0.05)
+
     def flush(self) -> None:
         """Start a child for what is still queued (at exit: the cache is warm for the next run)."""
         with self.lock:
@@ -220,6 +231,7 @@ class _Compiler:
 
 _COMPILER = _Compiler()
 atexit.register(_COMPILER.flush)
+settle = _COMPILER.settle
 
 
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
@@ -237,7 +249,7 @@ BACKGROUND = ("compiling kernels for their first use in a background process (ca
               "two); running them interpreted until then...")
 
 
-def _load(kernel: Dispatcher, sig: tuple) -> bool:
+def _load(kernel: Any, sig: tuple) -> bool:
     """Whether ``kernel`` has a version for ``sig`` in memory, after loading it from the disk cache if it is there."""
     if sig in kernel.overloads:
         return True
@@ -281,12 +293,13 @@ class Kernel(CPUDispatcher):
         if getattr(_local, "depth", 0) and not kws:
             if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], all(_small(a) for a in args)):
                 return lambda *a: interpreted_call(self, *a)
-        return super()._compile_for_args(*args, **kws)
+        return super()._compile_for_args(*args, **kws)  # type: ignore[misc]  # numba's, not in its stubs
 
 
 def _main() -> None:
     """The child: compile each (address, signature) read from stdin into the disk cache."""
     jobs = pickle.loads(sys.stdin.buffer.read())
+    os.nice(10)  # in the background: the process that runs interpreted meanwhile comes first
     for (name, path, qualname), sig in jobs:
         try:
             module = importlib.import_module(name)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 
 from ..argtypes import nonnegative_int, positive_float, positive_int
+from .startup import ENTRIES
 
 FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "panda", "g1": "unitree_g1/g1.xml"}  # panda: models/
 ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
@@ -100,8 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     s = sub.add_parser("startup", help="a first run from an empty kernel cache and a second one warm, in child "
                                        "processes: import, first call, compile seconds, peak memory")
-    s.add_argument("--entries", nargs="+", choices=["solve", "pose", "retarget", "env", "render"],
-                   default=["solve", "pose", "retarget", "env", "render"], help="entry points (default all)")
+    s.add_argument("--entries", nargs="+", choices=ENTRIES, default=list(ENTRIES), help="entry points (default all)")
     common(s)
 
     s = sub.add_parser("all", help="every benchmark above but startup, with its defaults (--json: one file, keyed "

@@ -4,8 +4,10 @@ Each entry point runs in a fresh copy of the installed package (its sources and
 the C call path, no ``__pycache__``: as after ``pip install``) with its own empty
 caches, then once more in that copy, now warm: the second process is what every
 later run costs. A child reports import seconds, its entry's first call, the
-seconds numba spent compiling each top-level function (its ``"numba:compile"``
-events) and the process's peak memory (``ru_maxrss``).
+seconds numba spent compiling each top-level function in it (its
+``"numba:compile"`` events), the process's peak memory (``ru_maxrss``), and, where
+a cold kernel ran interpreted meanwhile (:mod:`mjkin.tier`, the default mode), the
+seconds until the background compile was done and that child's peak memory.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class Listener(event.Listener):
 event.register("numba:compile", Listener())
 t0 = time.perf_counter()
 import mjkin
+import mjkin.tier
 imported = time.perf_counter() - t0
 import numpy as np
 from mjkin import goals as G
@@ -62,6 +65,12 @@ elif entry == "retarget":
     tree = mjkin.load("primate")
     t1 = time.perf_counter()
     ok = len(mjkin.retarget(sys.argv[2], tree).q) > 0
+elif entry == "kind":  # a user's own goal kind (KIND, a module beside the package) with a Position, on the Panda
+    import height_kind
+    G.register(height_kind.Height)
+    tree = mjkin.load("panda")
+    t1 = time.perf_counter()
+    ok = bool(mjkin.solve(tree, [height_kind.Height("flange", z=0.4), G.Position("ee", [0.4, 0.1, 0.45])]).success)
 elif entry == "env":
     import gymnasium as gym
     import mjkin.envs  # noqa: F401
@@ -77,22 +86,53 @@ elif entry == "render":
     ok = len(list(mjkin.render.frames(tree, qs, 160, 120))) == 3
 first = time.perf_counter() - t1
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+background = mjkin.tier.settle()  # the children compiling what ran interpreted meanwhile (mjkin.tier)
 print(json.dumps({"import_s": imported, "first_s": first, "ok": ok, "compile_s": sum(compiled.values()),
-                  "compiled": compiled.most_common(4), "peak_mb": peak}))
+                  "compiled": compiled.most_common(4), "peak_mb": peak, "background_s": background,
+                  "child_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))
 '''
 
-ENTRIES = ("solve", "pose", "retarget", "env", "render")
+# the goal kind of the "kind" entry: a frame's height (one row), as a user would write one (see the README)
+KIND = '''
+from dataclasses import dataclass
+from typing import ClassVar
+
+from mjkin.goals.base import METRES, FrameGoal
+from mjkin.jit import njit_ir_inline
+
+
+@dataclass(frozen=True)
+class Height(FrameGoal):
+    z: float = 0.0
+    rows: ClassVar[int] = 1
+    units: ClassVar = METRES
+
+    def encode(self, tree, data, rest):
+        data[:, 0] = self.z
+
+
+@njit_ir_inline
+def residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err):
+    J6, pt = ws[0], ws[1]  # the frame's Jacobian and point (mjkin.goals.compiled.goal_frame)
+    w = ga.sqrt_w[i]
+    g[r0] = w * (pt[0, 2] - ga.data[b, i, 0])
+    for j in range(J.shape[1]):
+        J[r0, j] = w * J6[0, 2, j]
+    err[i, 0] = abs(pt[0, 2] - ga.data[b, i, 0])
+'''
+ENTRIES = ("solve", "kind", "pose", "retarget", "env", "render")
 
 
 def fresh_copy(folder: Path) -> Path:
     """A copy of the installed package in ``folder`` (sources and the built C module, no caches); returns ``folder``."""
     shutil.copytree(PACKAGE, folder / PACKAGE.name, ignore=shutil.ignore_patterns("__pycache__"))
+    (folder / "height_kind.py").write_text(KIND)
     return folder
 
 
 def run_child(root: Path, entry: str, *args: str, timeout: float = 1800) -> dict:
     """Run the entry ``entry`` in a child that imports mjkin from ``root`` with no outside kernel cache."""
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "MJKIN_COMPILE")}  # as a user has it
     env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env["XDG_CACHE_HOME"] = str(root / "xdg")  # nothing cached per user either
     done = subprocess.run([sys.executable, "-c", _CHILD, entry, *args], capture_output=True, text=True, env=env,
@@ -119,6 +159,8 @@ def bench_startup(entries: tuple[str, ...] = ENTRIES, clip: Path | None = None) 
                              "first_call_s": round(r["first_s"], 2),
                              "total_s": round(r["import_s"] + r["first_s"], 2),
                              "compile_s": round(r["compile_s"], 1), "peak_mb": round(r["peak_mb"]),
+                             "background_s": None if r["background_s"] is None else round(r["background_s"], 1),
+                             "child_peak_mb": None if r["background_s"] is None else round(r["child_peak_mb"]),
                              "ok": r["ok"], "most_compile": ", ".join(f"{name.rsplit('.', 1)[-1]} {s:.1f} s"
                                                                       for name, s in r["compiled"][:3])})
     settings: dict[str, object] = {"package": str(PACKAGE), "cpus": os.cpu_count(),
