@@ -56,7 +56,7 @@ def test_the_interpreted_loop_solves_as_the_compiled_one(monkeypatch, name, meth
     tree = mjkin.load("panda")
     goals = _goals(tree)[name]
     for q0 in (tree.qpos0, tree.qpos0 + 0.1):
-        _same(*_both(monkeypatch, lambda: mjkin.Problem(tree, goals, method=method, max_iters=30).solve(q0)))
+        _same(*_both(monkeypatch, lambda q0=q0: mjkin.Problem(tree, goals, method=method, max_iters=30).solve(q0)))
 
 
 def test_a_small_batch_runs_interpreted_as_compiled(monkeypatch):
@@ -123,5 +123,6 @@ def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(
     # the same answers; none compiled in the process before; one version after, loaded from the cache (a hit)
     assert run.stdout.strip() == "[0.0, 3.0, 6.0] [0.0, 3.0, 6.0] 0 1 1"
     notes = run.stderr.splitlines()
-    assert notes[0] == f"mjkin: {tier.BACKGROUND}" and notes[1].startswith("mjkin: kernels compiled in the background in ")
+    assert notes[0] == f"mjkin: {tier.BACKGROUND}"
+    assert notes[1].startswith("mjkin: kernels compiled in the background in ")
     assert len(notes) == 2

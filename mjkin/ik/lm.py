@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, ClassVar
 import numba
 import numpy as np
 
+from .. import tier
 from ..checks import check_count, check_flag, check_number
 from ..errors import InputError
-from .. import tier
 from ..jit import entry
 from ..parallel import parallel_chunks
 from . import kernel

@@ -80,7 +80,7 @@ def packed_kernels(solve_packed: Any, fields: tuple) -> list[tuple[Any, tuple]]:
     :func:`_pack`, and ``solve_packed`` (the problem's :func:`mjkin.ik.loop.solve_packed`).
     """  # noqa: D205
     typed = tuple(numba.typeof(v) for v in fields)
-    packed = PackedType(list(zip(FIELDS, typed)))
+    packed = PackedType(list(zip(FIELDS, typed, strict=True)))
     return [(_pack, typed), (solve_packed, (packed, numba.int64, numba.int64))]
 
 
