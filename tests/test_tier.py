@@ -102,15 +102,14 @@ _CHILD = textwrap.dedent("""
     from tiered import triple
     progress.enable(True)
     x = np.arange(3.0)
-    with tier.first_use():
-        first = triple(x)  # interpreted: nothing compiled here
+    call = tier.first_use(triple)
+    first = call(x)  # interpreted: nothing compiled here
     compiled_here = len(triple.overloads)
     sig = (triple.typeof_pyval(x),)
     deadline = time.monotonic() + 240
     while tier._COMPILER.status([(triple, sig)], submit=False) != "done" and time.monotonic() < deadline:
         time.sleep(0.1)
-    with tier.first_use():
-        second = triple(x)  # compiled, loaded from the cache the child wrote
+    second = call(x)  # compiled, loaded from the cache the child wrote
     print(first.tolist(), second.tolist(), compiled_here, len(triple.overloads), sum(triple._cache_hits.values()))
 """)
 

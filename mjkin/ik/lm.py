@@ -182,6 +182,7 @@ class Loop:
         self.one: tuple | None = None  # (packed, its arrays) of single targets
         self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
         self.solve_packed: Callable[[Packed, int, int], None] | None = None
+        self.warm = False  # the compiled loop is loaded (mjkin.tier)
         self.lock = threading.Lock()
 
     def arrays(self, prog: Program, q: Array) -> tuple:
@@ -221,8 +222,10 @@ class Loop:
 
     def compiled(self, prog: Program, arrays: tuple) -> bool:
         """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.tier.compiled`)."""
-        return tier.compiled(packed_kernels(kernels(prog.structure.kinds).solve_packed, self.fields(arrays)),
-                             small=prog.B <= tier.SMALL_BATCH)
+        if not self.warm:  # every call packs the same types: once compiled, always
+            self.warm = tier.compiled(packed_kernels(kernels(prog.structure.kinds).solve_packed, self.fields(arrays)),
+                                      small=prog.B <= tier.SMALL_BATCH)
+        return self.warm
 
     def single(self, prog: Program, q: Array) -> Result:
         """One target through the arrays packed once (:meth:`__call__` holds the lock)."""

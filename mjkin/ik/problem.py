@@ -91,7 +91,7 @@ class Problem:
         GoalError, UnknownNameError, InputError: malformed goals, names or options.
     """
 
-    @tier.first_use()
+    @tier.first_use
     def __init__(self, tree: Tree, goals: Goal | Sequence[Goal], *, method: str | Method = "auto",
                  tol: float = 1e-6, rot_tol: float = 1e-5, timeout: float | None = None, base: str | None = None,
                  joints: Sequence[str] | None = None, root: str | None = None, history: bool = False,
@@ -136,7 +136,7 @@ class Problem:
         self._run = self.method.prepare(self)
 
     # ------------------------------------------------------------------ solve
-    @tier.first_use()
+    @tier.first_use
     def solve(self, q0: ArrayLike | None = None, goals: Goal | Sequence[Goal] | None = None) -> Result:
         """Solve from ``q0`` (default ``qpos0``; ``(nq,)`` or one per target ``(B, nq)``) for ``goals``.
 
