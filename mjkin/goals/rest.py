@@ -69,10 +69,10 @@ def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array,
     nv = J.shape[1]
     w = ga.sqrt_w[i]
     difference_kernel(q, ga.rest_q[i, b:b + 1], kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr, dv)
+    J[r0:r0 + nv] = 0.0  # the rows at once (a Python loop per entry is slow interpreted, mjkin.tier)
     for j in range(nv):
         g[r0 + j] = w * ga.joint_row[i, j] * dv[0, j]
-        for c in range(nv):
-            J[r0 + j, c] = 1.0 if c == j else 0.0
+        J[r0 + j, j] = w * ga.joint_row[i, j]
     for jt in range(kin.jnt_type.shape[0]):  # rotations: d log(q_rest⁻¹ q) = J_r⁻¹(φ) ω (local ω)
         if kin.jnt_type[jt] == BALL or kin.jnt_type[jt] == FREE:
             d0 = kin.jnt_dofadr[jt] + (3 if kin.jnt_type[jt] == FREE else 0)
@@ -82,7 +82,4 @@ def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array,
             left_jacobian_inverse(v, theta, 1.0 / np.tan(0.5 * theta) if theta > 0.0 else np.inf, Li)
             for a in range(3):
                 for c in range(3):
-                    J[r0 + d0 + a, d0 + c] = Li[a, c]
-    for j in range(nv):
-        for c in range(nv):
-            J[r0 + j, c] *= w * ga.joint_row[i, j]
+                    J[r0 + d0 + a, d0 + c] = Li[a, c] * (w * ga.joint_row[i, d0 + a])
