@@ -125,3 +125,33 @@ def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(
     assert notes[0] == f"mjkin: {tier.BACKGROUND}"
     assert notes[1].startswith("mjkin: kernels compiled in the background in ")
     assert len(notes) == 2
+
+
+@pytest.mark.parametrize("model", ["panda", "arm7", "primate", "ball_chain", "planar_prismatic"])
+def test_a_one_q_pose_interpreted_equals_the_compiled_one(model):
+    """The one-q chain kernels as Python (what tree.pose runs while a child compiles them) give the same poses."""
+    from mjkin.kinematics import chain as chains
+
+    tree = mjkin.load(model)
+    for q in tree.random_q(np.random.default_rng(2), 5):
+        T = np.empty((tree.model.nbody, 4, 4))
+        assert tier.interpreted_call(chains.chain_poses, tree.bodies_chain, q, T)
+        np.testing.assert_allclose(T, tree.fk(q), rtol=0, atol=1e-14)
+        site = tree.model.site(tree.model.nsite - 1).name
+        one = np.empty((4, 4))
+        assert tier.interpreted_call(chains.chain_pose, tree._chain(site, None), q, one)
+        np.testing.assert_allclose(one, tree.pose(q, site), rtol=0, atol=1e-14)
+
+
+def test_a_cold_pose_in_background_mode_compiles_nothing_here(tmp_path):
+    """tree.pose and tree.fk of one q from an empty cache: answered at once, as Python, with no compile here."""
+    script = ("import numpy as np, mjkin, mjkin.tier\nfrom numba.core.event import install_recorder\n"
+              "tree = mjkin.load('arm7')\n"
+              "with install_recorder('numba:compile') as rec:\n"
+              "    T = tree.pose(tree.qpos0, 'ee'); F = tree.fk(tree.qpos0)\n"
+              "print(len(rec.buffer), np.isfinite(T).all() and np.isfinite(F).all())\n"
+              "mjkin.tier.settle()\n")  # the child done before its cache folder goes
+    env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300,
+                         check=True)
+    assert run.stdout.split() == ["0", "True"]

@@ -46,6 +46,7 @@ import numpy as np
 from numba import carray, types
 from numpy.typing import NDArray
 
+from .. import tier
 from ..jit import cfunc, entry, njit_gil, njit_inline, on_stack, unshared, unshared_int64
 from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
 
@@ -181,25 +182,39 @@ _FLOAT64 = np.dtype(np.float64)  # native float64 (numba's dispatch can mistake 
 _direct: list[Callable] = []  # chain_pose's and chain_poses' entries without numba's dispatch (see ready)
 
 
-def ready() -> None:
+_ENTRIES = [(kernel, (_CHAIN, _Q, types.Array(types.float64, ndim, "C"))) for kernel, ndim in ((chain_pose, 2),
+                                                                                              (chain_poses, 3))]
+
+
+def ready() -> bool:
     """Compile (or load from the disk cache) the one-q entries, once, and bind the C module's pointers to them.
 
-    ``Tree.pose`` and ``Tree.fk`` call it on their first one-q pose; until then :data:`pose_of` and
-    :data:`poses_of` return None (nothing compiles at import).
+    ``Tree.pose`` and ``Tree.fk`` call it for a one-q pose; until it is done :data:`pose_of` and
+    :data:`poses_of` return None (nothing compiles at import). False while a child process compiles
+    them (:func:`mjkin.tier.compiled`): the caller runs :func:`one_pose` meanwhile.
     """
     if _direct:
-        return
-    for kernel, ndim in ((chain_pose, 2), (chain_poses, 3)):
-        # one version: a read-only q is read through it too (the same memory; neither writes q), so it is not
-        # compiled twice (2.4 s of a first pose)
-        kernel.compile((_CHAIN, _Q, types.Array(types.float64, ndim, "C")))
+        return True
+    # one version each: a read-only q is read through it too (the same memory; neither writes q), so it is not
+    # compiled twice (2.4 s of a first pose)
+    if not tier.compiled(_ENTRIES, small=True):
+        return False
+    for kernel, sig in _ENTRIES:
+        kernel.compile(sig)
         kernel.disable_compile()  # any other q: TypeError, for the caller's checked path
-    _direct.extend(entry(k, _CHAIN, _Q, types.Array(types.float64, n, "C")) for k, n in ((chain_pose, 2),
-                                                                                        (chain_poses, 3)))
+    _direct.extend(entry(kernel, *sig) for kernel, sig in _ENTRIES)
     if _posecall is not None:
         _pose_cfunc.compile()
         _poses_cfunc.compile()
         _posecall.bind(_pose_cfunc.address, _poses_cfunc.address)
+    return True
+
+
+def one_pose(kernel: Callable, chain: Array, q: Array, T: Array) -> bool:
+    """``kernel(chain, q, T)`` (:func:`chain_pose` or :func:`chain_poses`), compiled once :func:`ready`, else as
+    Python (:func:`mjkin.tier.interpreted_call`). ``q (nq,)``: C-contiguous float64.
+    """  # noqa: D205
+    return bool(kernel(chain, q, T) if ready() else tier.interpreted_call(kernel, chain, q, T))
 
 
 def is_ready() -> bool:

@@ -258,9 +258,12 @@ class Tree:
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
         T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
-        if T is None and not chains.is_ready() and np.ndim(q) == 1:  # the first one-q pose: compile that call
-            chains.ready()
-            T = poses_of(self.bodies_chain, q)
+        if T is None and not chains.is_ready() and np.ndim(q) == 1:  # a one-q pose before the compiled call
+            q = np.require(self.check_q(q), requirements=["C", "W"])
+            T = np.empty((self.model.nbody, 4, 4))
+            if chains.one_pose(chains.chain_poses, self.bodies_chain, q, T):
+                return T
+            T = None
         return self.kinematics(q).poses() if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
@@ -272,10 +275,9 @@ class Tree:
         if chain is not None and (T := pose_of(chain, q)) is not None:
             return T  # one compiled call for a plain 1-D q, which checks it too (else the path below says why)
         q = self.check_q(q)
-        if q.ndim == 1:
-            chains.ready()  # the one-q entries, compiled (or loaded) on the first one-q pose
+        if q.ndim == 1:  # the one-q entry, compiled (or loaded) on the first one-q pose, or meanwhile interpreted
             T = np.empty((4, 4))
-            if chain_pose(self._chain(name, kind), np.require(q, requirements=["C", "W"]), T):  # its one version
+            if chains.one_pose(chain_pose, self._chain(name, kind), np.require(q, requirements=["C", "W"]), T):
                 return T
         return self.kinematics(q).pose(*self.frame(name, kind))  # a batch (or a chain too long for chain_pose)
 
