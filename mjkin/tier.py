@@ -146,7 +146,7 @@ def interpreted(kernel: Dispatcher) -> Callable:
     return twin
 
 
-def interpreted_call(kernel: Dispatcher, *args: Any) -> Any:
+def interpreted_call(kernel: Any, *args: Any) -> Any:
     """``interpreted(kernel)(*args)`` without numpy's floating-point warnings (compiled code has none)."""
     with np.errstate(all="ignore"):
         return interpreted(kernel)(*args)
