@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import spatial
+from .. import spatial, tier
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from . import chain as chains
 from . import qspace
@@ -251,6 +251,7 @@ class Tree:
         return qspace.difference(self, self.check_q(q1, "q1"), self.check_q(q0, "q0"), periodic)
 
     # -------------------------------------------------------------- kinematics
+    @tier.first_use
     def kinematics(self, q: ArrayLike) -> Frames:
         """All body frames (and, on demand, dof axes) for ``q (..., nq)``."""
         return forward(self, self.check_q(q))
@@ -288,6 +289,7 @@ class Tree:
             self.chains[name, kind] = chain_of(self, ancestors(self, body), local)
         return self.chains[name, kind]
 
+    @tier.first_use
     def jacobian(self, q: ArrayLike, name: str, kind: Kind | None = None,
                  offset: ArrayLike | None = None) -> Array:
         """Jacobian ``(..., 6, nv)`` at a site/body origin, or at ``offset (3,)`` in its local frame.
