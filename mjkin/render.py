@@ -33,6 +33,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -45,6 +46,9 @@ from .kinematics.qspace import BALL, FREE, HINGE
 from .kinematics.tree import Tree
 from .progress import track
 from .scene import Scene
+
+if TYPE_CHECKING:
+    from PIL import ImageFont
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MARGIN = 0.07  # the camera keeps the figure this fraction of the image away from every edge (≥ 5 % asked)
@@ -540,24 +544,53 @@ def caption_at(caption: Caption, t: int) -> str:
     return str(caption[t]) if t < len(caption) else ""
 
 
-def draw_caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
-    """``image (H, W, 3)`` with ``text`` (lines split at newlines) on a dark band in its top-left corner.
+def _caption_layout(height: int, width: int) -> tuple[ImageFont.FreeTypeFont | ImageFont.ImageFont, int]:
+    """The caption's font and padding (px) on a ``width`` x ``height`` image: 18 px type on 640x480, growing with it
+    (a wide strip counts by its width).
+    """  # noqa: D205
+    from PIL import ImageFont
 
-    The font grows with the image (18 px on 640x480; a wide strip counts by its width).
-    """
+    h = max(height, 0.75 * width)
+    return ImageFont.load_default(size=max(8, round(h / 26))), max(2, round(h / 80))
+
+
+def caption_box(height: int, width: int, text: str) -> tuple[float, float, float, float] | None:
+    """Pixels ``(left, top, right, bottom)`` of the dark band :func:`draw_caption` puts under ``text``; None for ''."""
     if not text:
-        return image
-    from PIL import Image, ImageDraw, ImageFont
+        return None
+    from PIL import Image, ImageDraw
 
-    h = max(image.shape[0], 0.75 * image.shape[1])
-    font = ImageFont.load_default(size=max(8, round(h / 26)))
+    font, pad = _caption_layout(height, width)
+    box = ImageDraw.Draw(Image.new("RGB", (1, 1))).multiline_textbbox((2 * pad, 2 * pad), text, font=font)
+    return box[0] - pad, box[1] - pad, box[2] + pad, box[3] + pad
+
+
+def draw_caption(image: NDArray[np.uint8], text: str) -> NDArray[np.uint8]:
+    """``image (H, W, 3)`` with ``text`` (lines split at newlines) on a dark band in its top-left corner
+    (:func:`caption_box`).
+    """  # noqa: D205
+    box = caption_box(image.shape[0], image.shape[1], text)
+    if box is None:
+        return image
+    from PIL import Image, ImageDraw
+
+    font, pad = _caption_layout(image.shape[0], image.shape[1])
     pil = Image.fromarray(image)
     draw = ImageDraw.Draw(pil, "RGBA")
-    pad = max(2, round(h / 80))
-    box = draw.multiline_textbbox((2 * pad, 2 * pad), text, font=font)
-    draw.rectangle((box[0] - pad, box[1] - pad, box[2] + pad, box[3] + pad), fill=(20, 20, 30, 160))
+    draw.rectangle(box, fill=(20, 20, 30, 160))
     draw.multiline_text((2 * pad, 2 * pad), text, font=font, fill=(255, 255, 255, 255))
     return np.asarray(pil)
+
+
+def project(tree: Tree, camera: mujoco.MjvCamera, points: ArrayLike, width: int, height: int) -> NDArray[np.float64]:
+    """Pixels ``(n, 2)`` (x right, y down, from the top-left corner) where a free ``camera`` shows world
+    ``points (n, 3)`` in a ``width`` x ``height`` frame (the model's vertical field of view, perspective).
+    """  # noqa: D205
+    fwd, right, up = _basis(camera.azimuth, camera.elevation)
+    rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - (np.asarray(camera.lookat) - camera.distance * fwd)
+    focal = 0.5 * height / np.tan(np.radians(float(tree.model.vis.global_.fovy)) / 2)  # px per unit of x/depth
+    depth = rel @ fwd
+    return np.column_stack([0.5 * width + focal * (rel @ right) / depth, 0.5 * height - focal * (rel @ up) / depth])
 
 
 def _planes_cast_no_shadow(scene: mujoco.MjvScene) -> None:

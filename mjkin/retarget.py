@@ -3,14 +3,14 @@
 The method, per clip (targets for every frame worked out at once, then one warm-started
 solve per frame through one :class:`mjkin.Problem`):
 
-1. The source is read (:mod:`mjkin.bvh`), put in metres (units from its height, or
-   ``scale``), turned z-up and so that it first faces the figure's +x.
+1. The source is read (:mod:`mjkin.bvh`), put in metres (``scale`` metres per BVH unit, by
+   default the unit its height suggests), turned z-up and so that it first faces the figure's +x.
 2. Roles (pelvis, hips, knees, ankles, toes, shoulders, elbows, wrists, head) are
    matched to source joints by name (Mixamo, CMU/MotionBuilder, the 19-joint
    ``Hips/Chest/LeftHip`` rig: :data:`SOURCE_NAMES`) and to figure bodies
    (:data:`FIGURES`, by model name), or given by a mapping.
-3. Targets keep the figure's proportions: the pelvis moves as the source's,
-   scaled by the ratio of leg lengths; each limb point is its parent's target plus
+3. Targets keep the figure's proportions: the pelvis moves as the source's, in metres
+   with a given ``scale``, else scaled by the ratio of leg lengths; each limb point is its parent's target plus
    the figure's segment length along the source segment's direction; pelvis, torso
    and feet turn as frames built from the source's points do (relative to its rest
    pose).
@@ -216,7 +216,9 @@ class Retarget:
     ``left_ankle``, ``right_ankle`` -> ``(F, 3, 3)``; ``contact (2, F)`` left/right planted,
     ``heel (2, F)`` its heel down too;
     ``feet (2, F, 4, 4)`` the foot bodies' target poses; ``source (F, J, 3)`` the source
-    points in the figure's world (scaled), for drawing; ``scale`` figure/source.
+    points in the figure's world (scaled as the root path), for drawing; ``metres_per_unit`` the
+    clip's unit (given or from its height); ``root_ratio`` the figure's root path (m) per metre of the
+    source's: 1 with a given scale, else the ratio of leg lengths (figure / source).
     """
 
     points: dict[str, Array]
@@ -225,8 +227,8 @@ class Retarget:
     heel: NDArray[np.bool_]
     feet: Array
     source: Array
-    scale: float
-    unit: float
+    metres_per_unit: float
+    root_ratio: float
     bodies: dict[str, str]
     offsets: dict[str, Array]
     parents: NDArray[np.int64]
@@ -301,7 +303,11 @@ def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, c
 
 def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None = None,
          scale: float | None = None) -> Retarget:
-    """Targets for every frame of ``clip`` on ``tree`` (see the module's steps 1–4); ``scale`` in metres per unit."""
+    """Targets for every frame of ``clip`` on ``tree`` (see the module's steps 1–4); ``scale`` in metres per unit.
+
+    With ``scale`` the root moves the source's distance in metres (``scale`` times its BVH units);
+    without it the root path is fitted to the figure (the source's times the ratio of leg lengths).
+    """
     mapping = mapping or {}
     roles = source_mapping(clip, mapping.get("source"))
     bodies = figure_mapping(tree, mapping.get("figure"))
@@ -331,7 +337,7 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
                              for s in SIDES]))
     fig_leg = float(np.mean([np.linalg.norm(fig[f"{s}_knee"] - fig[f"{s}_hip"])
                              + np.linalg.norm(fig[f"{s}_ankle"] - fig[f"{s}_knee"]) for s in SIDES]))
-    k = fig_leg / src_leg
+    k = fig_leg / src_leg if scale is None else 1.0
 
     def frames_of(pts: Array) -> dict[str, Array]:
         """Constructed rotations of pelvis, torso and feet from source points ``(..., J, 3)``."""
@@ -391,8 +397,8 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
                                 heel[i], toe_local)
     src = fig["pelvis"] + k * (p - np.array([*pelvis_src[0, :2], floor + rest[roles["pelvis"], 2] - rest_floor]))
     src[..., 2] += fig_floor
-    return Retarget(points=pts, rotations=rot, contact=contact, heel=heel, feet=feet, source=src, scale=k, unit=unit,
-                    bodies=bodies, offsets=offsets, parents=clip.parents)
+    return Retarget(points=pts, rotations=rot, contact=contact, heel=heel, feet=feet, source=src, metres_per_unit=unit,
+                    root_ratio=k, bodies=bodies, offsets=offsets, parents=clip.parents)
 
 
 def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
@@ -406,7 +412,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         tree: the figure; it needs a free root joint.
         mapping: ``{"source": {role: joint}, "figure": {role: body}}`` (or a JSON file of it);
             by default roles are found by name (:data:`SOURCE_NAMES`, :data:`FIGURES`).
-        scale: metres per BVH unit; default from the skeleton's height.
+        scale: metres per BVH unit: the root then moves the source's distance in metres (its
+            path in BVH units times ``scale``). Default: the unit suggested by the skeleton's
+            height, and the root path fitted to the figure (times the ratio of leg lengths).
         max_speed: joint speed limit, rad/s (m/s), one number or ``(nv,)``: a hard
             :class:`~mjkin.goals.StepLimit` of ``max_speed`` times the frame time in every frame's
             solve (a joint's limit is the least of its dofs').
@@ -419,9 +427,10 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
 
     Returns:
-        The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, the scale and the
-        frames per second (planning and solving, the first frame left out: it may compile the
-        solver); ``targets (F, 6, 3)`` are the key-point targets (:data:`KEYS`; the feet's as held).
+        The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, ``metres_per_unit`` and
+        ``root_ratio`` (see :class:`Retarget`), the frames per second (planning and solving, the first
+        frame left out: it may compile the solver); ``targets (F, 6, 3)`` are the key-point targets
+        (:data:`KEYS`; the feet's as held).
 
     Raises:
         BvhError, InputError: unreadable clip, roles that cannot be mapped, bad options.
@@ -448,7 +457,8 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
             for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
     targets = np.stack([feet[r] if r in feet else plan_.points[r] for r in KEYS], axis=1)
-    meta = {"retarget": {"clip": str(clip.source), "scale": plan_.scale, "unit": plan_.unit,
+    meta = {"retarget": {"clip": str(clip.source), "metres_per_unit": plan_.metres_per_unit,
+                         "root_ratio": plan_.root_ratio,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
                          "max_speed": speed.tolist(), "bodies": plan_.bodies}}
@@ -563,6 +573,8 @@ def _point(tree: Tree, q: Array, body: str, role: str) -> Array:
 def report(tree: Tree, traj: Trajectory) -> dict:
     """Measured figures of a retargeted clip (lengths in m, speeds per second); see the keys.
 
+    ``metres_per_unit`` (the clip's unit used) and ``root_ratio`` (figure root path per source metre)
+    come from ``traj.meta`` (:class:`Retarget`);
     ``keypoint_error_median``/``_max``: hands, feet and head relative to the pelvis against
     their targets; ``skate_per_frame_mean`` (mean horizontal slide of a planted foot per
     frame), ``skate_per_contact_max`` (its largest drift over one contact); ``floor_min``
@@ -573,7 +585,8 @@ def report(tree: Tree, traj: Trajectory) -> dict:
     bodies = info["bodies"]
     q, F = traj.q, len(traj.q)
     contact = np.array(info["contact"], dtype=np.bool_)
-    out: dict = {"frames": F, "frames_per_second": info["frames_per_second"], "scale": info["scale"]}
+    out: dict = {"frames": F, "frames_per_second": info["frames_per_second"],
+                 "metres_per_unit": info["metres_per_unit"], "root_ratio": info["root_ratio"]}
     if traj.targets is not None:
         got = np.stack([_point(tree, q, bodies[r], r) for r in KEYS], 1)
         err = np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)

@@ -33,6 +33,7 @@ from mjkin.apps.bench.ik import (
     success,
     targets_for,
 )
+from mjkin.apps.bench.report import shared_models_dir
 from mjkin.kinematics import build
 from mjkin.kinematics.build import dh_fk
 from mjkin.spatial import axis_angle_to_mat
@@ -247,6 +248,18 @@ def test_fk_baselines_do_the_same_work_as_mjkin():
     assert [r["library"] for r in single][:3] == ["mjkin", "mjkin without its C call", "mujoco"]
     assert single[0]["ratio"] == 1.0 and "_posecall" in report.settings["tree.pose"]
     assert all(r["ratio"] > 0 for r in batched + single)
+
+
+@pytest.mark.skipif(shared_models_dir() is None, reason="the shared real robot models are not here")
+def test_fk_bench_has_rows_for_the_shared_real_robots():
+    real = ["panda_menagerie", "ur5e", "iiwa14", "gen3", "xarm7", "g1"]
+    assert [name for name, _ in bench.fk_models()] == ["arm7", "primate", "panda", *real]  # the default list
+    report = bench.bench_fk(real[:-1], sizes=[2], min_time=1e-3)
+    batched = list(report.tables.values())[0]
+    assert [r["model"] for r in batched] == real[:-1] and all(r["ratio"] > 0 for r in batched)
+    for name, tree in bench.fk_models(real[:-1]):  # the baseline computes what mjkin does, on each
+        Q = tree.random_q(np.random.default_rng(2), 3)
+        np.testing.assert_allclose(bench.mujoco_fk_loop(tree.model, Q)(), tree.fk(Q), atol=1e-10, err_msg=name)
 
 
 def test_realtime_reports_chains_and_trees_warm_and_cold(tmp_path):

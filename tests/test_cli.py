@@ -607,3 +607,55 @@ def test_ik_text_output_names_every_joint_with_its_values(capsys):
     assert len(rows) == tree.model.njnt and rows[0].split()[:2] == ["root", "free"]
     values = [float(v) for row in rows for v in row.split()[2:]]
     assert values == q and len(q) == tree.nq
+
+
+# a target out of reach: every restart runs, so 10 000 of them take ~0.1 s without a limit, far more than 2 ms
+FAR = ["ik", "arm7", "--frame", "ee", "--pos", "5,0,0", "--restarts", "10000", "--json"]
+
+
+def test_ik_has_a_default_time_limit_per_target(capsys, monkeypatch):
+    assert build_parser().parse_args(["ik", "arm7", "--frame", "ee", "--pos", "0,0,1"]).timeout == 10.0
+    assert main(["ik", "--help"]) == 0
+    assert "(default 10; none or 0: no limit)" in " ".join(capsys.readouterr().out.split())
+    monkeypatch.setattr("mjkin.apps.cli.TIMEOUT", 0.002)  # the default, made short enough to bind here
+    assert main(FAR) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["status"] == "timeout" and out["restarts"] < 10_000
+
+
+@pytest.mark.parametrize("limit, status", [("none", "max_iterations"), ("0", "max_iterations"),
+                                           ("0.002", "timeout"), ("600", "max_iterations")])
+def test_ik_timeout_flag_lifts_or_sets_the_limit(limit, status, capsys, monkeypatch):
+    monkeypatch.setattr("mjkin.apps.cli.TIMEOUT", 0.002)
+    assert main([*FAR, "--timeout", limit]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["status"] == status and (out["restarts"] == 10_000) == (status != "timeout")
+
+
+def test_ik_restarts_default_to_the_methods_own_under_the_limit(capsys):
+    assert main(FAR[:-3] + ["--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["restarts"] == 24  # auto's, not its 1000 of a timed library call
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["--timeout", "-1"], "--timeout: must be seconds > 0, or none (or 0) for no limit, got '-1'"),
+    (["--timeout", "soon"], "--timeout: must be seconds > 0, or none (or 0) for no limit, got 'soon'"),
+    (["--restarts", "20000"], "restarts must be"),
+])
+def test_bad_search_limits_are_one_line(argv, text, capsys):
+    assert main(["ik", "arm7", "--frame", "ee", "--pos", "0.3,0,0.5", *argv]) == 2
+    err = capsys.readouterr().err
+    assert text in err and err.count("\n") == 1
+
+
+def test_trajectory_names_the_frames_that_ran_out_of_time(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "far.json"
+    argv = ["trajectory", "arm7", "--frame", "ee", "--path", "line", "--start", "5,0,0", "--end", "5,0,0.1",
+            "--frames", "2", "--restarts", "10000", "-o", str(out)]
+    monkeypatch.setattr("mjkin.apps.cli.TIMEOUT", 0.002)
+    assert main(argv) == 0
+    assert "frames [0, 1] ran out of the --timeout 0.002 s" in capsys.readouterr().out
+    assert motion.Trajectory.load(out).meta["follow"]["timed_out"] == [0, 1]
+    assert main([*argv, "--timeout", "none"]) == 0
+    assert "ran out" not in capsys.readouterr().out
+    assert motion.Trajectory.load(out).meta["follow"]["timed_out"] == []

@@ -130,6 +130,28 @@ def test_clearance_keeps_the_figure_off_itself(primate: mjkin.Tree) -> None:
     assert rep["self_contact_frames"] == 0 and rep["limits"] is None and rep["skate_per_contact_max"] < 2e-3
 
 
+def test_a_given_scale_sets_the_root_path_in_metres(primate: mjkin.Tree) -> None:
+    # metres per BVH unit: the crouch's hips drop (cm) becomes the figure's pelvis drop in metres, scale times it;
+    # without a scale the root path is fitted to the figure's legs (the units cancel)
+    clip = bvh.parse(crouch_bvh(12), "crouch.bvh")
+    hips = clip.positions()[:, clip.index("Hips"), 1]
+    drop_cm = hips[0] - hips.min()
+    drops = {}
+    for scale in (0.01, 0.005):
+        pelvis = plan(clip, primate, scale=scale).points["pelvis"]
+        np.testing.assert_allclose(pelvis - pelvis[0], np.c_[0 * hips, 0 * hips, scale * (hips - hips[0])],
+                                   atol=1e-12)
+        traj = mjkin.retarget(clip, primate, scale=scale)
+        rep = report(primate, traj)
+        assert rep["metres_per_unit"] == scale and rep["root_ratio"] == 1.0
+        z = primate.pose(traj.q, "lower_torso", "body")[:, 2, 3]
+        drops[scale] = z[0] - z.min()
+    assert drops[0.01] == pytest.approx(0.01 * drop_cm, abs=3e-3)  # the source's 11 cm
+    assert 0.45 < drops[0.005] / drops[0.01] < 0.6  # half the pelvis target; the knees' bend pulls it a little lower
+    fitted = report(primate, mjkin.retarget(clip, primate))
+    assert fitted["metres_per_unit"] == 0.01 and fitted["root_ratio"] != 1.0  # centimetres, from the height
+
+
 def test_roles_by_names_of_the_common_rigs() -> None:
     clip19 = bvh.parse(crouch_bvh(2))
     roles = source_mapping(clip19)
@@ -180,6 +202,23 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     bad.write_text('{"source": {"elbow": "X"}}')
     assert run(["retarget", str(MOCAP / "mixamo_freebvh.bvh"), "--model", "primate", "--mapping", str(bad)]) == 2
     assert "unknown role 'elbow'" in capsys.readouterr().err
+
+
+@need_mocap
+def test_command_line_scale_moves_the_root_proportionally(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    travel, said = {}, {}
+    for scale in ("0.01", "0.005"):
+        out = tmp_path / f"walk{scale}.json"
+        assert run(["retarget", str(MOCAP / "mixamo_freebvh.bvh"), "--model", "primate", "-o", str(out), "--scale",
+                    scale, "--report"]) == 0
+        printed = capsys.readouterr().out
+        said[scale] = json.loads(printed[printed.index("{"):])
+        assert f"{scale} m per BVH unit" in printed
+        travel[scale] = np.ptp(Trajectory.load(out, mjkin.load("primate")).q[:, 0])  # the root's x range, m
+    assert said["0.01"]["metres_per_unit"] == 0.01 and said["0.005"]["metres_per_unit"] == 0.005
+    assert said["0.01"]["root_ratio"] == said["0.005"]["root_ratio"] == 1.0
+    assert 0.8 < travel["0.01"] < 1.1  # the clip's hips range over 94 cm forward
+    assert travel["0.005"] / travel["0.01"] == pytest.approx(0.5, abs=0.03)
 
 
 @need_mocap

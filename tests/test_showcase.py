@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin import motion
+from mjkin import motion, render
 from mjkin.apps.demo import showcase
 from mjkin.scene import Scene
 
@@ -43,3 +43,24 @@ def test_the_arm_scene_moves_without_contacts():
     assert traj.success.all()
     assert [k for k, q in enumerate(traj.q) if scene.contacts(q)] == []
     assert np.linalg.norm(tree.pose(traj.q, "ee")[:, :3, 3] - path, axis=-1).max() < 1e-4
+
+
+@pytest.mark.parametrize("width, height", [(320, 240), (400, 240)])
+def test_the_walk_caption_leaves_the_head_in_view(width, height):
+    """The caption's band covered the primate's head (its lines reached past the middle, where the camera keeps it)."""
+    tree, qs, caption = showcase.walk_motion(24, 30.0)
+    images = list(showcase.scene_walk(width, height, 24, 30.0))
+    cams = render.camera_path(tree, qs, aspect=width / height, view=render.WALK_VIEW, follow=True)  # as frames() does
+    head = tree.id("head", "body")
+    radius = max(tree.model.geom_rbound[tree.model.geom_bodyid == head])
+    centres = tree.fk(qs)[:, head, :3, 3]
+    for t, (image, cam) in enumerate(zip(images, cams, strict=True)):
+        (x, y), = render.project(tree, cam, centres[t], width, height)
+        (edge_x, _), = render.project(tree, cam, centres[t] + (radius, 0, 0), width, height)  # world x: to the right
+        r = edge_x - x  # the head's radius in pixels
+        assert r > 2 and 0 < x < width and 0 < y < height
+        red, _, blue = image[round(y), round(x)].astype(int)
+        assert red > blue and blue < 100  # the brown head there, not the blue sky
+        left, top, right, bottom = render.caption_box(height, width, caption(t))
+        gap_x, gap_y = max(left - x, x - right, 0.0), max(top - y, y - bottom, 0.0)
+        assert np.hypot(gap_x, gap_y) > r, f"frame {t}: the caption covers the head"

@@ -44,6 +44,17 @@ def nonnegative_float(text: str) -> float:
     return _real(text, False)
 
 
+def time_limit(text: str) -> float:
+    """An argparse type: seconds > 0, or ``none`` (or 0) for no limit, returned as ``inf``."""
+    try:
+        value = math.inf if text.strip().lower() == "none" else float(text)
+    except ValueError:
+        value = math.nan
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be seconds > 0, or none (or 0) for no limit, got {text!r}")
+    return value or math.inf
+
+
 def nonnegative_int(text: str) -> int:
     """An argparse type: an integer >= 0 (``--seed``: numpy's generators refuse negative seeds)."""
     return _whole(text, 0)

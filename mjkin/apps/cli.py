@@ -18,15 +18,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .. import motion, progress, spatial
+from .. import motion, progress, spatial, tier
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..files import check_writable, strict_json
 from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
+from ..ik.method import MAX_RESTARTS
+from ..ik.problem import method_of
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load, source_of
 from . import bench, placement_cli, retarget_cli
-from .argtypes import Once, nonnegative_int, positive_float, positive_int
+from .argtypes import Once, nonnegative_int, positive_float, positive_int, time_limit
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -41,6 +43,7 @@ SIGPIPE_EXIT = 128 + 13  # what a shell reports for a tool that SIGPIPE ended (`
 UNIT_TOL = 1e-3  # a command-line quaternion whose norm is further from 1 (not rounding: a mistake) gets a warning
 VECTOR_OPTIONS = ("--pos", "--quat", "--q", "--q0", "--center", "--normal", "--start", "--end", "--points", "--region")
 NEGATIVE_NUMBER = re.compile(r"-\.?\d")  # how a value such as "-20,5,0" starts (argparse takes it for an option)
+TIMEOUT = 10.0  # seconds per IK target of ``mjkin ik`` and ``mjkin trajectory`` unless --timeout says otherwise
 
 
 class Parser(argparse.ArgumentParser):
@@ -236,7 +239,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
             warn(f"--quat: normalised {args.quat!r} (norm {norm:.6g}) to unit length")
         goals.append(Orientation(args.frame, quat))
     res = solve(tree, goals, q0=q0, method=args.method, tol=args.tol, rot_tol=args.rot_tol,
-                seed=0 if args.seed is None else args.seed, root=args.root, joints=joints, base=args.base)
+                seed=0 if args.seed is None else args.seed, root=args.root, joints=joints, base=args.base,
+                **search_limits(args))
     q = display_q(tree, res.q)
     report = {"q": q.tolist(), "success": bool(res.success), "error": res.error.tolist(),
               "iterations": int(res.iterations), "status": str(res.status), "restarts": int(res.restarts),
@@ -253,6 +257,18 @@ def cmd_ik(args: argparse.Namespace) -> int:
         print("q " + fixed(q))
         print(by_joint(tree, q))
     return 0
+
+
+def search_limits(args: argparse.Namespace) -> dict[str, Any]:
+    """``timeout`` (s per target, ``inf``: none) and ``restarts`` of a command's solves: ``--timeout``, ``--restarts``.
+
+    Without ``--restarts``, the method's own count without a time limit (24 for auto): the limit
+    caps a search, it does not make auto restart until the time runs out, as the library's does.
+    """
+    restarts = args.restarts
+    if restarts is None:
+        restarts = method_of(getattr(args, "method", "auto"), {}).restart_count(False)
+    return {"timeout": args.timeout, "restarts": restarts}
 
 
 def by_joint(tree: Tree, q: np.ndarray) -> str:
@@ -407,7 +423,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
         if not args.points:
             raise InputError("--path waypoints needs --points 'x,y,z; x,y,z; ...'")
         pts = motion.waypoints(np.vstack([here, _points(args.points)]), args.frames)
-    traj = motion.follow(tree, args.frame, pts, q0=q0, fps=args.fps)
+    traj = motion.follow(tree, args.frame, pts, q0=q0, fps=args.fps, **search_limits(args))
     traj.source = source_of(args.model)
     if args.retime:
         vmax, amax = _numbers(args.retime, 2, "--retime", "VMAX,AMAX")
@@ -415,8 +431,10 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
     traj.save(args.output)
     ok = traj.success if traj.success is not None else np.ones(len(pts), bool)
     jumps = traj.discontinuities(tree)
+    late = traj.meta["follow"]["timed_out"]
     print(f"wrote {args.output}: {len(pts)} frames, {ok.mean():.0%} on target, largest joint step "
-          f"{traj.jumps(tree).max():.3f}" + (f"; discontinuities at frames {jumps.tolist()}" if len(jumps) else ""))
+          f"{traj.jumps(tree).max():.3f}" + (f"; discontinuities at frames {jumps.tolist()}" if len(jumps) else "")
+          + (f"; frames {late} ran out of the --timeout {args.timeout:g} s" if late else ""))
     return 0
 
 
@@ -534,6 +552,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"seed (>= 0) for {flag} random{seed_help}; without it {flag} random is a new draw "
                             "each run")
 
+    def search_options(s: argparse.ArgumentParser) -> None:
+        s.add_argument("--timeout", type=time_limit, default=TIMEOUT, metavar="SECONDS",
+                       help=f"time limit per IK target, restarts included; a target that runs out keeps its best "
+                            f"pose so far with status timeout (default {TIMEOUT:g}; none or 0: no limit)")
+        s.add_argument("--restarts", type=nonnegative_int, metavar="N",
+                       help=f"random restarts when a run stalls, at most {MAX_RESTARTS} (default: the method's own, "
+                            "24 for auto; the time limit does not add any)")
+
     s = sub.add_parser("info", help="outline a model's bodies, joints and sites")
     s.add_argument("model", help=model_help)
     s.set_defaults(run=cmd_info)
@@ -566,6 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tol", type=positive_float, default=1e-6, help="position tolerance in metres (default 1e-6)")
     s.add_argument("--rot-tol", type=positive_float, default=1e-5,
                    help="rotation tolerance in radians (default 1e-5)")
+    search_options(s)
     s.add_argument("--json", action="store_true",
                    help="print JSON: q, success, error [m, rad], iterations, status, restarts, method")
     s.set_defaults(run=cmd_ik)
@@ -609,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
     q_options(s, "--q0", "the first keyframe, else qpos0", s)
     s.add_argument("-o", "--output", required=True, help="script file (.json)")
     s.add_argument("--retime", metavar="VMAX,AMAX", help="time-optimal times under joint limits rad/s, rad/s^2")
+    search_options(s)
     s.set_defaults(run=cmd_trajectory)
 
     s = sub.add_parser("retarget", help="retarget a BVH motion-capture clip onto a figure (script or video)")

@@ -28,7 +28,10 @@ def arguments(s: argparse.ArgumentParser) -> None:
                    "still (.png, frame --frame)")
     s.add_argument("--frame", type=int, help="the frame of a .png still, from 0 (default: the middle one)")
     s.add_argument("--mapping", help='JSON {"source": {role: joint}, "figure": {role: body}} for other rigs')
-    s.add_argument("--scale", type=positive_float, help="metres per BVH unit (default: from the skeleton's height)")
+    s.add_argument("--scale", type=positive_float, metavar="M",
+                   help="metres per BVH unit (0.01 for centimetres): the figure's root then moves the clip's "
+                        "distance in metres (default: the unit from the skeleton's height, and the root path "
+                        "fitted to the figure by the ratio of leg lengths)")
     s.add_argument("--max-speed", type=positive_float, default=MAX_SPEED,
                    help=f"joint speed limit, rad/s (default {MAX_SPEED:g})")
     s.add_argument("--clearance", type=nonnegative_float, metavar="M",
@@ -38,7 +41,8 @@ def arguments(s: argparse.ArgumentParser) -> None:
                    help="joint acceleration limit for --retime, rad/s^2 (default 100)")
     s.add_argument("--side-by-side", action="store_true", help="video: the source skeleton beside the figure, "
                    "not over it")
-    s.add_argument("--report", action="store_true", help="print the measured figures as JSON")
+    s.add_argument("--report", action="store_true", help="print the measured figures as JSON (metres_per_unit: "
+                   "the clip's unit used; root_ratio: the figure's root path per metre of the clip's)")
     s.add_argument("--width", type=positive_int, default=640, help="video width in pixels (default 640)")
     s.add_argument("--height", type=positive_int, default=480, help="video height in pixels (default 480)")
 
@@ -79,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
                                fps)
     where = f"wrote {args.output}: " if args.output else ""
     print(f"{where}{measured['frames']} frames of {args.clip} on {tree.name} at "
-          f"{measured['frames_per_second']:.0f} frames/s; key points {100 * measured['keypoint_error_median']:.1f} cm "
+          f"{measured['frames_per_second']:.0f} frames/s, {measured['metres_per_unit']:g} m per BVH unit, root path "
+          f"x{measured['root_ratio']:.3g}; key points {100 * measured['keypoint_error_median']:.1f} cm "
           f"(median), foot skate {1000 * measured['skate_per_frame_mean']:.2f} mm/frame, lowest sole "
           f"{100 * measured['floor_min']:+.1f} cm, self-contact in {measured['self_contact_frames']} frames"
           + (f"; retimed to {traj.times[-1] - traj.times[0]:.2f} s" if args.retime else ""))

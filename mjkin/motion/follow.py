@@ -28,7 +28,8 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
     swing when another low-priority goal (a comfort pose) pulls them. A frame
     that fails from the warm start is retried with random restarts; failures are
     recorded in ``success``. Two :class:`~mjkin.Problem` objects (without and with
-    restarts) serve every frame; ``solve_options`` go to both.
+    restarts) serve every frame; ``solve_options`` go to both. ``meta["follow"]["timed_out"]`` lists the
+    frames whose solve ran out of ``timeout`` (a solve option: seconds per frame's search).
 
     ``max_joint_speed`` (rad/s for hinges and ball/free rotations, m/s for slides and
     free translations; one number or one per joint ``(njnt,)``) becomes a hard
@@ -51,17 +52,22 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
 
     warm = Problem(tree, goals(0), tol=tol, **{**solve_options, "restarts": 0})
     retry: Problem | None = None
+    timed_out: list[int] = []
     for k in track(range(len(pts)), "solve path", total=len(pts)):
         now = goals(k)
         res = warm.solve(q, now)
+        late = res.status == "timeout"
         if not res.success:
             retry = retry or Problem(tree, now, tol=tol, **solve_options)
             again = retry.solve(q, now)
+            late |= again.status == "timeout"
             res = again if again.success or again.error[0] < res.error[0] else res
+        if late:
+            timed_out.append(k)
         q = res.q
         out[k], ok[k] = q, bool(res.success)
     return Trajectory(times=np.arange(len(pts)) / fps, q=out, fingerprint=fingerprint(tree), model=tree.name,
-                      frame=frame, targets=pts[:, None, :], success=ok)
+                      frame=frame, targets=pts[:, None, :], success=ok, meta={"follow": {"timed_out": timed_out}})
 
 
 

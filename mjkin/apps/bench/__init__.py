@@ -15,7 +15,10 @@ import argparse
 from ..argtypes import nonnegative_int, positive_float, positive_int
 from .startup import ENTRIES
 
-FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "panda", "g1": "unitree_g1/g1.xml"}  # panda: models/
+REAL_ARMS = {"ur5e": "universal_robots_ur5e/ur5e.xml", "iiwa14": "kuka_iiwa_14/iiwa14.xml",  # under shared/models
+             "gen3": "kinova_gen3/gen3.xml", "xarm7": "ufactory_xarm7/xarm7_nohand.xml"}
+FK_MODELS = {"arm7": "arm7", "primate": "primate", "panda": "panda",  # panda: models/, the rest under shared/models
+             "panda_menagerie": "franka_emika_panda/panda_nohand.xml", **REAL_ARMS, "g1": "unitree_g1/g1.xml"}
 ALL = ("fk", "ik", "realtime", "render", "env", "seeds", "play")
 
 
@@ -31,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="seed (>= 0) of the random configurations (default 0)")
 
     s = sub.add_parser("fk", help="batched FK and one pose, beside mj_kinematics from Python")
-    s.add_argument("--models", nargs="+", metavar="NAME|PATH", help=f"models (default: {', '.join(FK_MODELS)})")
+    s.add_argument("--models", nargs="+", metavar="NAME|PATH",
+                   help=f"models (default: {', '.join(FK_MODELS)}; those of ../shared/models when it is there)")
     s.add_argument("--batch", nargs="+", type=positive_int, default=[1, 100, 10_000], metavar="B",
                    help="batch sizes (default 1 100 10000)")
     common(s)

@@ -26,7 +26,7 @@ from ...kinematics.qspace import HINGE, SLIDE
 from ...kinematics.tree import Tree, load
 from ...progress import track
 from ...spatial import mat_to_rotvec
-from . import peers
+from . import REAL_ARMS, peers
 from .report import GC_NOTE, Report, Row, gc_paused, shared_models_dir
 
 Array = NDArray[np.float64]
@@ -36,10 +36,10 @@ BUNDLED = ("arm7", "panda")
 IK_ARMS: dict[str, tuple[str, str, Kind]] = {  # name: model (bundled name or path under shared models), frame, kind
     "arm7": ("arm7", "ee", "site"),
     "panda": ("panda", "flange", "site"),  # models/panda.xml, from its modified-DH table
-    "ur5e": ("universal_robots_ur5e/ur5e.xml", "wrist_3_link", "body"),
-    "iiwa14": ("kuka_iiwa_14/iiwa14.xml", "attachment_site", "site"),
-    "gen3": ("kinova_gen3/gen3.xml", "pinch_site", "site"),
-    "xarm7": ("ufactory_xarm7/xarm7_nohand.xml", "attachment_site", "site"),
+    "ur5e": (REAL_ARMS["ur5e"], "wrist_3_link", "body"),
+    "iiwa14": (REAL_ARMS["iiwa14"], "attachment_site", "site"),
+    "gen3": (REAL_ARMS["gen3"], "pinch_site", "site"),
+    "xarm7": (REAL_ARMS["xarm7"], "attachment_site", "site"),
 }
 TRAC_IK_ARMS = ("panda", "ur5e", "iiwa14", "gen3", "xarm7")
 TRAC_IK_SOURCE = "TRAC-IK v1.4.6 README, Speed mode (published, not measured here)"

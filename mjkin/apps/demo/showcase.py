@@ -125,18 +125,26 @@ def scene_arm(width: int, height: int, n: int, fps: float) -> Images:
     return render.frames(tree, traj.q, width, height, camera=cam, overlay=ov, desc="render arm")
 
 
-def scene_walk(width: int, height: int, n: int, fps: float) -> Images:
-    """The primate walking four steps heel to toe, from the side, the camera following."""
+def walk_motion(n: int, fps: float) -> tuple[Tree, Array, Callable[[int], str]]:
+    """The walk scene's primate, its poses ``(T, nq)`` (:data:`WALK_STEPS` whole steps of ``n`` frames) and captions."""
     tree = load("primate")
     steps, per = WALK_STEPS, max(2, n // WALK_STEPS)
     walk = motion.walk_cycle(tree, steps=steps, frames_per_step=per, fps=fps)
 
     def caption(t: int) -> str:
-        return f"primate walk: heel to toe, arms swing\nstep {t // per + 1} of {steps} · planted foot is the IK root"
+        return f"primate walk, heel to toe\nstep {t // per + 1} of {steps} · arms swing\nIK root: the planted foot"
 
-    ov = render.Overlay(caption=caption)
-    return render.frames(tree, walk.q, width, height, overlay=ov, view=render.WALK_VIEW, follow=True,
-                         desc="render walk")
+    return tree, walk.q, caption
+
+
+def scene_walk(width: int, height: int, n: int, fps: float) -> Images:
+    """The primate walking four steps heel to toe, from the side, the camera following.
+
+    The caption's lines are short: its band stays left of the figure, which the camera keeps in the middle.
+    """
+    tree, qs, caption = walk_motion(n, fps)
+    return render.frames(tree, qs, width, height, overlay=render.Overlay(caption=caption), view=render.WALK_VIEW,
+                         follow=True, desc="render walk")
 
 
 SCENES: dict[str, Callable[[int, int, int, float], Images]] = {
