@@ -45,6 +45,10 @@ from .errors import InputError
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
 SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
+# seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here, or waited
+# for: many small calls (a renderer's FK of each frame) would otherwise cost more than the compile
+BUDGET = 2.0
+_SPENT: dict[int, float] = {}
 _local = threading.local()
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -195,11 +199,6 @@ class _Compiler:
             states = {self.state.get((id(k), s), "unknown") for k, s in jobs}
         return next((s for s in ("failed", "unknown", "queued", "running") if s in states), "done")
 
-    def wait(self, jobs: list[tuple[Dispatcher, tuple]]) -> None:
-        """Wait until no child is compiling ``jobs`` any more."""
-        while self.status(jobs, submit=False) in ("queued", "running"):
-            time.sleep(0.05)
-
     def _advance(self) -> None:
         """Note what a finished child did, and start one for the queue if none runs."""
         if self.child is not None:
@@ -276,21 +275,19 @@ def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool) -> bool:
     """Whether the caller should call ``jobs``' kernels compiled (True) or :func:`interpreted` (False).
 
     Each job is a kernel and the numba types of its arguments. True when all are in memory or on
-    disk (loaded so), or else once they are compiled: here, as numba would, when the call is not
-    ``small`` or the mode is ``wait`` (by the child, when one is compiling them already). False
-    when a child is compiling them (started if need be) for a small call in ``background`` mode.
+    disk (loaded so), or else once they are compiled here, as numba would, when the call is not
+    ``small`` or the mode is ``wait`` (not waited for from a child: its queue may hold minutes of
+    other kernels first). False when a child is compiling them (started if need be) for a small
+    call in ``background`` mode.
     """
     if mode() == "interpret":
         return False
-    if mode() == "background":
-        if not all(_load(k, s) for k, s in jobs):
-            state = _COMPILER.status(jobs, submit=small)
-            if state in ("queued", "running"):
-                if small:
-                    return False
-                _COMPILER.wait(jobs)
-        if all(_load(k, s) for k, s in jobs):
-            return True
+    if all(_load(k, s) for k, s in jobs):
+        return True
+    if small and mode() == "background" and _COMPILER.status(jobs) in ("queued", "running", "done"):
+        if not all(_load(k, s) for k, s in jobs):  # done: loaded now, unless the child could not write the cache
+            return False
+        return True
     for kernel, sig in jobs:
         kernel.compile(sig)
     return True
@@ -301,9 +298,18 @@ class Kernel(CPUDispatcher):
 
     def _compile_for_args(self, *args: Any, **kws: Any) -> Any:
         if getattr(_local, "depth", 0) and not kws:
-            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], all(_small(a) for a in args)):
-                return lambda *a: interpreted_call(self, *a)
+            small = _SPENT.get(id(self), 0.0) < BUDGET and all(_small(a) for a in args)
+            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], small):
+                return lambda *a: self._interpreted(*a)
         return super()._compile_for_args(*args, **kws)  # type: ignore[misc]  # numba's, not in its stubs
+
+    def _interpreted(self, *args: Any) -> Any:
+        """:func:`interpreted_call`, its seconds counted against :data:`BUDGET`."""
+        start = time.perf_counter()
+        try:
+            return interpreted_call(self, *args)
+        finally:
+            _SPENT[id(self)] = _SPENT.get(id(self), 0.0) + time.perf_counter() - start
 
 
 def _main() -> None:
