@@ -58,9 +58,6 @@ DLS, PINV, TRANSPOSE, LM = 0, 1, 2, 3
 CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS, TIMEOUT, CONSTRAINT = 0, 1, 2, 3, 4, 5
 STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits", "timeout", "constraint")
 HARD_TOL = 1e-6  # a hard constraint holds when every row s >= -HARD_TOL (in its kind's units: m or rad)
-# the violation the loop tolerates when it compares configurations: any more counts against one. With HARD_TOL
-# there, a run pulled toward a target beyond a wall settled up to HARD_TOL (1e-6 m) past it
-HARD_EXACT = 1e-9
 BINDING = 1e-5  # a hard row with s below this at the answer binds it (names it in Result.binding)
 HARD_DAMPING2 = 1e-12  # λ² of the active hard rows' level: solved (almost) exactly, whatever the method
 

@@ -25,7 +25,7 @@ from mjkin.ik.kernel import (
     CONVERGED,
     DLS,
     HARD_DAMPING2,
-    HARD_EXACT,
+    HARD_TOL,
     LIMITS,
     LM,
     MAX_ITERATIONS,
@@ -172,7 +172,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                   or _max_abs(dq) < 1e-15)
         if any_hard:  # feasibility first: less violation wins, a new violation loses
             violt = _violation(gt, hard_row)
-            pt, pc = max(violt - HARD_EXACT, 0.0), max(viol - HARD_EXACT, 0.0)
+            pt, pc = max(violt - HARD_TOL, 0.0), max(viol - HARD_TOL, 0.0)
             if accept and not fresh and pt > pc and not corrected:
                 # a good step bent off a curved constraint: pull the trial's violated rows back to zero
                 # from where it landed (a second-order correction), and judge that instead
@@ -193,7 +193,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             merit = _merit(cost)
             if any_hard:
                 viol = violt
-                infeasible = max(viol - HARD_EXACT, 0.0)
+                infeasible = max(viol - HARD_TOL, 0.0)
                 s_h[:] = g[:h]
                 J_h[:] = J[:h]
             if not fresh:
