@@ -71,18 +71,35 @@ def test_clearance_toggle_keeps_the_arm_off_the_ball_the_plain_solve_goes_throug
     np.testing.assert_allclose(line, [report["closest"]["a"], report["closest"]["b"]])
 
 
-def test_balance_needs_feet_and_the_support_is_the_feet_hull():
+def test_balance_needs_feet_and_the_support_is_the_soles_hull():
     with pytest.raises(InputError, match="feet"):
         core.with_constraints(tree_of("arm7"), core.initial_state(tree_of("arm7")), balance=True)
     tree = tree_of("primate")
     assert core.support_frames(tree) == ["left_foot", "right_foot"]
     q = core.initial_state(tree).q
     s = core.support(tree, q)
-    feet = np.array([tree.pose(q, f)[:3, 3] for f in ("left_foot", "right_foot")])
-    assert {tuple(np.round(p[:2], 9)) for p in s.polygon} == {tuple(np.round(p[:2], 9)) for p in feet}
-    assert not s.inside  # two points: no area to stand inside
+    d = mujoco.MjData(tree.model)
+    d.qpos[:] = q
+    mujoco.mj_kinematics(tree.model, d)
+    feet = (tree.model.geom("left_foot").id, tree.model.geom("right_foot").id)
+    soles = [d.geom_xpos[g] + d.geom_xmat[g].reshape(3, 3) @ (tree.model.geom_size[g] * [x, y, -1])
+             for g in feet for x in (-1, 1) for y in (-1, 1)]
+    outer = {tuple(np.round(p[:2], 9)) for p in soles if abs(p[1]) > 0.1}  # the inner edges' corners lie inside
+    assert {tuple(np.round(p[:2], 9)) for p in s.polygon} == outer
+    assert s.inside
     np.testing.assert_allclose(s.com[:2], tree.com(q)[:2], atol=1e-12)
-    assert s.com[2] == pytest.approx(feet[:, 2].min())
+    assert s.com[2] == pytest.approx(min(p[2] for p in soles))
+
+
+def test_balance_toggle_holds_at_the_home_pose_and_after_a_reach():
+    tree = tree_of("primate")
+    state = core.with_constraints(tree, core.initial_state(tree), balance=True)
+    home = core.solve_state(tree, state)
+    assert home.success and home.status == "converged"
+    np.testing.assert_allclose(home.q, state.q, atol=1e-9)  # the home pose already balances: nothing moves
+    view = core.View.of(mujoco.MjvCamera(), tree.model, 64, 48)
+    reach = core.apply(tree, view, home, core.Place("left_hand", (0.3, 0.45, 1.1)))
+    assert reach.success and core.support(tree, reach.q).inside
 
 
 @settings(deadline=None, max_examples=50)

@@ -7,6 +7,7 @@ are two goals, returned as a list (``mjkin.solve`` takes nested lists).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
@@ -17,6 +18,7 @@ from numpy.typing import ArrayLike
 from ..errors import GoalError
 from ..jit import njit, njit_ir_inline
 from ..kinematics.com import com_kernel
+from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE
 from ..kinematics.jacobian import jacobian_kernel
 from .base import METRES, Array, Goal, Units, array
 from .compiled import owned
@@ -28,6 +30,9 @@ if TYPE_CHECKING:
 
 Support = Sequence[str | tuple[str, ArrayLike]]
 INERT = 1.0  # m: the value of a spare balance row (with a zero gradient)
+SAME = 1e-3  # m: support points this close in the floor plane at the rest pose count once (the lowest kept)
+CORNERS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))  # (8, 3): a unit box's corner signs
+EXTREMES = np.vstack([np.eye(3), -np.eye(3)])  # (6, 3): along each axis, both ways
 
 
 @dataclass(frozen=True)
@@ -52,13 +57,17 @@ class Balance(Goal):
     """The centre of mass's projection along gravity inside the support polygon, shrunk by ``margin`` (m); hard.
 
     ``support``: frames (site or body names, a site first) or ``(frame, offset)`` for a point
-    fixed in a frame, at least two. The polygon is the convex hull of their origins projected
-    on the plane orthogonal to ``tree.model.opt.gravity`` (``-z`` when gravity is zero), taken
-    at the current configuration (the support frames move too). One row per hull edge,
-    ``s = `` the CoM's signed distance inside that edge ``- margin``; when the points lie on a
-    line (two points) the hull is a segment: four rows, two sides (``±`` distance from its
-    line ``- margin``, so only ``margin <= 0`` can hold) and two ends. ``max(len(support), 4)``
-    rows; spare rows read ``INERT`` with a zero gradient.
+    fixed in a frame, at least two entries. A name stands for the sole of its body (see
+    :func:`sole`): the points of the body's geoms that bound their footprint, or the frame's
+    origin when the body has no geoms; an ``(frame, offset)`` is that one point. Points that
+    fall within :data:`SAME` of a lower one along gravity at the rest pose (``qpos0``) count
+    once (a level box's top corners over its bottom ones). The polygon is the convex hull of
+    the points projected on the plane orthogonal to ``tree.model.opt.gravity`` (``-z`` when
+    gravity is zero), taken at the current configuration (the support moves too). One row per
+    hull edge, ``s = `` the CoM's signed distance inside that edge ``- margin``; when the
+    points lie on a line the hull is a segment: four rows, two sides (``±`` distance from its
+    line ``- margin``) and two ends, so two points with ``margin > 0`` are refused.
+    ``max(points, 4)`` rows; spare rows read ``INERT`` with a zero gradient.
     """
 
     support: Support = ()
@@ -74,18 +83,18 @@ class Balance(Goal):
             raise GoalError(f"CenterOfMass margin must be a finite number of metres, got {self.margin!r}")
         self.frames()
 
-    def frames(self) -> list[tuple[str, tuple[float, ...]]]:
-        """The support as ``(frame, offset)`` pairs.
+    def frames(self) -> list[tuple[str, tuple[float, ...] | None]]:
+        """The support as ``(frame, offset)`` pairs, ``offset`` None for a name (its body's sole).
 
         Raises:
             GoalError: fewer than two, or an entry that is not a name or ``(name, (x, y, z))``.
         """
         if isinstance(self.support, str) or not isinstance(self.support, Sequence) or len(self.support) < 2:
             raise GoalError(f"CenterOfMass support must be a list of at least 2 frame names, got {self.support!r}")
-        out: list[tuple[str, tuple[float, ...]]] = []
+        out: list[tuple[str, tuple[float, ...] | None]] = []
         for s in self.support:
             if isinstance(s, str):
-                out.append((s, (0.0, 0.0, 0.0)))
+                out.append((s, None))
             elif isinstance(s, tuple) and len(s) == 2 and isinstance(s[0], str):
                 out.append((s[0], tuple(float(x) for x in array(s[1], (3,), f"CenterOfMass offset of {s[0]}"))))
             else:
@@ -97,30 +106,94 @@ class Balance(Goal):
 
     def nrows(self, tree: Tree) -> int:
         """One row per support point, at least four (a segment's two sides and two ends)."""
-        return max(len(self.support), 4)
+        return max(len(self.support_points(tree)), 4)
 
     def support_points(self, tree: Tree) -> Array:
-        """``(S, 4)``: each support point's body and its position in that body.
+        """``(S, 4)``: each support point's body and its position in that body (m).
 
         Raises:
             UnknownNameError: a frame the model does not have.
+            GoalError: ``margin > 0`` over fewer than three points (a segment holds nothing inside).
         """
-        out = np.empty((len(self.support), 4))
-        for k, (name, offset) in enumerate(self.frames()):
+        out = []
+        for name, offset in self.frames():
             body, T = tree.frame_body(name)
-            out[k, 0] = body
-            out[k, 1:] = T[:3, 3] + T[:3, :3] @ np.asarray(offset)
-        return out
+            local = sole(tree, body) if offset is None else np.zeros((0, 3))
+            if not len(local):  # one point: the offset, or the frame's origin when its body has no geoms
+                local = (T[:3, 3] + T[:3, :3] @ np.asarray(offset or (0.0, 0.0, 0.0)))[None]
+            out.append(np.column_stack([np.full(len(local), body), local]))
+        points = distinct(tree, np.concatenate(out))
+        if len(points) < 3 and self.margin > 0:
+            raise GoalError(f"CenterOfMass support {list(self.support)!r} has {len(points)} distinct points, no "
+                            f"area to be {self.margin} m inside; give frames whose bodies have geoms, corners, or "
+                            "margin <= 0")
+        return points
+
+    def points(self, tree: Tree, q: ArrayLike) -> Array:
+        """World positions ``(S, 3)`` of the support points at ``q (nq,)``."""
+        return world(self.support_points(tree), tree.fk(q))
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:
         """``[margin, e1 (3), e2 (3)]``: the margin and a basis of the plane orthogonal to gravity."""
-        grav = np.asarray(tree.model.opt.gravity, dtype=np.float64)
-        up = -grav / np.linalg.norm(grav) if np.linalg.norm(grav) > 0 else np.array([0.0, 0.0, 1.0])
-        e1 = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
-        e1 /= np.linalg.norm(e1)
         data[:, 0] = float(self.margin)
-        data[:, 1:4] = e1
-        data[:, 4:7] = np.cross(up, e1)
+        data[:, 1:7] = floor_basis(tree)[1:].reshape(-1)
+
+
+def floor_basis(tree: Tree) -> Array:
+    """``[up, e1, e2] (3, 3)``: up (against gravity; ``z`` when there is none) and a basis of the floor plane."""
+    grav = np.asarray(tree.model.opt.gravity, dtype=np.float64)
+    up = -grav / np.linalg.norm(grav) if np.linalg.norm(grav) > 0 else np.array([0.0, 0.0, 1.0])
+    e1 = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    e1 /= np.linalg.norm(e1)
+    return np.array([up, e1, np.cross(up, e1)])
+
+
+def sole(tree: Tree, body: int) -> Array:
+    """The points ``(K, 3)`` (body frame, m) bounding the footprint of ``body``'s geoms (none: ``(0, 3)``).
+
+    The geoms that collide (``contype`` or ``conaffinity`` set), or all when none do;
+    planes are ground, left out. Per geom, in its frame: a sphere its centre (it touches at
+    one point); a box its eight corners; a capsule or cylinder its two end centres offset
+    by the radius along its ``x`` and ``y`` axes; an ellipsoid its six extremes; a mesh,
+    height field or SDF the corners of its bounding box (MuJoCo's ``geom_aabb``).
+    """
+    m, geoms = tree.model, tree.geoms
+    own = np.flatnonzero((geoms.body == body) & (geoms.type != PLANE))
+    touching = own[(m.geom_contype[own] != 0) | (m.geom_conaffinity[own] != 0)]
+    out = [geoms.pos[g] + _local(int(geoms.type[g]), geoms.size[g], m.geom_aabb[g]) @ geoms.rot[g].T
+           for g in (touching if len(touching) else own)]
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _local(kind: int, size: Array, aabb: Array) -> Array:
+    """The points ``(K, 3)`` bounding the footprint of a geom of type ``kind`` in its own frame (see :func:`sole`)."""
+    if kind == SPHERE:
+        return np.zeros((1, 3))
+    if kind == BOX:
+        return CORNERS * size
+    if kind in (CAPSULE, CYLINDER):
+        ring = EXTREMES[[0, 1, 3, 4]] * size[0]
+        return np.vstack([ring - [0.0, 0.0, size[1]], ring + [0.0, 0.0, size[1]]])
+    if kind == ELLIPSOID:
+        return EXTREMES * size
+    return aabb[:3] + CORNERS * aabb[3:]
+
+
+def world(points: Array, T: Array) -> Array:
+    """World positions ``(S, 3)`` of ``points (S, 4)`` (``[body, x, y, z]``); ``T (nbody, 4, 4)`` the body poses."""
+    Tb = T[points[:, 0].astype(np.int64)]
+    return np.einsum("sij,sj->si", Tb[:, :3, :3], points[:, 1:]) + Tb[:, :3, 3]
+
+
+def distinct(tree: Tree, points: Array) -> Array:
+    """``points (S, 4)`` without those within :data:`SAME` in the plane of a lower one at ``qpos0``, in order."""
+    basis = floor_basis(tree)
+    w = world(points, tree.fk(tree.qpos0)) @ basis.T  # [height, x, y]
+    kept: list[int] = []
+    for k in np.argsort(w[:, 0], kind="stable"):
+        if all(np.hypot(*(w[k, 1:] - w[j, 1:])) > SAME for j in kept):
+            kept.append(int(k))
+    return points[sorted(kept)]
 
 
 def CenterOfMass(xyz: ArrayLike | None = None, support: Support | None = None, margin: float = 0.0, *,  # noqa: N802

@@ -11,6 +11,11 @@ Run after a failed solve only. Two cheap certificates:
   would meet the first position target is computed, the goals are checked there by
   FK with the limits ignored, and the target counts as blocked when every value
   inside the limits is farther from it than the tolerance allows.
+* **balance** — a hard :class:`~mjkin.goals.Balance` keeps the centre of mass over its
+  support, and every support point stays within its reach bound of an anchor, so the
+  support lies inside the shadows of those balls on the floor (:func:`_balance`). A
+  counted :class:`~mjkin.goals.ComTarget` whose shadow is farther outside them than
+  ``tol`` can never be met.
 
 Everything else is ``"not_found"``: the solver's starts ran out, nothing is proven.
 """
@@ -22,17 +27,20 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from ..goals import Pose, Position, Program
+from ..goals import Balance, ComTarget, Pose, Position, Program
+from ..goals.com import floor_basis
 from ..kinematics.qspace import BALL, FREE, HINGE, SLIDE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
+from .kernel import HARD_TOL
 
 if TYPE_CHECKING:
     from .method import Problem
 
 Array = NDArray[np.float64]
-OUT_OF_REACH, LIMITS, NOT_FOUND = "out_of_reach", "limits", "not_found"
-PROVEN = (OUT_OF_REACH, LIMITS)
+OUT_OF_REACH, LIMITS, BALANCE, NOT_FOUND = "out_of_reach", "limits", "balance", "not_found"
+PROVEN = (OUT_OF_REACH, LIMITS, BALANCE)
+DIRECTIONS = 64  # floor directions the balance certificate tries
 
 
 def _anchor(tree: Tree, body_pose: Array, joint: int) -> Array:
@@ -127,7 +135,39 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     if goals and not carried:
         blocked = _limits(problem, prog, q0, goals[0])
         reason[failed & (reason == NOT_FOUND) & blocked] = LIMITS
+    reason[failed & (reason == NOT_FOUND) & _balance(problem, prog, q0)] = BALANCE
     return reason
+
+
+def _balance(problem: Problem, prog: Program, q0: Array) -> NDArray[np.bool_]:
+    """Targets ``(B,)`` whose centre-of-mass target lies outside every support a hard Balance can reach.
+
+    Each support point stays within its :func:`reach_bound` of an anchor (``q0 (B, nq)``
+    holds the joints that do not move), so on every floor direction ``u`` the support
+    keeps ``u·x <= max_k (u·a_k + r_k)``. A counted ComTarget beyond that on one of
+    :data:`DIRECTIONS` directions by more than ``tol`` (plus what a ``margin < 0`` allows
+    outside) is proven out of balance.
+    """
+    tree, st, B = problem.tree, prog.structure, prog.B
+    proven = np.zeros(B, dtype=bool)
+    targets = [np.broadcast_to(g.targets()[0], (B, 3)) for i, g in enumerate(prog.goals)
+               if st.counted[i] and isinstance(g, ComTarget)]
+    if not targets:
+        return proven
+    angle = np.linspace(0.0, 2 * np.pi, DIRECTIONS, endpoint=False)
+    along = np.column_stack([np.cos(angle), np.sin(angle)]) @ floor_basis(tree)[1:]  # (D, 3) floor directions
+    for i, g in enumerate(prog.goals):
+        if not (st.hard[i] and isinstance(g, Balance)):
+            continue
+        reach = np.full((B, DIRECTIONS), -np.inf)
+        own = st.support[:, 0] == i
+        for body, point in zip(st.support[own, 1], st.support_pos[own], strict=True):
+            anchor, bound = reach_bound(tree, int(body), point, problem.active, q0)
+            reach = np.maximum(reach, anchor @ along.T + bound[:, None])
+        allowed = problem.tol + max(0.0, -float(g.margin)) + HARD_TOL
+        for xyz in targets:
+            proven |= np.max(xyz @ along.T - reach, axis=1) > allowed
+    return proven
 
 
 def _limits(problem: Problem, prog: Program, q0: Array, goal: tuple[int, int, Array, Array]) -> NDArray[np.bool_]:

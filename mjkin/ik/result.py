@@ -58,7 +58,8 @@ class Result:
         reason: ``(...)`` why a target failed, beside ``status``: ``"out_of_reach"`` (proven: the
             target lies beyond the chain's reach bound, :func:`mjkin.ik.reasons.reach_bound`),
             ``"limits"`` (proven: reachable only outside the joint limits; checked where it is cheap,
-            a single moving joint), ``"not_found"`` (no proof either way); ``""`` for a success.
+            a single moving joint), ``"balance"`` (proven: a centre-of-mass target outside every support a
+            hard balance can reach), ``"not_found"`` (no proof either way); ``""`` for a success.
         binding: ``(...)`` index in :attr:`goals` of the hard constraint at (or below) its bound at
             :attr:`q` when the solve did not converge, else -1.
         tree: the tree solved on; not pickled (a result sent to another process travels

@@ -480,11 +480,12 @@ class Support:
 
 
 def support(tree: Tree, q: Array, frames: Sequence[str] | None = None) -> Support:
-    """The convex hull of the feet frames' points and the CoM, both dropped to the lowest foot's height (z up)."""
-    feet = support_frames(tree) if frames is None else list(frames)
-    pts = np.array([tree.pose(q, f)[:3, 3] for f in feet]).reshape(-1, 3)
+    """The convex hull of the feet's support points (their soles, as balance takes them) and the CoM, both dropped
+    to the lowest point's height (z up).
+    """  # noqa: D205
+    pts = G.Balance(support_frames(tree) if frames is None else list(frames)).points(tree, q)
     com = np.asarray(tree.com(q), float).reshape(3)
-    ground = float(pts[:, 2].min()) if len(pts) else 0.0
+    ground = float(pts[:, 2].min())
     hull = convex_hull(pts[:, :2])
     polygon = np.column_stack([hull, np.full(len(hull), ground)])
     inside = len(hull) >= 3 and bool(np.all(cross2(np.roll(hull, -1, 0) - hull, com[:2] - hull) >= -1e-9))
