@@ -1,4 +1,5 @@
-"""The README's two commands are what CI and users run: keep them in step with .ci/run."""
+"""The README's two commands are what CI and users run: keep them in step with .ci/run (and the CLI reference's
+defaults with the parser)."""
 
 from __future__ import annotations
 
@@ -14,15 +15,15 @@ def test_ci_runs_the_readme_test_command():
     assert command in head and ".venv/bin/mjkin demo" in head
 
 
-def test_defaults_shown_in_the_command_line_section_are_the_real_ones():
-    """A number shown as ``[--opt N]`` in the README's command list is the default the parser really has."""
+def test_defaults_shown_in_the_command_line_reference_are_the_real_ones():
+    """A number shown as ``[--opt N]`` in the command list of docs/cli.md is the default the parser really has."""
     import argparse
     import re
 
     from mjkin.apps.cli import build_parser
 
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("## Command line", 1)[1].split("```sh", 1)[1].split("```", 1)[0]
+    reference = (ROOT / "docs" / "cli.md").read_text()
+    block = reference.split("```sh", 1)[1].split("```", 1)[0]
     parser = build_parser()
     subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
     checked = 0
@@ -34,8 +35,8 @@ def test_defaults_shown_in_the_command_line_section_are_the_real_ones():
         for bracket in re.findall(r"\[([^\]]*)\]", line.split("#", 1)[0]):
             for flag, shown in re.findall(r"(--?[a-z][a-z-]*) ([0-9][0-9.]*)(?=[\s\]]|$)", bracket):
                 action = next((a for a in options.values() if flag in a.option_strings), None)
-                assert action is not None, f"README shows {flag} for mjkin {words[1]}, which has no such option"
+                assert action is not None, f"docs/cli.md shows {flag} for mjkin {words[1]}, which has no such option"
                 assert isinstance(action.default, (int, float)) and float(shown) == float(action.default), \
-                    f"README: mjkin {words[1]} [{flag} {shown}], but the default is {action.default!r}"
+                    f"docs/cli.md: mjkin {words[1]} [{flag} {shown}], but the default is {action.default!r}"
                 checked += 1
     assert checked >= 5  # the section really lists defaults (demo, walk)
