@@ -8,6 +8,7 @@ import logging
 import math
 import os
 import re
+import select
 import signal
 import socket
 import subprocess
@@ -727,6 +728,18 @@ def test_one_client_controls_others_watch(served):
     assert b.post("/target", {"frame": "ee", "pos": [0.4, -0.1, 0.5]})[0] == 200
 
 
+def finished(client: Client, timeout: float = 300.0) -> tuple[dict, list[float]]:
+    """The last take's save as ``/state`` reports it once finished (written or failed); the progress seen before."""
+    seen, deadline = [], time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        save = client.get("/state")[1]["save"]
+        if save["done"] or save["error"]:
+            return save, seen
+        seen.append(save["progress"])
+        time.sleep(0.02)
+    pytest.fail(f"the save did not finish within {timeout} s: {save}")
+
+
 def test_record_and_stop_write_a_script_and_a_video(api, served):
     _, out = served
     assert api.post("/stop")[0] == 400  # not recording
@@ -735,8 +748,10 @@ def test_record_and_stop_write_a_script_and_a_video(api, served):
     for k in range(6):
         api.post("/target", {"frame": "ee", "pos": [0.4, 0.2 - 0.05 * k, 0.5]})
         time.sleep(0.05)
-    status, saved = api.post("/stop")
-    assert status == 200 and saved["frames"] >= 2
+    status, started = api.post("/stop")
+    assert status == 200 and started["frames"] >= 2 and not started["done"]  # the reply does not wait for the save
+    saved, _ = finished(api)
+    assert saved == {**started, "progress": 1.0, "done": True}, saved
     traj = motion.Trajectory.load(saved["path"], arm())  # the existing format, on this model
     np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, -0.05, 0.5], atol=IK_TOL)
     assert traj.targets is not None and traj.targets.shape == (len(traj.q), 1, 3)
@@ -788,10 +803,11 @@ def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, s
     away = out.with_name(out.name + "-away")
     out.rename(away)
     try:
-        status, doc = api.post("/stop")
+        assert api.post("/stop")[0] == 200  # the save starts, and fails in the background
+        doc, _ = finished(api)
     finally:
         away.rename(out)
-    assert status == 500 and "does not exist" in doc["error"] and "\n" not in doc["error"]
+    assert not doc["done"] and "does not exist" in doc["error"] and "\n" not in doc["error"]
     assert "the recording is kept" in doc["error"] and "POST /stop" in doc["error"]
     _, state = api.get("/state")
     assert state["unsaved"] and not state["recording"]
@@ -804,12 +820,14 @@ def test_a_recording_that_cannot_be_written_is_kept_and_a_retry_writes_it(api, s
         raise MjkinIOError(f"cannot write {str(path)!r}: [Errno 28] No space left on device")
 
     monkeypatch.setattr(motion.Trajectory, "save", fail_once)
-    status, doc = api.post("/stop")
-    assert status == 500 and "No space left" in doc["error"] and "the recording is kept" in doc["error"]
+    assert api.post("/stop")[0] == 200
+    doc, _ = finished(api)
+    assert "No space left" in doc["error"] and "the recording is kept" in doc["error"]
     kept = set(out.glob("*.journal.jsonl"))  # the take's journal stays until the take is written
     assert len(kept) == 1 and set(out.iterdir()) == before | kept  # no video without its script, no temporary file
-    status, saved = api.post("/stop")  # the retry
-    assert status == 200 and saved["frames"] >= 2
+    assert api.post("/stop")[0] == 200  # the retry
+    saved, _ = finished(api)
+    assert saved["done"] and saved["frames"] >= 2
     traj = motion.Trajectory.load(saved["path"], arm())
     np.testing.assert_allclose(arm().pose(traj.q[-1], "ee")[:3, 3], [0.4, 0.2, 0.5], atol=IK_TOL)
     assert imageio.imread(saved["video"], index=None).shape[1:] == (H, W, 3)
@@ -1062,22 +1080,93 @@ def test_300_simultaneous_connections_all_get_an_answer(api, served):
 
 
 def test_past_the_connection_cap_a_request_is_a_503(api, served):
+    """The cap counts connections that have shown the token; past it a request with the token is a one-line 503."""
     server, _ = served
     port = server.server_address[1]
-    idle = [socket.create_connection(("127.0.0.1", port), timeout=60) for _ in range(server_module.MAX_CONNECTIONS)]
+    request = f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX-Mjkin-Token: {server.token}\r\n\r\n".encode()
+    held = [socket.create_connection(("127.0.0.1", port), timeout=60) for _ in range(server_module.MAX_CONNECTIONS)]
     try:
-        deadline = time.monotonic() + 30
-        while len(server.server.server_state.connections) < len(idle) and time.monotonic() < deadline:
-            time.sleep(0.01)  # the server has accepted them all
-        answer = exchange(port, f"GET /info HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
-        assert answer.startswith(b"HTTP/1.1 503 "), answer
+        for sock in held:  # each shows the token once and stays open (keep-alive)
+            sock.sendall(request)
+            assert sock.recv(1 << 16).startswith(b"HTTP/1.1 200 ")
+        answer = exchange(port, request.replace(b"\r\n\r\n", b"\r\nConnection: close\r\n\r\n"))
+        assert answer.startswith(b"HTTP/1.1 503 ") and b"at most 64 connections" in answer, answer
+        assert api.get("/info", {"X-Mjkin-Token": "wrong"})[0] == 403  # refused by the door, not counted
     finally:
-        for sock in idle:
+        for sock in held:
             sock.close()
     deadline = time.monotonic() + 30
     while api.get("/info")[0] == 503 and time.monotonic() < deadline:
         time.sleep(0.05)  # the server hears of the closed sockets
     assert api.get("/info")[0] == 200
+
+
+def test_a_new_connection_must_complete_its_first_request_head_within_the_head_timeout(served):
+    """Before it shows the token a connection waits 1 s (HEAD_TIMEOUT) for its request head, not the idle 5 s."""
+    server, _ = served
+    port = server.server_address[1]
+    for sent in (b"", f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n".encode()):
+        with socket.create_connection(("127.0.0.1", port), timeout=server_module.IDLE_TIMEOUT - 1) as sock:
+            sock.sendall(sent)
+            assert sock.recv(1 << 16) == b"", sent  # the server closed it (a socket timeout here fails the test)
+
+
+class Siege:
+    """What anyone on the machine can do without the token: ``n`` raw sockets held open (half say nothing, half send
+    part of a request), each opened again as soon as the server closes it, or ``every`` seconds after it opened."""
+
+    def __init__(self, port: int, n: int = 70, every: float = 4.0) -> None:
+        self.port, self.n, self.every = port, n, every
+        self.opened = 0  # sockets opened so far
+        self.ending = threading.Event()
+        self.thread = threading.Thread(target=self.hold, name="siege")
+
+    def __enter__(self) -> Siege:
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while self.opened < self.n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)  # the server has accepted them
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.ending.set()
+        self.thread.join()
+
+    def open(self, k: int) -> tuple[socket.socket, float]:
+        sock = socket.create_connection(("127.0.0.1", self.port), timeout=60)
+        if k % 2:
+            sock.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n".encode())  # no token, no end
+        self.opened += 1
+        return sock, time.monotonic()
+
+    def hold(self) -> None:
+        held = [self.open(k) for k in range(self.n)]
+        try:
+            while not self.ending.is_set():
+                closed = select.select([sock for sock, _ in held], [], [], 0.05)[0]  # readable: the server closed it
+                now = time.monotonic()
+                for k, (sock, since) in enumerate(held):
+                    if sock in closed or now - since >= self.every:
+                        sock.close()
+                        held[k] = self.open(k)
+        finally:
+            for sock, _ in held:
+                sock.close()
+
+
+def test_idle_sockets_without_the_token_do_not_lock_out_the_page(api, served):
+    """70 idle sockets without the token, opened again every 4 s, filled the 64-connection cap: 40 of 40 page
+    requests were 503s. Only connections that have shown the token count against the cap now."""
+    server, _ = served
+    statuses = []
+    with Siege(server.server_address[1]) as siege:
+        for _ in range(40):
+            statuses.append(api.get("/")[0])
+            time.sleep(0.1)
+        opened = siege.opened
+    assert opened > siege.n  # the siege went on: the server closed sockets and they came back
+    assert statuses.count(200) >= 36, statuses  # >= 90 %
 
 
 def test_replies_do_not_wait_for_the_clients_acks(served):
@@ -1117,11 +1206,37 @@ def test_recording_journals_its_samples_and_a_normal_stop_removes_the_journal(ap
     api.post("/target", {"frame": "ee", "pos": [0.4, 0.2, 0.5]})
     path, lines = journal_lines(out, least_t=0.2)  # on disk while the take goes on
     assert journal.leftovers(out) == []  # held by this process: not a take cut short
-    status, saved = api.post("/stop")
-    assert status == 200 and not path.exists()
+    assert api.post("/stop")[0] == 200
+    saved, _ = finished(api)
+    assert saved["done"] and not path.exists()
     assert set(out.iterdir()) == before | {Path(saved["path"]), Path(saved["video"])}
     assert Path(saved["path"]).name == path.name.replace(".journal.jsonl", ".json")  # one name per take
     assert lines[0]["frames"] == ["ee"] and len(lines) >= 2
+
+
+def test_a_take_is_saved_in_the_background_its_progress_rises_to_1_and_the_page_goes_on(tmp_path):
+    """Stop & save took 3.5 s per second of take, the request waiting throughout; now it returns at once."""
+    pg = Playground(arm(), W, H, out_dir=tmp_path).start()
+    server, thread = start_server(pg)
+    try:
+        client = Client.of(server)
+        assert client.post("/record")[0] == 200
+        journal_lines(tmp_path, least_t=2.0)  # two seconds of samples: 61 frames to render
+        status, started = client.post("/stop")
+        assert status == 200 and not started["done"] and started["progress"] == 0.0
+        assert client.post("/record")[1]["error"].startswith("the last recording is being saved (")
+        assert client.post("/target", {"frame": "ee", "pos": [0.4, 0.1, 0.5]})[0] == 200  # the page goes on
+        saved, seen = finished(client)
+        written = sorted(tmp_path.iterdir())
+        assert client.post("/record")[0] == 200  # a new take may start as soon as the last one is written
+    finally:
+        stop_server(server, thread)
+    assert seen and seen == sorted(seen) and set(seen) - {0.0}, seen  # it rose while the client watched
+    assert saved["done"] and saved["progress"] == 1.0 and saved["error"] is None
+    assert written == sorted(Path(saved[k]) for k in ("path", "video"))  # no journal, no temporary file
+    video = imageio.imread(saved["video"], index=None)
+    traj = motion.Trajectory.load(saved["path"], arm())
+    assert video.shape == (int(traj.times[-1] * 30 + 1e-9) + 1, H, W, 3)  # one frame per 1/30 s of the take
 
 
 def test_a_take_stopped_before_its_first_sample_is_a_still_a_script_can_hold(tmp_path):
@@ -1251,6 +1366,21 @@ def test_sigterm_saves_the_take_prints_stopped_and_exits_0(tmp_path):
     assert list(tmp_path.iterdir()) == [script]  # saved now, not left to a later mjkin play to recover
     traj = motion.Trajectory.load(script, arm())
     assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
+
+
+def test_sigterm_while_a_take_is_saved_finishes_the_save(tmp_path):
+    proc, client = play_process(tmp_path)
+    try:
+        assert client.post("/record")[0] == 200
+        journal_lines(tmp_path, least_t=3.0)
+        status, started = client.post("/stop")
+        assert status == 200 and not started["done"]
+    finally:
+        err = stop_process(proc, signal.SIGTERM)
+    assert "mjkin play: finishing the recording being written...\n" in err and "journal" not in err, err
+    assert sorted(tmp_path.iterdir()) == sorted(Path(started[k]) for k in ("path", "video"))  # nothing else left
+    traj = motion.Trajectory.load(started["path"], arm())
+    assert len(imageio.imread(started["video"], index=None)) == int(traj.times[-1] * 30 + 1e-9) + 1  # complete
 
 
 def test_a_take_survives_kill_9_the_next_start_recovers_it_and_replay_reads_its_journal(tmp_path):

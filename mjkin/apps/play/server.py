@@ -5,7 +5,8 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
 - ``GET /`` the page; ``GET /info`` methods, goal kinds, frames, joint sliders, image size.
 - ``GET /state`` → ``{"model", "q", "targets": {frame: [x, y, z, qw, qx, qy, qz]}, "error": [pos, rot],
   "iterations", "method", ...}`` (also ``goal``, ``status``, ``success``, ``singular_values``,
-  ``manipulability``, ``step``, ``recording``, ``unsaved`` (a stopped recording not yet written), ``screen``:
+  ``manipulability``, ``step``, ``recording``, ``unsaved`` (a stopped recording not yet written), ``save`` (the
+  last take's writing, see ``POST /stop``, or null), ``screen``:
   each target's image point ``[u, v]``, ``camera``: ``{"lookat", "distance", "azimuth", "elevation"}``).
 - ``POST /target`` ``{"frame", "pos": [x, y, z], "quat"?: [w, x, y, z]}`` → the solve runs, the new state.
 - ``POST /drag`` ``{"frame", "uv": [u, v]}`` (image fractions, top-left origin), ``{"frame", "depth": m}``
@@ -22,15 +23,18 @@ A Starlette app on uvicorn's h11 protocol. Routes (JSON in and out):
 - ``POST /solutions`` ``{}``: every IK solution of the one active frame's target (:func:`mjkin.solutions`, at most
   16), the first shown → ``{"count", "index", ...state}``; ``{"next": true}`` or ``{"index": i}`` shows another
   (cyclically); ``/state`` reports ``solutions``: ``{"count", "index"}`` until the target changes.
-- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` writes
-  the script and the mp4 → ``{"path", "video", "frames"}`` (into the folder checked writable at the start).
+- ``POST /record`` ``{}`` starts recording (journaled, see :mod:`mjkin.apps.play.journal`); ``POST /stop`` ``{}`` starts
+  writing the script and the mp4 (into the folder checked writable at the start) and returns at once →
+  ``{"path", "video", "frames", "progress": 0..1, "done", "error"}``, which ``/state`` reports as ``save``
+  until ``done`` (both files written) or ``error`` (one line).
 - ``GET /frame.jpg`` the current frame (waits until it shows the current state);
   ``GET /stream.mjpg`` every new frame (``multipart/x-mixed-replace``, parts split by :data:`PART`).
 
 A bad request is a 400 with ``{"error": "one line"}``; a change while another client
-holds control is a 409 (see :mod:`mjkin.apps.play.session`); a recording that cannot be written is a 500
-(it is kept: ``POST /stop`` again writes it). Every reply is strict JSON: a number that is not finite
-(an image point of a target level with the camera, say) is sent as ``null``.
+holds control is a 409 (see :mod:`mjkin.apps.play.session`); a recording whose journal cannot be made is a 500,
+one that cannot be written is kept (``save.error`` says why; ``POST /stop`` again writes it). Every reply is
+strict JSON: a number that is not finite (an image point of a target level with the camera, say) is sent as
+``null``.
 
 The door, as Jupyter's: every request, the page included, carries the token made at the
 start (:attr:`PlayServer.url` has it as ``?token=``; the API also takes it as the header
@@ -42,9 +46,12 @@ sends neither cross-origin without a preflight) and preflights (``OPTIONS``) are
 
 The connection rules are uvicorn's and h11's: strict HTTP/1.1 framing (a bad
 ``Content-Length`` is a 400; a chunked body is decoded; a POST with neither is a 411 here),
-a listen backlog of :data:`BACKLOG`, at most :data:`MAX_CONNECTIONS` connections (more get 503),
-idle connections closed after :data:`IDLE_TIMEOUT` seconds (also one that never completes a
-request), and the blocking work (solves, snapshots, frames) in anyio's bounded thread pool.
+a listen backlog of :data:`BACKLOG`, and the blocking work (solves, snapshots, frames) in anyio's
+bounded thread pool; and this module's (:class:`Gate`): at most :data:`MAX_CONNECTIONS` connections
+that have shown the token (a request with it on one more is a 503; connections without it do not
+count, so anyone on the machine holding sockets open cannot lock the page out), a new connection
+closed unless it completes its first request head within :data:`HEAD_TIMEOUT` seconds, and idle
+ones after :data:`IDLE_TIMEOUT` seconds.
 """
 
 from __future__ import annotations
@@ -65,7 +72,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib.resources import files
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, ClassVar
 from urllib.parse import parse_qs
 
 import uvicorn
@@ -88,8 +95,9 @@ MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"
 PART = f"\r\n--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n\r\n".encode()  # ends one image, starts the next
 BACKLOG = 1024  # connections the kernel queues before the server accepts them
-MAX_CONNECTIONS = 64  # open connections (a page keeps 2-3); a request on one more is a 503
-IDLE_TIMEOUT = 5  # seconds a connection may wait between requests, or for its first one to be complete
+MAX_CONNECTIONS = 64  # open connections that have shown the token (a page keeps 2-3); one more is a 503
+HEAD_TIMEOUT = 1.0  # seconds a new connection has to complete its first request head, else it is closed
+IDLE_TIMEOUT = 5  # seconds a connection may wait between requests, or for a later one to be complete
 BODY_TIMEOUT = 10.0  # seconds a request body may take to arrive
 SHUTDOWN_TIMEOUT = 5  # seconds the server waits for requests in progress when it stops
 NO_STORE = {"Cache-Control": "no-store"}
@@ -142,6 +150,12 @@ def tokens_given(headers: Headers, query: bytes) -> list[str]:
     return [t for t in given if t]
 
 
+def has_token(scope: Scope, token: str) -> bool:
+    """The request ``scope`` carries ``token`` (compared in constant time)."""
+    given = tokens_given(Headers(scope=scope), scope["query_string"])
+    return any(hmac.compare_digest(t.encode(), token.encode()) for t in given)
+
+
 def check_request(scope: Scope, token: str, hosts: frozenset[str]) -> None:
     """Turn away what the door does not let in (see the module docstring).
 
@@ -157,7 +171,7 @@ def check_request(scope: Scope, token: str, hosts: frozenset[str]) -> None:
     method = scope["method"]
     if method == "OPTIONS":
         raise Refused(403, "cross-origin requests are refused: the playground answers its own page only")
-    if not any(hmac.compare_digest(t.encode(), token.encode()) for t in tokens_given(headers, scope["query_string"])):
+    if not has_token(scope, token):
         raise Refused(403, PAGE_REFUSED if scope["path"] in ("/", "/index.html") else
                       "a missing or wrong token: send the one in the URL mjkin play printed, as ?token=..., "
                       "the header X-Mjkin-Token or Authorization: token ...")
@@ -468,20 +482,52 @@ class Routes:
 
 
 # ------------------------------------------------------------------ the server
-class IdleClosingH11(H11Protocol):
-    """uvicorn's h11 protocol, and a connection that never completes a request is closed when idle too.
+class Gate:
+    """The connection cap of one server: only connections that have shown the token count against it.
 
-    uvicorn times out a connection between requests only; one that connects and says
-    nothing (or sends half a request) would hold a connection slot for ever.
+    A connection that has not (it sent nothing yet, or a request without the token, which the
+    :class:`Door` refuses and closes) holds no place that a page needs: anyone on the machine can
+    open sockets, only the URL's holder can fill the cap.
     """
 
+    def __init__(self, token: str) -> None:
+        self.token = token
+        self.admitted: set[asyncio.Protocol] = set()  # connections that have shown the token, until they close
+
+    def admit(self, conn: asyncio.Protocol, scope: Scope) -> bool:
+        """Count ``conn`` once a request of it (``scope``) shows the token; False: the cap is full."""
+        if conn in self.admitted or not has_token(scope, self.token):
+            return True  # counted already, or the door refuses it
+        if len(self.admitted) >= MAX_CONNECTIONS:
+            return False
+        self.admitted.add(conn)
+        return True
+
+
+class GatedH11(H11Protocol):
+    """uvicorn's h11 protocol under the :class:`Gate` of its server (:func:`gated` makes the class for one).
+
+    A new connection must complete its first request head within :data:`HEAD_TIMEOUT` seconds
+    (bytes that do not complete one keep the clock running), later ones within the idle timeout:
+    uvicorn times out a connection between requests only, and one that connects and says nothing
+    (or half a request) would stay open for ever.
+    """
+
+    gate: ClassVar[Gate]
+
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
-        """Start the idle clock at once."""
+        """Pass every request through the gate; start the head clock at once."""
         super().connection_made(transport)
-        self.timeout_keep_alive_task = self.loop.call_later(self.timeout_keep_alive, self.timeout_keep_alive_handler)
+        self.app = self.through_gate
+        self.timeout_keep_alive_task = self.loop.call_later(HEAD_TIMEOUT, self.timeout_keep_alive_handler)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """Free the connection's place under the cap."""
+        self.gate.admitted.discard(self)
+        super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """Bytes that do not complete a request keep the idle clock running."""
+        """Bytes that do not complete a request keep the clock running."""
         idle, self.timeout_keep_alive_task = self.timeout_keep_alive_task, None
         super().data_received(data)
         if idle is None:
@@ -490,6 +536,19 @@ class IdleClosingH11(H11Protocol):
             self.timeout_keep_alive_task = idle
         else:
             idle.cancel()
+
+    async def through_gate(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """The app, once the gate lets this connection in; a 503 (and the connection closed) when the cap is full."""
+        if self.gate.admit(self, scope):
+            await self.config.loaded_app(scope, receive, send)
+        else:
+            await error(503, f"the playground serves at most {MAX_CONNECTIONS} connections at once (a page keeps "
+                             "2-3); close other pages or clients, then try again", CLOSE)(scope, receive, send)
+
+
+def gated(gate: Gate) -> type[GatedH11]:
+    """The protocol class of one server: :class:`GatedH11` under ``gate``."""
+    return type("GatedH11", (GatedH11,), {"gate": gate})
 
 
 class _Uvicorn(uvicorn.Server):
@@ -525,9 +584,9 @@ class PlayServer:
         self.routes = Routes(playground)
         bound, port = self.server_address
         app = self.routes.app(self.token, host_names(host, port, bound))
-        config = uvicorn.Config(app, http=IdleClosingH11, ws="none", lifespan="off", log_config=None,
+        config = uvicorn.Config(app, http=gated(Gate(self.token)), ws="none", lifespan="off", log_config=None,
                                 log_level="error", access_log=False, proxy_headers=False, server_header=False,
-                                backlog=BACKLOG, limit_concurrency=MAX_CONNECTIONS, timeout_keep_alive=idle_timeout,
+                                backlog=BACKLOG, timeout_keep_alive=idle_timeout,
                                 timeout_graceful_shutdown=SHUTDOWN_TIMEOUT)
         self.server = _Uvicorn(config, self.routes)
 

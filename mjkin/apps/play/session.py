@@ -5,9 +5,10 @@ Control: the first client that changes something holds control for
 other clients are refused (:class:`Busy`, HTTP 409) and they watch. A client is
 named by the page (a random id it sends with every request), else by its address.
 
-Threads: every GL call happens in the render thread (an EGL context belongs to the
+Threads: every GL call of the live view happens in the render thread (an EGL context belongs to the
 thread that made it current). It renders when the state or the camera changes, and at the frame
-rate while step mode runs or a recording is on; it sleeps otherwise.
+rate while step mode runs or a recording is on; it sleeps otherwise. A stopped take is written by a
+save thread of its own (its own context), while the page goes on; :meth:`Playground.close` waits for it.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -35,6 +36,7 @@ TRAIL, TRAIL_STEP = 40, 0.005  # trail points kept, and the least effector move 
 # opaque, and a short trail: in software GL each transparent capsule costs about as much as a frame's worth of
 # pixels, 120 of them cost five frames (mjkin bench play)
 MARKERS = render.Overlay(point_size=0.03, point_rgba=(0.95, 0.2, 0.2, 1.0), trail_rgba=(0.1, 0.5, 0.95, 1.0))
+VIDEO_FPS = 30.0  # frames per second of a take's video
 
 
 class Busy(MjkinError):
@@ -57,6 +59,31 @@ class Take:
     recording: Recording
     camera: core.Camera
     state: core.State
+
+
+@dataclass
+class Save:
+    """A stopped take written in the background: its script ``path`` and ``video``, ``frames`` samples.
+
+    ``progress`` (0..1) follows the video's frames; then ``done`` (both files written, the journal
+    removed) or ``error`` (one line; the take is kept, :meth:`Playground.stop` again writes it).
+    """
+
+    path: str
+    video: str
+    frames: int
+    progress: float = 0.0
+    done: bool = False
+    error: str | None = None
+
+    @property
+    def finished(self) -> bool:
+        """Written, or failed."""
+        return self.done or self.error is not None
+
+    def report(self) -> dict:
+        """As JSON: ``{"path", "video", "frames", "progress", "done", "error"}``."""
+        return asdict(self)
 
 
 def recordings_folder(folder: str | Path, model: str) -> Path:
@@ -137,9 +164,10 @@ class Playground:
         self._controller: str | None = None
         self._lease_until = 0.0
         self._recording: Recording | None = None
-        self._unsaved: Take | None = None  # stopped, not yet written (the folder failed): POST /stop retries
+        self._unsaved: Take | None = None  # stopped, not yet written (being written, or it failed: POST /stop retries)
+        self._save: Save | None = None  # the last take's writing: in progress, done or failed
+        self._saver: threading.Thread | None = None  # the thread writing it
         self._error: BaseException | None = None
-        self._export = threading.Lock()  # held while a recording is written; close() waits for it
         self._thread = threading.Thread(target=self._render_loop, name="mjkin-play-render")
         self._solutions: core.Solutions | None = None  # every IK solution of the target, while it stays the target
 
@@ -159,8 +187,10 @@ class Playground:
         self._notify()
         if self._thread.is_alive():
             self._thread.join()
-        with self._export:  # a video half-encoded when the process ends would leave its temporary file
-            pass
+        with self._lock:  # stop() starts a saver under the lock only while not closed
+            saver = self._saver
+        if saver is not None:  # a take being written is finished: its video, its script
+            saver.join()
         log = self._take_journal
         if log is not None:
             log.close()
@@ -191,7 +221,7 @@ class Playground:
     @property
     def exporting(self) -> bool:
         """A recording is being written."""
-        return self._export.locked()
+        return self._saver is not None and self._saver.is_alive()
 
     @property
     def closed(self) -> bool:
@@ -314,6 +344,7 @@ class Playground:
             self._claim(client)
             if self._recording is not None:
                 raise InputError("already recording; POST /stop first")
+            self._check_not_saving()
             if self._unsaved is not None:
                 raise InputError("the last recording is not written yet; Stop & save (POST /stop) writes it")
             s = self.state
@@ -325,56 +356,95 @@ class Playground:
         return self.snapshot()
 
     def stop(self, client: str) -> dict:
-        """Stop recording; write the trajectory script (JSON) and an mp4 beside it (the camera at the stop), atomically.
+        """Stop recording and start writing the take in a save thread; its :class:`Save` report at once.
 
-        Returns ``{"path": script, "video": mp4, "frames": n}``. When writing fails
-        (disk full, folder gone) the recording is kept and the error says so; calling
-        again writes it.
+        The thread writes an mp4 (the camera at the stop) and the trajectory script (JSON) beside
+        it, each atomically, then removes the journal; ``/state`` reports its ``save``. When writing
+        fails (disk full, folder gone) the take is kept and ``save.error`` says so; calling again writes it.
         """
-        with self._export:
-            with self._lock:
-                self._claim(client)
-                if self._recording is not None:
-                    self._unsaved = Take(self._recording, self.camera, self.state)
-                    self._recording = None
-                take = self._unsaved
+        with self._lock:
+            self._claim(client)
+            self._check_not_saving()
+            if self._recording is not None:
+                self._unsaved = Take(self._recording, self.camera, self.state)
+                self._recording = None
+            take = self._unsaved
             if take is None:
                 raise InputError("not recording; POST /record first")
             if self.closed:
                 raise InputError("the playground is shutting down; the recording is not written")
-            try:
-                saved = self._write(take)
-            except MjkinIOError as e:
-                raise MjkinIOError(f"{e}; the recording is kept: free space or fix the folder, then Stop & save "
-                                   "again (POST /stop)") from None
-            take.recording.journal.remove()
-            with self._lock:
-                self._unsaved = None
-            return saved
+            samples, base = self._samples(take), take.recording.journal.base
+            self._save = save = Save(str(base.with_name(f"{base.name}.json")), str(base.with_name(f"{base.name}.mp4")),
+                                     len(samples))
+            report = save.report()
+            self._saver = threading.Thread(target=self._write, args=(take, samples, save), name="mjkin-play-save")
+            self._saver.start()
+        return report
 
-    def _write(self, take: Take) -> dict:
-        samples, state = take.recording.samples, take.state
-        if len(samples) < 2:  # a still: the pose held for one frame (a script's times must increase)
-            first = samples[0] if samples else (0.0, state.q, self._points(state))
-            samples = [first, (first[0] + 1.0 / self.fps, *first[1:])]
-        times, qs, targets = columns(samples)
-        base = take.recording.journal.base
-        frames = list(state.targets)
-        traj = motion.Trajectory(times=times, q=qs, fingerprint=motion.fingerprint(self.tree),
-                                 model=self.tree.name, frame=frames[0], targets=targets, source=self.source,
-                                 meta={"play": {"frames": frames, "method": state.method, "goal": state.goal}})
-        video_fps = 30.0
-        pick = np.searchsorted(traj.times, np.arange(0.0, traj.times[-1] + 1e-9, 1.0 / video_fps), side="right") - 1
-        overlay = render.Overlay(points=np.zeros((0, 3)) if targets is None else targets[pick], trail=frames[0])
-        images = render.frames(self.tree, qs[pick], self.width, self.height,
-                               camera=take.camera.mjv(self.tree.model), overlay=overlay)
-        video = render.write_video(images, base.with_name(f"{base.name}.mp4"), video_fps)
+    def _check_not_saving(self) -> None:
+        save = self._save
+        if save is not None and not save.finished:
+            raise InputError(f"the last recording is being saved ({save.progress:.0%}); wait until /state's "
+                             "\"save\" is done")
+
+    def _samples(self, take: Take) -> list[Sample]:
+        """The take's samples; a still (fewer than two) is the pose held for one frame (a script's times increase)."""
+        samples = take.recording.samples
+        if len(samples) >= 2:
+            return samples
+        first = samples[0] if samples else (0.0, take.state.q, self._points(take.state))
+        return [first, (first[0] + 1.0 / self.fps, *first[1:])]
+
+    def _write(self, take: Take, samples: list[Sample], save: Save) -> None:
+        """The save thread: the video, then the script (no video without it), then the journal goes."""
         try:
-            script = traj.save(base.with_name(f"{base.name}.json"))
-        except BaseException:
-            video.unlink(missing_ok=True)  # no video without its script: the retry writes both
-            raise
-        return {"path": str(script), "video": str(video), "frames": len(samples)}
+            video = self._write_video(take, samples, save)
+            try:
+                self._script(take, samples).save(save.path)
+            except BaseException:
+                video.unlink(missing_ok=True)  # the retry writes both
+                raise
+        except Exception as e:  # any failure: the take is kept, the page says why
+            save.error = " ".join(f"{e}; the recording is kept: free space or fix the folder, then Stop & save "
+                                  "again (POST /stop)".split())
+            return
+        take.recording.journal.remove()
+        with self._lock:
+            self._unsaved = None
+            save.progress, save.done = 1.0, True
+
+    def _script(self, take: Take, samples: list[Sample]) -> motion.Trajectory:
+        times, qs, targets = columns(samples)
+        s, frames = take.state, list(take.state.targets)
+        return motion.Trajectory(times=times, q=qs, fingerprint=motion.fingerprint(self.tree), model=self.tree.name,
+                                 frame=frames[0], targets=targets, source=self.source,
+                                 meta={"play": {"frames": frames, "method": s.method, "goal": s.goal}})
+
+    def _write_video(self, take: Take, samples: list[Sample], save: Save) -> Path:
+        """The take's mp4 at :data:`VIDEO_FPS`: the pose of each frame's time, drawn as the live view draws.
+
+        No multisampling, shadows or reflections (:func:`live_painter`): in software GL a frame
+        costs a fifth of a full-quality one.
+        """
+        times, qs, targets = columns(samples)
+        pick = np.searchsorted(times, np.arange(0.0, times[-1] + 1e-9, 1.0 / VIDEO_FPS), side="right") - 1
+        points = np.zeros((len(qs), 0, 3)) if targets is None else targets
+        with live_painter(self.tree, self.width, self.height) as painter:
+            painter.fit(qs)
+            images = self._frames(painter, take, qs[pick], points[pick], save)
+            return render.write_video(images, save.video, VIDEO_FPS)
+
+    def _frames(self, painter: render.Painter, take: Take, qs: np.ndarray, points: np.ndarray,
+                save: Save) -> Iterator[np.ndarray]:
+        """Frames ``(H, W, 3)`` of poses ``qs (T, nq)``, target ``points (T, n, 3)``, the first effector's trail.
+
+        ``save.progress`` follows (its last share: the encoder finishing, the script).
+        """
+        trail = self.tree.pose(qs, next(iter(take.state.targets)))[:, :3, 3]
+        camera = take.camera.mjv(self.tree.model)
+        for t, q in enumerate(qs):
+            yield painter.draw(q, camera, points[t], trail[render.trail_indices(t, MARKERS.trail_points)], MARKERS)
+            save.progress = (t + 1) / (len(qs) + 1)
 
     @property
     def recording(self) -> bool:
@@ -395,6 +465,7 @@ class Playground:
         with self._lock:
             s, version, camera = self.state, self._version, self.camera
             recording, unsaved = self._recording is not None, self._unsaved is not None
+            save = None if self._save is None else self._save.report()
             controller = self._controller if time.monotonic() < self._lease_until else None
             held = self._held(s)
         view = core.View.of(camera, self.tree.model, self.width, self.height)
@@ -407,7 +478,8 @@ class Playground:
                 "error": list(s.error), "iterations": s.iterations, "method": s.method, "goal": s.goal,
                 "status": s.status, "success": s.success, "stepping": core.needs_step(s),
                 "singular_values": list(s.singular), "manipulability": s.manipulability, "step": s.step,
-                "recording": recording, "unsaved": unsaved, "controlled": controller is not None, "version": version,
+                "recording": recording, "unsaved": unsaved, "save": save, "controlled": controller is not None,
+                "version": version,
                 "screen": {f: uv.tolist() for f, uv in zip(s.targets, screen, strict=True)},
                 "screen_axes": {f: uv.tolist() for f, uv in zip(s.targets, tips, strict=True)},
                 "camera": {"lookat": list(camera.lookat), "distance": camera.distance, "azimuth": camera.azimuth,
