@@ -85,6 +85,17 @@ def test_half_space_holds_on_every_success_and_binds_the_rest(method):
             assert res.success
 
 
+def test_a_wall_is_exact_for_targets_beyond_it():
+    """Pulled toward targets past a wall, the default method stops on it: it ended up to HARD_TOL (9.97e-7 m) past."""
+    tree = tree_of("arm7")
+    wall = G.HalfSpace("ee", **WALL)
+    P = tree.pose(tree.random_q(np.random.default_rng(5), 400), "ee")[:, :3, 3]
+    P = P[P[:, 2] < WALL["point"][2]][:30]
+    res = mjkin.solve(tree, [G.Position("ee", P), wall])
+    depth = WALL["point"][2] - tree.pose(res.q, "ee")[:, 2, 3]
+    assert len(P) == 30 and depth.max() <= 1e-9
+
+
 def test_unreachable_with_a_wall_is_the_closest_pose_on_it():
     tree = tree_of("arm7")
     wall = G.HalfSpace("ee", **WALL)

@@ -36,7 +36,10 @@ def _goals(tree):
 def _same(ran, want):
     """The same outcome; the path may part in the last bits (numpy's sums and LAPACK, not LLVM's loops), which a
     run that stops unconverged (at max_iters, against a constraint) can carry to ~1e-6."""
-    assert np.array_equal(ran.status, want.status) and np.array_equal(ran.success, want.success)
+    assert np.array_equal(ran.success, want.success)
+    # an unmet run's status may turn on a row at a threshold (constraint or max_iterations), which rounding moves
+    met = np.atleast_1d(want.success)
+    assert np.array_equal(np.atleast_1d(ran.status)[met], np.atleast_1d(want.status)[met])
     assert np.all(np.abs(np.asarray(ran.iterations) - want.iterations) <= 2)
     np.testing.assert_allclose(ran.q, want.q, rtol=0, atol=1e-9 if np.all(want.success) else 1e-5)
 

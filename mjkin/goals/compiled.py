@@ -76,6 +76,9 @@ def goal_frame(kin: Kinematics, ga: GoalArrays, i: int, rot: Array, pos: Array, 
                     kin.dof_body, kin.dof_inner, kin.dof_axis, kin.dof_world, kin.dof_rot, kin.dof_anchor, pt, J6)
 
 
+HARD_TOL = 1e-6  # a hard constraint holds when every row s >= -HARD_TOL (in its kind's units: m or rad)
+
+
 @njit_inline
 def hard_error(ga: GoalArrays, i: int, g: Array, err: Array) -> None:
     """A hard goal's error: how far its lowest row ``s`` is below zero (0 when it holds), in its column."""

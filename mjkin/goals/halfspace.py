@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from ..jit import njit_ir_inline
 from .base import Array
+from .compiled import HARD_TOL
 from .plane import Plane, signed_distance
 
 if TYPE_CHECKING:
@@ -16,9 +17,11 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class HalfSpace(Plane):
-    """Keep the frame origin on the side of a wall that ``normal`` points to: ``s = n·(p - point) >= 0``.
+    """Keep the frame origin on the side of a wall that ``normal`` points to: ``d = n·(p - point) >= 0``.
 
-    Hard: a solve succeeds only with ``s >= -1e-6`` m; the weight only switches it on (> 0) or off.
+    Hard, and exact: the solver keeps a hard row ``s >= -HARD_TOL`` (1e-6 m), so the row is
+    ``s = d - HARD_TOL`` and an answer never ends past the wall (its reported error reads up to
+    ``HARD_TOL`` on the wall itself). The weight only switches it on (> 0) or off.
     """
 
     hard: ClassVar[bool] = True
@@ -28,8 +31,10 @@ class HalfSpace(Plane):
 @njit_ir_inline
 def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array, irot: Array, ipos: Array, i: int,
              b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
-    """One row: the signed distance ``s`` from the wall (unweighted) and the normal's part of the point Jacobian."""
+    """One row: the signed distance from the wall less ``HARD_TOL`` (unweighted), and the normal's part of the point
+    Jacobian.
+    """  # noqa: D205
     J6, d = ws[0], ga.data[b, i]
-    g[r0] = signed_distance(ga, ws, i, b)
+    g[r0] = signed_distance(ga, ws, i, b) - HARD_TOL
     for j in range(J.shape[1]):
         J[r0, j] = d[3] * J6[0, 0, j] + d[4] * J6[0, 1, j] + d[5] * J6[0, 2, j]

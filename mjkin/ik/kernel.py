@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import tier
+from ..goals.compiled import HARD_TOL
 from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics, fk_kernel_in
 
@@ -57,7 +58,6 @@ Index = NDArray[np.int64]
 DLS, PINV, TRANSPOSE, LM = 0, 1, 2, 3
 CONVERGED, UNREACHABLE, MAX_ITERATIONS, LIMITS, TIMEOUT, CONSTRAINT = 0, 1, 2, 3, 4, 5
 STATUS_NAMES = ("converged", "unreachable", "max_iterations", "limits", "timeout", "constraint")
-HARD_TOL = 1e-6  # a hard constraint holds when every row s >= -HARD_TOL (in its kind's units: m or rad)
 BINDING = 1e-5  # a hard row with s below this at the answer binds it (names it in Result.binding)
 HARD_DAMPING2 = 1e-12  # λ² of the active hard rows' level: solved (almost) exactly, whatever the method
 
