@@ -1481,6 +1481,24 @@ def test_browser_drags_the_target_and_the_figure_follows(served):
     assert shot_after != shot_before  # the page's own view changed
 
 
+def test_browser_panel_puts_each_constraint_control_on_a_line_of_its_own(served):
+    """The max joint speed field wrapped into the balance label: each label is one line, below the last."""
+    server, _, _ = browser_client(served)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        chromium = browser.launch(p)
+        try:
+            page = browser.open_page(chromium, server.url)
+            boxes = [page.locator(f"aside > label:has(#{name})").bounding_box() for name in
+                     ("step", "clearance", "balance", "speed")]
+        finally:
+            chromium.close()
+    line = min(b["height"] for b in boxes)
+    assert all(b["height"] < 1.5 * line for b in boxes)  # none wrapped onto a second line
+    assert all(low["y"] >= high["y"] + high["height"] - 1 for high, low in zip(boxes, boxes[1:], strict=False))
+
+
 def test_browser_right_drag_turns_the_view_and_a_later_drag_still_moves_the_target(served):
     server, client, _ = browser_client(served)  # skips before the import where playwright is missing
     from playwright.sync_api import sync_playwright
