@@ -192,7 +192,7 @@ def test_a_com_target_outside_every_reachable_support_is_proven_out_of_balance()
     far, near = [2.0, 0.0, 0.9], [0.05, 0.0, 0.9]
     goals = G.CenterOfMass([far, near], support=list(FEET), margin=0.01)
     res = mjkin.solve(tree, goals, joints=fixed_root(tree))
-    assert not res.success[0] and res.reason[0] == "balance" and res.status[0] == "constraint"
+    assert not res.success[0] and res.reason[0] == "balance"  # proven, whichever way the run ended
     assert isinstance(res.goals[res.binding[0]], G.Balance)
     assert res.reason[1] != "balance"  # the feet could stand under it: nothing proven
     free = mjkin.solve(tree, G.CenterOfMass(far), joints=fixed_root(tree))
