@@ -6,12 +6,13 @@ cores. With ``MJKIN_COMPILE=background`` (the default) a small first call
 neither compiled nor on disk runs the kernel's own Python source at once
 (:func:`interpreted`: no compile at all; an easy 7-DoF solve takes ~10-100 ms
 so), and a child process compiles the kernel into the disk cache. The first call
-after the child is done loads it from there (about a second) and from then on
+after the child is done loads it from there (0.1-0.4 s) and from then on
 every call is compiled. The child outlives this process, so a short script still
 leaves the cache warm for the next run.
 
-Large calls and ``MJKIN_COMPILE=wait`` compile in this process first, as numba
-does (``wait`` is what tests and benchmarks use: every call compiled, the same
+Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds, one a
+child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile in
+this process first, as numba does (``wait`` is what tests and benchmarks use: every call compiled, the same
 bits each run). ``MJKIN_COMPILE=interpret`` runs every such call interpreted and
 compiles nothing for them (to debug a kernel in Python). The interpreted answers
 may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
@@ -45,8 +46,8 @@ from .errors import InputError
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
 SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
-# seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here, or waited
-# for: many small calls (a renderer's FK of each frame) would otherwise cost more than the compile
+# seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here: many small
+# calls (a renderer's FK of each frame) would otherwise cost more than the compile
 BUDGET = 2.0
 _SPENT: dict[int, float] = {}
 _local = threading.local()
@@ -220,7 +221,6 @@ class _Compiler:
             for key in self.running:
                 self.state[key] = "running"
 
-
     def settle(self) -> float | None:
         """Wait until no child runs and none is queued; the seconds they took (None: none ran)."""
         while True:
@@ -284,10 +284,12 @@ def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool) -> bool:
         return False
     if all(_load(k, s) for k, s in jobs):
         return True
-    if small and mode() == "background" and _COMPILER.status(jobs) in ("queued", "running", "done"):
-        if not all(_load(k, s) for k, s in jobs):  # done: loaded now, unless the child could not write the cache
+    if small and mode() == "background":
+        state = _COMPILER.status(jobs)
+        if state in ("queued", "running"):
             return False
-        return True
+        if state == "done" and all(_load(k, s) for k, s in jobs):  # else the child could not write the cache
+            return True
     for kernel, sig in jobs:
         kernel.compile(sig)
     return True
