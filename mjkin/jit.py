@@ -262,7 +262,7 @@ def _stack_floats(typingctx, n):  # type: ignore[no-untyped-def]
 tier.python_version(_borrowed, lambda x: x)
 tier.python_version(_keep_alive, lambda x: None)
 tier.python_version(_monotonic_ns, time.monotonic_ns)
-tier.python_version(_borrowed_fields, tuple)  # of a StructRef's Python stand-in: a named tuple of its fields
+tier.python_version(_borrowed_fields, tuple)  # interpreted, the IK loop is given its packed fields as a tuple
 
 
 @njit_inline
