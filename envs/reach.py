@@ -13,8 +13,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from mjkin import goals as G
 from mjkin import spatial
-from mjkin.checks import check_choice, check_count
 from mjkin.render import Overlay, Painter, default_camera
+from mjkin.runtime.checks import check_choice, check_count
 
 from .task import ReachTask, check_action
 

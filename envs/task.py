@@ -22,11 +22,11 @@ from numpy.typing import ArrayLike, NDArray
 import mjkin
 from mjkin import goals as G
 from mjkin import spatial
-from mjkin.checks import check_choice, check_flag, check_number, shown
-from mjkin.jit import njit
 from mjkin.kinematics.frames import Frames
 from mjkin.kinematics.tree import bundled_models
 from mjkin.motion.follow import speed_step
+from mjkin.runtime.checks import check_choice, check_flag, check_number, shown
+from mjkin.runtime.jit import njit
 from mjkin.scene import Scene
 
 Array = NDArray[np.float64]

@@ -11,7 +11,7 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 import mjkin
-from mjkin.checks import check_count
+from mjkin.runtime.checks import check_count
 
 from .reach import ReachEnv
 from .task import check_action

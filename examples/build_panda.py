@@ -17,8 +17,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjkin.files import atomic_path
 from mjkin.kinematics.build import dh_chain
+from mjkin.runtime.files import atomic_path
 
 # (a, alpha, d, theta) per joint, metres and radians (Franka: a, d, alpha)
 DH = np.array([[0.0, 0.0, 0.333, 0.0],

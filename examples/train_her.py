@@ -33,7 +33,7 @@ import numpy as np
 
 import mjkin.envs  # noqa: F401  (registers the ids)
 from mjkin.errors import MjkinError
-from mjkin.files import check_writable, write_text, write_with
+from mjkin.runtime.files import check_writable, write_text, write_with
 
 ENV_ID = "mjkin/PandaReach-v0"
 ENV_KWARGS: dict[str, Any] = {

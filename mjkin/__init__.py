@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from . import goals, spatial
 from .errors import GoalError, InputError, MjkinError, MjkinIOError, ModelError, UnknownNameError
+from .explore.reachability import place_base, reachability
+from .explore.solutions import solutions
+from .explore.workspace import workspace
 from .ik import Problem, Result, singular_values, solve
 from .kinematics import build
 from .kinematics.tree import Tree, bundled_models, load
-from .parallel import set_threads, threads
-from .reachability import place_base, reachability
-from .retarget import retarget
-from .solutions import solutions
-from .workspace import workspace
+from .motion.retarget import retarget
+from .runtime.parallel import set_threads, threads
 
 __version__ = "0.1.0"
 

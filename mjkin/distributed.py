@@ -57,7 +57,7 @@ from .errors import InputError, MjkinError
 from .goals.program import key_of
 from .ik import History, Problem, Result
 from .kinematics.tree import Tree, load
-from .parallel import set_threads, threads
+from .runtime.parallel import set_threads, threads
 from .spatial import mat_to_quat, quat_to_mat
 
 try:

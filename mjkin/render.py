@@ -41,10 +41,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import spatial
 from .errors import InputError, MjkinIOError
-from .files import atomic_path
 from .kinematics.qspace import BALL, FREE, HINGE
 from .kinematics.tree import Tree
-from .progress import track
+from .runtime.files import atomic_path
+from .runtime.progress import track
 from .scene import Scene
 
 if TYPE_CHECKING:

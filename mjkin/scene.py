@@ -22,10 +22,10 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .jit import njit, njit_inline
 from .kinematics.distance import segments_closest
 from .kinematics.geoms import contact_pairs
 from .kinematics.tree import Tree
+from .runtime.jit import njit, njit_inline
 
 if TYPE_CHECKING:
     from .kinematics.frames import Frames

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from mjkin.errors import MjkinError
-from mjkin.files import atomic_path
 from mjkin.kinematics.tree import load
+from mjkin.runtime.files import atomic_path
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]

@@ -12,7 +12,7 @@ from typing import IO
 # before mujoco is imported: it picks its GL backend then, and a later MUJOCO_GL would stop mjkin's own fallback
 # to EGL (found running the suite without MUJOCO_GL: the renderer went to GLFW, with no display)
 os.environ.setdefault("MUJOCO_GL", "egl")
-# every kernel compiled before its first call, as numba does (not interpreted while a child compiles it, mjkin.tier):
+# every kernel compiled before its first call, as numba does (not interpreted while a child compiles it, mjkin.runtime.tier):
 # the same bits on every run; tests/test_tier.py tests the other modes
 os.environ.setdefault("MJKIN_COMPILE", "wait")
 
@@ -24,7 +24,7 @@ from numba.core import event
 
 import mjkin
 from mjkin.apps.bench.report import shared_models_dir
-from mjkin.progress import COMPILING
+from mjkin.runtime.progress import COMPILING
 
 # Hypothesis: CI (env CI set) replays the same examples on every run and keeps no example database, so a run
 # depends only on the code; locally each run draws new examples and remembers failures in .hypothesis/ (not

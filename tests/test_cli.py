@@ -200,7 +200,7 @@ def test_bad_arguments_fail_before_any_work(argv, text, capsys, tmp_path, monkey
     monkeypatch.setattr("mjkin.motion.walk_cycle", lambda *a, **k: pytest.fail("the walk ran before the checks"))
     monkeypatch.setattr("mjkin.motion.follow", lambda *a, **k: pytest.fail("IK ran before the checks"))
     monkeypatch.setattr("mjkin.apps.cli.write_output", lambda *a, **k: pytest.fail("rendering ran before the checks"))
-    monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
+    monkeypatch.setattr(importlib.import_module("mjkin.explore.workspace"), "workspace",
                         lambda *a, **k: pytest.fail("sampling ran before the checks"))
     monkeypatch.setattr("mjkin.apps.bench.suite.bench_seeds",
                         lambda *a, **k: pytest.fail("the seeds ran before the checks"))

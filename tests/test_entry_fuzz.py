@@ -31,8 +31,8 @@ from test_bvh import small
 import mjkin
 from mjkin import bvh
 from mjkin import goals as G
-from mjkin.bvh import _is_number
 from mjkin.ik.methods import METHODS
+from mjkin.motion.bvh import _is_number
 
 T = TypeVar("T")
 NAN, INF = float("nan"), float("inf")

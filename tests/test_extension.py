@@ -14,8 +14,8 @@ from conftest import background, tree_of
 from mjkin import goals as G
 from mjkin.goals.base import METRES, FrameGoal, Units
 from mjkin.ik import evaluate
-from mjkin.jit import njit_ir_inline
 from mjkin.kinematics.jacobian import jacobian_kernel
+from mjkin.runtime.jit import njit_ir_inline
 
 
 @dataclass(frozen=True)

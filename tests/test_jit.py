@@ -6,11 +6,12 @@ import numpy as np
 import mjkin
 from mjkin.goals import Position
 from mjkin.ik.packed import FIELDS, Packed
-from mjkin.jit import borrowed, borrowed_fields, entry, keep_alive
+from mjkin.runtime.jit import borrowed, borrowed_fields, entry, keep_alive
 
 # a package of two files: a kernel in kern.py that inlines a helper from help.py (as the IK loop inlines FK)
-_HELP = "from mjkin.jit import njit_inline\n\n\n@njit_inline\ndef shift(x):\n    return x + {k}\n"
-_KERN = "from mjkin.jit import njit\n\nfrom .help import shift\n\n\n@njit\ndef kernel(x):\n    return shift(x) * 2.0\n"
+_HELP = "from mjkin.runtime.jit import njit_inline\n\n\n@njit_inline\ndef shift(x):\n    return x + {k}\n"
+_KERN = ("from mjkin.runtime.jit import njit\n\nfrom .help import shift\n\n\n"
+         "@njit\ndef kernel(x):\n    return shift(x) * 2.0\n")
 _RUN = ("import sys; sys.path.insert(0, sys.argv[1]); from kpkg.kern import kernel; "
         "print(kernel(1.0), kernel.stats.cache_hits.get(kernel.signatures[0], 0) if kernel.signatures else 0)")
 
@@ -35,7 +36,7 @@ def _run(root, **env):
 
 
 def test_a_kernel_is_stamped_with_the_files_it_imports(tmp_path):
-    from mjkin.cache import stamp
+    from mjkin.runtime.cache import stamp
 
     pkg = _package(tmp_path)
     before = stamp(pkg / "kern.py"), stamp(pkg / "help.py")
@@ -50,7 +51,7 @@ def test_the_ik_loop_depends_on_the_goal_helpers_and_fk_but_fk_not_on_the_goals(
     """An edit of position_rows (goals/compiled.py) restamps the loop and Position's residual; FK keeps its stamp."""
     import shutil
 
-    from mjkin.cache import PACKAGE, stamp
+    from mjkin.runtime.cache import PACKAGE, stamp
 
     copy = tmp_path / "mjkin"
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so"))

@@ -33,9 +33,9 @@ from mjkin.apps.play import server as server_module
 from mjkin.apps.play.server import BOUNDARY, PART, is_loopback, start_server, stop_server
 from mjkin.apps.play.session import Playground, recordings_folder, view_camera
 from mjkin.errors import InputError, MjkinIOError, UnknownNameError
-from mjkin.files import strict_json as to_strict_json
 from mjkin.kinematics import build
 from mjkin.kinematics import tree as tree_module
+from mjkin.runtime.files import strict_json as to_strict_json
 
 IK_TOL = 1e-6
 W, H = 320, 240
@@ -1349,7 +1349,7 @@ def test_cli_serves_and_stops_cleanly_on_ctrl_c_saving_the_recording_that_was_on
     assert list(tmp_path.iterdir()) == [script]  # the journal is gone, no temporary file is left
     traj = motion.Trajectory.load(script, arm())
     assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
-    # a first run's compilation says so itself (mjkin.progress); a start with the kernels cached says nothing of it
+    # a first run's compilation says so itself (mjkin.runtime.progress); a start with the kernels cached says nothing of it
     assert "mjkin play: loading arm7...\n" in err and "first run compiles" not in err
 
 

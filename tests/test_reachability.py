@@ -12,7 +12,7 @@ import mjkin
 from mjkin import goals as G
 from mjkin.apps.bench.arms import mjcf
 from mjkin.apps.cli import main
-from mjkin.reachability import orientation_set
+from mjkin.explore.reachability import orientation_set
 
 SMALL = {"resolution": 0.3, "orientations": 6, "samples": 4000}  # a coarse map: a second or two
 
@@ -62,7 +62,7 @@ def test_a_missing_cache_folder_is_refused_before_any_work(ur, tmp_path, monkeyp
     def work(*args, **kwargs):
         raise RuntimeError("the map was computed")
 
-    monkeypatch.setattr(importlib.import_module("mjkin.reachability"), "solve", work)
+    monkeypatch.setattr(importlib.import_module("mjkin.explore.reachability"), "solve", work)
     with pytest.raises(mjkin.MjkinIOError, match="the reachability cache folder .* does not exist: create it"):
         mjkin.reachability(ur, "ee", cache=tmp_path / "missing", **SMALL)
 
@@ -82,7 +82,8 @@ def test_cache_round_trip(ur, ur_map, tmp_path, monkeypatch):
     def rebuilt(*args, **kwargs):
         raise RuntimeError("the cached map was rebuilt")
 
-    monkeypatch.setattr(importlib.import_module("mjkin.reachability"), "solve", rebuilt)  # the module, not the function
+    # the module, not the function
+    monkeypatch.setattr(importlib.import_module("mjkin.explore.reachability"), "solve", rebuilt)
     again = mjkin.reachability(ur, "ee", cache=tmp_path, **SMALL)
     np.testing.assert_array_equal(again.reached, first.reached)
     np.testing.assert_array_equal(again.origin, first.origin)

@@ -24,8 +24,8 @@ import mjkin.envs  # noqa: F401  (registers the gymnasium environments)
 from conftest import GYM_ASSETS, bundled, model_id, shared, tree_of
 from mjkin import motion, render
 from mjkin.apps.cli import main
-from mjkin.files import write_text
 from mjkin.kinematics import build
+from mjkin.runtime.files import write_text
 from mjkin.scene import Scene
 
 SMALL = {"width": 160, "height": 120}
@@ -214,7 +214,7 @@ def test_a_killed_write_leaves_a_temporary_file_that_the_next_write_removes(tmp_
         os.utime(p, (old, old))
     write_text(tmp_path / "a.txt", "a")  # this process started before the kill: the leftover is newer
     assert left.exists() and live.exists() and all(p.exists() for p in foreign) and not stale.exists()
-    again = subprocess.run([sys.executable, "-c", "import sys; from mjkin.files import write_text; "
+    again = subprocess.run([sys.executable, "-c", "import sys; from mjkin.runtime.files import write_text; "
                             "write_text(sys.argv[1], 'b')", str(tmp_path / "b.txt")], capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
     kept = ["a.txt", "b.txt", live.name, *(p.name for p in foreign)]

@@ -17,7 +17,7 @@ from mjkin.apps.cli import run
 from mjkin.errors import InputError
 from mjkin.goals import HalfSpace
 from mjkin.motion import Trajectory
-from mjkin.retarget import plan, report, source_mapping
+from mjkin.motion.retarget import plan, report, source_mapping
 
 MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)
 G1 = (shared_models_dir() or Path("../shared/models")) / "unitree_g1" / "g1.xml"

@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 import mjkin
 from mjkin import goals as G
 from mjkin.apps.bench.arms import ARMS, CLOSED_FORMS, mjcf
+from mjkin.explore.solutions import joint_distance
 from mjkin.ik.reasons import reach_bound
 from mjkin.kinematics.build import Link, dh_chain, dh_fk, links_mjcf
-from mjkin.solutions import joint_distance
 
 MATCH = 1e-4  # rad: a returned solution is the closed form's
 ARM_TOL = 1e-9  # FK of a returned solution against the target (solutions are polished to 1e-3 of tol = 1e-6)

@@ -173,7 +173,7 @@ def test_goals_that_are_not_goals_are_a_goal_error():
 
 
 def test_large_seeds_are_taken_exactly():
-    from mjkin.checks import check_count
+    from mjkin.runtime.checks import check_count
 
     assert check_count(2**64 + 1, "seed", 0) == 2**64 + 1  # not through a float, where it would be 2**64
     assert check_count(np.uint64(2**63 + 7), "seed", 0) == 2**63 + 7
@@ -413,7 +413,7 @@ def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):
 
 @given(st.integers(0, 100_000), st.integers(1, 64), st.integers(1, 256))
 def test_chunks_cover_the_batch_once_and_shrink(n, workers, min_chunk):
-    from mjkin.parallel import chunk_edges
+    from mjkin.runtime.parallel import chunk_edges
 
     edges = np.array(chunk_edges(n, workers, min_chunk))
     sizes = np.diff(edges)

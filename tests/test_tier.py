@@ -1,4 +1,4 @@
-"""Interpreted first, compiled behind (mjkin.tier): the Python versions solve as the compiled kernels do, a child
+"""Interpreted first, compiled behind (mjkin.runtime.tier): the Python versions solve as the compiled kernels do, a child
 compiles into the disk cache, and the first call after it runs compiled, loaded, not compiled here."""
 
 import os
@@ -87,7 +87,7 @@ def test_a_bad_mode_says_which_there_are(monkeypatch):
 
 
 def test_a_kernel_a_child_cannot_import_is_never_sent_to_one():
-    from mjkin.jit import njit
+    from mjkin.runtime.jit import njit
 
     @njit
     def local(x):
@@ -118,7 +118,8 @@ _CHILD = textwrap.dedent("""
 
 
 def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path):
-    (tmp_path / "tiered.py").write_text("from mjkin.jit import njit\n\n\n@njit\ndef triple(x):\n    return 3.0 * x\n")
+    source = "from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n    return 3.0 * x\n"
+    (tmp_path / "tiered.py").write_text(source)
     env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     run = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path)], capture_output=True, text=True, env=env,
                          timeout=300, check=True)
@@ -148,12 +149,12 @@ def test_a_one_q_pose_interpreted_equals_the_compiled_one(model):
 
 def test_a_cold_pose_in_background_mode_compiles_nothing_here(tmp_path):
     """tree.pose and tree.fk of one q from an empty cache: answered at once, as Python, with no compile here."""
-    script = ("import numpy as np, mjkin, mjkin.tier\nfrom numba.core.event import install_recorder\n"
+    script = ("import numpy as np, mjkin, mjkin.runtime.tier\nfrom numba.core.event import install_recorder\n"
               "tree = mjkin.load('arm7')\n"
               "with install_recorder('numba:compile') as rec:\n"
               "    T = tree.pose(tree.qpos0, 'ee'); F = tree.fk(tree.qpos0)\n"
               "print(len(rec.buffer), np.isfinite(T).all() and np.isfinite(F).all())\n"
-              "mjkin.tier.settle()\n")  # the child done before its cache folder goes
+              "mjkin.runtime.tier.settle()\n")  # the child done before its cache folder goes
     env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300,
                          check=True)

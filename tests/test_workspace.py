@@ -79,7 +79,7 @@ def test_cli_workspace_plot(tmp_path, capsys):
 
 
 def test_cli_workspace_checks_the_output_before_sampling(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(importlib.import_module("mjkin.workspace"), "workspace",
+    monkeypatch.setattr(importlib.import_module("mjkin.explore.workspace"), "workspace",
                         lambda *a, **k: pytest.fail("sampling ran before the output was checked"))
     (tmp_path / "dir.png").mkdir()
     for out, text in (("dir.png", "--output '{}' is a folder; give a file name"), ("ws.mp4", "must end in .png"),

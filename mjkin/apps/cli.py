@@ -18,15 +18,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .. import motion, progress, spatial, tier
+from .. import motion, spatial
 from ..errors import InputError, MjkinError, MjkinIOError
-from ..files import check_writable, strict_json
 from ..goals import Goal, Orientation, Position
 from ..ik import METHODS, solve
 from ..ik.method import MAX_RESTARTS
 from ..ik.problem import method_of
 from ..kinematics.qspace import BALL, FREE, HINGE, JOINT_NAMES
 from ..kinematics.tree import Tree, bundled_models, load, source_of
+from ..runtime import progress, tier
+from ..runtime.files import check_writable, strict_json
 from . import bench, placement_cli, retarget_cli
 from .argtypes import Once, nonnegative_int, positive_float, positive_int, time_limit
 
@@ -483,7 +484,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_workspace(args: argparse.Namespace) -> int:
     """Sample a frame's workspace by batched FK and plot it (reachable and dexterous parts)."""
-    from ..workspace import plot, workspace
+    from ..explore.workspace import plot, workspace
 
     check_writable(args.output, IMAGE_SUFFIXES, "--output")
     tree = load(args.model)

@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import InputError, MjkinIOError
-from ..files import atomic_path, check_writable
+from ..runtime.files import atomic_path, check_writable
 from .argtypes import positive_float, positive_int
 
 if TYPE_CHECKING:
-    from ..reachability import Placement, ReachabilityMap
+    from ..explore.reachability import Placement, ReachabilityMap
 
 IMAGES = (".png", ".jpg", ".jpeg")
 AXES = "xyz"
@@ -109,8 +109,8 @@ def _save(fig: Any, path: str) -> None:
 
 def run_reachability(args: argparse.Namespace) -> int:
     """Build (or read) the map, plot one slice of its capability, print a summary."""
+    from ..explore.reachability import reachability
     from ..kinematics.tree import load
-    from ..reachability import reachability
 
     check_writable(args.output, IMAGES, "--output")
     tree = load(args.model)
@@ -187,8 +187,8 @@ def _plot_heat(p: Placement, path: str, title: str) -> None:
 
 def run_place_base(args: argparse.Namespace) -> int:
     """Rank base placements for the poses, verify the best by IK, plot the region's heat map."""
+    from ..explore.reachability import place_base, reachability
     from ..kinematics.tree import load
-    from ..reachability import place_base, reachability
 
     check_writable(args.output, IMAGES, "--output")
     poses, region = _read_poses(args.poses), _region(args.region)

@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import bvh
 from ..errors import InputError
-from ..files import check_writable
 from ..kinematics.tree import load
-from ..motion import retime
-from ..retarget import MAX_SPEED, plan, read_mapping, report, retarget, source_mapping
+from ..motion import bvh, retime
+from ..motion.retarget import MAX_SPEED, plan, read_mapping, report, retarget, source_mapping
+from ..runtime.files import check_writable
 from .argtypes import nonnegative_float, positive_float, positive_int
 
 OUTPUTS = (".json", ".mp4", ".gif", ".png")

@@ -23,10 +23,10 @@ import numpy as np
 from numba.core.dispatcher import Dispatcher
 
 from .. import goals as G
-from .. import progress
 from ..ik import solve
 from ..ik.compiled import PREFIX
 from ..kinematics.tree import Tree, load
+from ..runtime import progress
 
 
 def _kinematics(chain: Tree, figure: Tree) -> None:

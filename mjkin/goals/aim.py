@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import matvec3, njit_ir_inline
+from ..runtime.jit import matvec3, njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, array, unit
 from .compiled import skew_times
 

@@ -22,8 +22,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import GoalError
-from ..jit import njit
 from ..kinematics.qspace import all_finite
+from ..runtime.jit import njit
 
 if TYPE_CHECKING:
     from ..kinematics.tree import Kind, Tree

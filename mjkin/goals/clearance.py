@@ -9,9 +9,7 @@ from typing import TYPE_CHECKING, ClassVar
 import mujoco
 import numpy as np
 
-from ..checks import check_count
 from ..errors import GoalError, UnknownNameError
-from ..jit import njit, njit_ir_inline, on_stack, unshared
 from ..kinematics.distance import distance_gradient, pair_distance_normal
 from ..kinematics.geoms import (
     BOX,
@@ -23,6 +21,8 @@ from ..kinematics.geoms import (
     native_pairs,
     near_pairs,
 )
+from ..runtime.checks import check_count
+from ..runtime.jit import njit, njit_ir_inline, on_stack, unshared
 from .base import METRES, Array, Goal, Units
 from .compiled import owned
 

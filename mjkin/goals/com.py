@@ -16,10 +16,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import njit, njit_ir_inline
 from ..kinematics.com import com_kernel
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE
 from ..kinematics.jacobian import jacobian_kernel
+from ..runtime.jit import njit, njit_ir_inline
 from .base import METRES, Array, Goal, Units, array
 from .compiled import owned
 

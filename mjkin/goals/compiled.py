@@ -7,7 +7,7 @@ and its errors ``err[i] = [metres, radians]``. ``rot``/``pos``/``irot``/``ipos``
 FK at ``q`` (:func:`mjkin.kinematics.fk.fk_kernel`'s outputs). For a frame goal the
 evaluator has already put the goal frame's world rotation ``R``, point ``pt`` and
 Jacobian ``J6`` there into the scratch ``ws`` (see :func:`scratch`). Arrays are
-indexed element by element (see :mod:`mjkin.jit`).
+indexed element by element (see :mod:`mjkin.runtime.jit`).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics
 from ..kinematics.geoms import Geoms
 from ..kinematics.jacobian import jacobian_kernel
+from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from ..errors import GoalError
-from ..jit import njit_ir_inline
 from ..kinematics.qspace import HINGE, SLIDE
+from ..runtime.jit import njit_ir_inline
 from .base import JOINT_UNITS, Array, Goal, Units
 
 if TYPE_CHECKING:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from ..jit import njit_ir_inline
+from ..runtime.jit import njit_ir_inline
 from .base import Array
 from .compiled import HARD_TOL
 from .plane import Plane, signed_distance

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..jit import njit_ir_inline
+from ..runtime.jit import njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, rotation
 from .compiled import orientation_rows, skew_times
 

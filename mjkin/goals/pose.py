@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..jit import njit_ir_inline
+from ..runtime.jit import njit_ir_inline
 from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation_matrix
 from .compiled import orientation_rows, position_rows
 

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from numpy.typing import ArrayLike
 
-from ..jit import njit_ir_inline
+from ..runtime.jit import njit_ir_inline
 from .base import METRES, Array, FrameGoal, Units, array
 from .compiled import position_rows
 

@@ -1,7 +1,7 @@
 """The table of goal kinds: each kind's class and compiled residual, from which the IK evaluator is built.
 
 A new kind is one module (a :class:`~mjkin.goals.base.Goal` subclass and a
-``residual`` compiled with :data:`mjkin.jit.njit_ir_inline`, see
+``residual`` compiled with :data:`mjkin.runtime.jit.njit_ir_inline`, see
 :mod:`mjkin.goals.compiled` for its signature) and one call of :func:`register`.
 The IK loop calls each residual at one place, so numba inlines it there: it is
 typed once, as a function of its own would be, and not compiled on its own too.
@@ -31,7 +31,7 @@ def register(cls: type[Goal], residual: Callable | None = None) -> type[Goal]:
         residual = getattr(sys.modules[cls.__module__], "residual", None)
     if residual is None or not hasattr(residual, "py_func"):
         raise GoalError(f"goal kind {cls.__name__}: its residual must be a numba-compiled function "
-                        "(mjkin.jit.njit_inline), given as residual= or as 'residual' in its module")
+                        "(mjkin.runtime.jit.njit_inline), given as residual= or as 'residual' in its module")
     cls.code = len(KINDS)
     KINDS.append(cls)
     RESIDUALS.append(residual)

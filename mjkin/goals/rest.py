@@ -9,8 +9,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError, MjkinError
-from ..jit import njit_ir_inline
 from ..kinematics.qspace import BALL, FREE, difference_kernel
+from ..runtime.jit import njit_ir_inline
 from .base import JOINT_UNITS, Array, Goal, Units, array
 from .compiled import left_jacobian_inverse
 
@@ -69,7 +69,7 @@ def residual(kin: Kinematics, ga: GoalArrays, ws: tuple, rot: Array, pos: Array,
     nv = J.shape[1]
     w = ga.sqrt_w[i]
     difference_kernel(q, ga.rest_q[i, b:b + 1], kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr, dv)
-    J[r0:r0 + nv] = 0.0  # the rows at once (a Python loop per entry is slow interpreted, mjkin.tier)
+    J[r0:r0 + nv] = 0.0  # the rows at once (a Python loop per entry is slow interpreted, mjkin.runtime.tier)
     for j in range(nv):
         g[r0 + j] = w * ga.joint_row[i, j] * dv[0, j]
         J[r0 + j, j] = w * ga.joint_row[i, j]

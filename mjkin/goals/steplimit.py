@@ -9,8 +9,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError, MjkinError
-from ..jit import njit_inline, njit_ir_inline
 from ..kinematics.qspace import BALL, FREE, HINGE, SLIDE, difference_kernel
+from ..runtime.jit import njit_inline, njit_ir_inline
 from .base import JOINT_UNITS, Array, Goal, Units
 
 if TYPE_CHECKING:

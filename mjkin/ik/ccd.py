@@ -22,14 +22,14 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ..checks import check_count
 from ..errors import GoalError
 from ..goals import Position, Program
-from ..jit import matvec3, monotonic_ns, njit
 from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
-from ..parallel import parallel_chunks
+from ..runtime.checks import check_count
+from ..runtime.jit import matvec3, monotonic_ns, njit
+from ..runtime.parallel import parallel_chunks
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk
 from .method import MAX_ITERS, Method, Problem

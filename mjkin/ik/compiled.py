@@ -3,7 +3,7 @@
 numba resolves the functions a kernel calls when it compiles it, so the loop
 (:mod:`mjkin.ik.loop`) is written out once per set of goal kinds, with a dispatch
 branch per kind, to a module in a folder no other user can write
-(:func:`mjkin.cache.generated_file`), named by a digest of its text, and imported
+(:func:`mjkin.runtime.cache.generated_file`), named by a digest of its text, and imported
 from there. A problem compiles the loop of the kinds it holds and the common ones
 (:func:`loop_kinds`): a Pose problem compiles no Clearance or CenterOfMass code,
 and shares its loop with every problem of frame, line, plane and joint goals (the
@@ -22,8 +22,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from ..cache import PACKAGE, generated_file
 from ..goals import registry
+from ..runtime.cache import PACKAGE, generated_file
 
 PREFIX = "mjkin_loop_"  # the generated modules' names
 _LOADED: dict[tuple, ModuleType] = {}

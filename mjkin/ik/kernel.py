@@ -47,10 +47,10 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import tier
 from ..goals.compiled import HARD_TOL
-from ..jit import njit, njit_inline
 from ..kinematics.fk import Kinematics, fk_kernel_in
+from ..runtime import tier
+from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

@@ -14,11 +14,11 @@ from typing import TYPE_CHECKING, ClassVar
 import numba
 import numpy as np
 
-from .. import tier
-from ..checks import check_count, check_flag, check_number
 from ..errors import InputError
-from ..jit import entry
-from ..parallel import parallel_chunks
+from ..runtime import tier
+from ..runtime.checks import check_count, check_flag, check_number
+from ..runtime.jit import entry
+from ..runtime.parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels
 from .method import MAX_ITERS, Array, Method, Problem
@@ -221,7 +221,7 @@ class Loop:
         return pack(*self.fields(arrays))
 
     def compiled(self, prog: Program, arrays: tuple) -> bool:
-        """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.tier.compiled`)."""
+        """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`)."""
         if not self.warm:  # every call packs the same types: once compiled, always
             self.warm = tier.compiled(packed_kernels(kernels(prog.structure.kinds).solve_packed, self.fields(arrays)),
                                       small=prog.B <= tier.SMALL_BATCH)
@@ -236,7 +236,7 @@ class Loop:
         if self.solve_packed is None and self.compiled(prog, arrays):
             packed = self.pack(arrays)
             self.one = (packed, arrays)
-            # the packed arrays are always these types: the call skips numba's dispatch (mjkin.jit.entry)
+            # the packed arrays are always these types: the call skips numba's dispatch (mjkin.runtime.jit.entry)
             self.solve_packed = entry(kernels(prog.structure.kinds).solve_packed, numba.typeof(packed), numba.int64,
                                       numba.int64)
         ga, q_in, starts = arrays[:3]

@@ -8,7 +8,7 @@ no distance or balance code. A solve of one target runs entirely inside
 large batches across threads: the compiled code releases the GIL). Python calls
 :func:`solve_packed`, which takes all the arrays as one packed argument
 (:mod:`mjkin.ik.packed`); the other two are inlined into it by numba (one call site
-each), the kernels they call by LLVM (:data:`mjkin.jit.njit_inline`).
+each), the kernels they call by LLVM (:data:`mjkin.runtime.jit.njit_inline`).
 """
 
 from __future__ import annotations
@@ -50,9 +50,9 @@ from mjkin.ik.kernel import (
     summarise,
 )
 from mjkin.ik.packed import Packed
-from mjkin.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline, njit_ir_inline
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
+from mjkin.runtime.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline, njit_ir_inline
 
 if TYPE_CHECKING:
     from mjkin.goals.program import Program
@@ -137,7 +137,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     level_rows, counted, hard = ga.level_rows, ga.counted, ga.hard
     m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
-    # from here on, arrays without reference counts (mjkin.jit.borrowed): the caller owns them all
+    # from here on, arrays without reference counts (mjkin.runtime.jit.borrowed): the caller owns them all
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))

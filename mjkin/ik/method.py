@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from ..checks import check_count
 from ..errors import InputError
+from ..runtime.checks import check_count
 
 if TYPE_CHECKING:
     from ..goals import Program

@@ -28,10 +28,10 @@ from numpy.typing import NDArray
 from scipy.optimize import minimize
 
 from .. import spatial
-from ..checks import check_count
 from ..goals import Coupling, Program
 from ..kinematics.qspace import HINGE, SLIDE
 from ..kinematics.tree import Tree
+from ..runtime.checks import check_count
 from .evaluate import evaluate_program
 from .kernel import BINDING, CONSTRAINT, CONVERGED, HARD_TOL, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
 from .method import MAX_ITERS, Method, Problem

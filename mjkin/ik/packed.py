@@ -18,7 +18,7 @@ from numba import types
 from numba.experimental import structref
 from numpy.typing import NDArray
 
-from ..jit import njit
+from ..runtime.jit import njit
 
 if TYPE_CHECKING:
     from ..goals.compiled import GoalArrays

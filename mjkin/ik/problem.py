@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import tier
-from ..checks import check_count, check_flag, check_number
 from ..errors import GoalError, InputError
 from ..goals import Clearance, Coupling, Goal, Pose, Program
 from ..goals.program import as_goals, encode, key_of, structure
 from ..kinematics import qspace
 from ..kinematics.qspace import FREE, NQ, NV, clip_kernel
 from ..kinematics.tree import Tree
+from ..runtime import tier
+from ..runtime.checks import check_count, check_flag, check_number
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE, summarise
 from .method import Method

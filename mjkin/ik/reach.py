@@ -36,12 +36,12 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ..checks import check_count
 from ..errors import GoalError
 from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
 from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
 from ..kinematics.tree import Tree
+from ..runtime.checks import check_count
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk
 from .method import MAX_ITERS, Method, Problem
 from .result import History, Result, package

@@ -32,7 +32,7 @@ numba cfuncs through C function pointers, bound by :func:`ready` (before that it
 returns None). numba's wrapper's unboxing of three arrays costs ~0.2 µs, as much
 as a 7-DoF pose. Without a C compiler at install they are
 :func:`pose_numba` and :func:`poses_numba`, which call numba's compiled entry from
-Python (:func:`mjkin.jit.entry`). Both return None for any ``q`` but a native float64
+Python (:func:`mjkin.runtime.jit.entry`). Both return None for any ``q`` but a native float64
 ndarray, 1-D and C-contiguous, or one the kernel refuses: the caller's checked path
 then answers, or says what is wrong.
 """
@@ -46,8 +46,8 @@ import numpy as np
 from numba import carray, types
 from numpy.typing import NDArray
 
-from .. import tier
-from ..jit import cfunc, entry, njit_gil, njit_inline, on_stack, unshared, unshared_int64
+from ..runtime import tier
+from ..runtime.jit import cfunc, entry, njit_gil, njit_inline, on_stack, unshared, unshared_int64
 from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
 
 Array = NDArray[np.float64]
@@ -191,7 +191,7 @@ def ready() -> bool:
 
     ``Tree.pose`` and ``Tree.fk`` call it for a one-q pose; until it is done :data:`pose_of` and
     :data:`poses_of` return None (nothing compiles at import). False while a child process compiles
-    them (:func:`mjkin.tier.compiled`): the caller runs :func:`one_pose` meanwhile.
+    them (:func:`mjkin.runtime.tier.compiled`): the caller runs :func:`one_pose` meanwhile.
     """
     if _direct:
         return True
@@ -212,7 +212,7 @@ def ready() -> bool:
 
 def one_pose(kernel: Callable, chain: Array, q: Array, T: Array) -> bool:
     """``kernel(chain, q, T)`` (:func:`chain_pose` or :func:`chain_poses`), compiled once :func:`ready`, else as
-    Python (:func:`mjkin.tier.interpreted_call`). ``q (nq,)``: C-contiguous float64.
+    Python (:func:`mjkin.runtime.tier.interpreted_call`). ``q (nq,)``: C-contiguous float64.
     """  # noqa: D205
     return bool(kernel(chain, q, T) if ready() else tier.interpreted_call(kernel, chain, q, T))
 

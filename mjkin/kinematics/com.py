@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import njit, njit_inline
+from ..runtime.jit import njit, njit_inline
 from .fk import Kinematics
 from .jacobian import jacobian_kernel
 

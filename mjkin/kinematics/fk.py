@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import axis_angle, njit, njit_inline, quat_to_mat
+from ..runtime.jit import axis_angle, njit, njit_inline, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE, Joints
 
 Array = NDArray[np.float64]

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..jit import borrowed, njit, njit_inline, on_stack, unshared
+from ..runtime.jit import borrowed, njit, njit_inline, on_stack, unshared
 
 if TYPE_CHECKING:
     from .fk import Bodies

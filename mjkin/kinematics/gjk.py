@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..jit import njit, on_stack, unshared, unshared_int64
+from ..runtime.jit import njit, on_stack, unshared, unshared_int64
 from .geoms import BOX, CAPSULE, CYLINDER, SPHERE
 
 Array = NDArray[np.float64]

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
-from ..jit import njit, njit_inline
+from ..runtime.jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
 
 Array = NDArray[np.float64]

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError
-from ..jit import njit, njit_inline
+from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]

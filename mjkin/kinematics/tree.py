@@ -15,8 +15,9 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import spatial, tier
+from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
+from ..runtime import tier
 from . import chain as chains
 from . import qspace
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of

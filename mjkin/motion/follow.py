@@ -12,7 +12,7 @@ from .. import goals as G
 from ..errors import InputError
 from ..ik import Problem
 from ..kinematics.tree import Tree, fingerprint
-from ..progress import track
+from ..runtime.progress import track
 from .trajectory import Trajectory
 
 

@@ -12,9 +12,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, MjkinIOError
-from ..files import write_text
 from ..kinematics.qspace import BALL, HINGE, SLIDE
 from ..kinematics.tree import Tree, fingerprint
+from ..runtime.files import write_text
 from . import journal
 
 Array = NDArray[np.float64]

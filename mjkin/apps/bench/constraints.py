@@ -28,7 +28,7 @@ from ...ik import Problem
 from ...kinematics.qspace import FREE
 from ...kinematics.tree import Tree, bundled_models, load
 from ...motion import follow, sole_points
-from ...progress import track
+from ...runtime.progress import track
 from ...spatial import mat_to_rotvec
 from . import peers
 from .report import GC_NOTE, Report, Row, gc_paused, shared_models_dir

@@ -24,7 +24,7 @@ from ...ik import Problem, solve
 from ...ik.lm import AUTO_RESTARTS, TIMED_RESTARTS
 from ...kinematics.qspace import HINGE, SLIDE
 from ...kinematics.tree import Tree, load
-from ...progress import track
+from ...runtime.progress import track
 from ...spatial import mat_to_rotvec
 from . import REAL_ARMS, peers
 from .report import GC_NOTE, Report, Row, gc_paused, shared_models_dir

@@ -23,9 +23,9 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ...files import write_text
 from ...kinematics.qspace import HINGE
 from ...kinematics.tree import Tree
+from ...runtime.files import write_text
 from ...spatial import make_transform, quat_to_euler, quat_to_mat
 
 Array = NDArray[np.float64]

@@ -23,8 +23,8 @@ from ...ik import Problem
 from ...kinematics.build import Link, links_mjcf
 from ...kinematics.qspace import FREE
 from ...kinematics.tree import Tree, load
-from ...parallel import threads_set
-from ...progress import track
+from ...runtime.parallel import threads_set
+from ...runtime.progress import track
 from .report import GC_NOTE, Report, Row, gc_paused
 
 Array = NDArray[np.float64]
@@ -176,7 +176,7 @@ def draw(rows: list[Row], path: str) -> Path:
         import matplotlib.pyplot as plt
     except ImportError:
         raise InputError("--plot needs matplotlib: pip install 'mjkin[plot]'") from None
-    from ...files import write_with
+    from ...runtime.files import write_with
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for mode, colour in (("warm", "tab:blue"), ("cold", "tab:orange")):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ...errors import MjkinIOError
 from ...kinematics.tree import Tree, load
-from ...retarget import report, retarget
+from ...motion.retarget import report, retarget
 from .report import Report, Row, shared_model, shared_models_dir
 
 CLIPS = ("mixamo_freebvh.bvh", "mocapbank_19joint.bvh")

@@ -12,11 +12,11 @@ import time
 import numpy as np
 
 from ... import goals as G
+from ...explore.reachability import place_base, reachability
+from ...explore.solutions import joint_distance, solutions
 from ...ik.solve import solve
 from ...kinematics.build import dh_fk
 from ...kinematics.tree import load
-from ...reachability import place_base, reachability
-from ...solutions import joint_distance, solutions
 from .arms import ARMS, CLOSED_FORMS, mjcf
 from .report import Report, Row, gc_paused
 

@@ -20,7 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ...cache import PACKAGE
+from ...runtime.cache import PACKAGE
 from .report import Report, Row
 
 # the child: times the import and one entry point's first call, counts numba's compile events, prints one JSON line
@@ -86,7 +86,7 @@ elif entry == "render":
     ok = len(list(mjkin.render.frames(tree, qs, 160, 120))) == 3
 first = time.perf_counter() - t1
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-background = mjkin.tier.settle()  # the children compiling what ran interpreted meanwhile (mjkin.tier)
+background = mjkin.runtime.tier.settle()  # the children compiling what ran interpreted meanwhile (mjkin.tier)
 print(json.dumps({"import_s": imported, "first_s": first, "ok": ok, "compile_s": sum(compiled.values()),
                   "compiled": compiled.most_common(4), "peak_mb": peak, "background_s": background,
                   "child_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))
@@ -98,7 +98,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from mjkin.goals.base import METRES, FrameGoal
-from mjkin.jit import njit_ir_inline
+from mjkin.runtime.jit import njit_ir_inline
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,10 @@ import mujoco
 import numpy as np
 
 from ...errors import InputError
-from ...files import check_writable, write_text
 from ...kinematics.chain import ancestors, chain_of, pose_numba, pose_of
 from ...kinematics.tree import Tree, load
-from ...progress import track
+from ...runtime.files import check_writable, write_text
+from ...runtime.progress import track
 from . import ALL, FK_MODELS, add_arguments
 from .report import GC_NOTE, Report, Row, format_table, gc_paused, seconds_per_call, shared_model
 

@@ -131,7 +131,7 @@ def figures(out: Path) -> list[Path]:
         import matplotlib  # noqa: F401
     except ImportError:
         return []
-    from ...files import atomic_path
+    from ...runtime.files import atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     tree = load("planar_3link")

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from ... import goals as G
 from ... import spatial
 from ...errors import InputError
+from ...explore.solutions import solutions
 from ...goals.clearance import bounded_geoms
 from ...ik import METHODS, Problem
 from ...kinematics.distance import pair_distance
@@ -30,7 +31,6 @@ from ...kinematics.frames import forward
 from ...kinematics.geoms import contact_pairs, native_pairs
 from ...kinematics.qspace import FREE, HINGE, SLIDE
 from ...kinematics.tree import Tree
-from ...solutions import solutions
 
 Array = NDArray[np.float64]
 

@@ -86,8 +86,8 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from ...errors import InputError, MjkinError, MjkinIOError
-from ...files import strict_json
 from ...kinematics.tree import Tree, load, source_of
+from ...runtime.files import strict_json
 from . import core, journal
 from .session import Busy, Playground, recordings_folder
 

@@ -25,9 +25,9 @@ import numpy as np
 
 from ... import motion, render, spatial
 from ...errors import InputError, MjkinError, MjkinIOError
-from ...files import check_writable
 from ...kinematics.tree import Tree
 from ...motion.journal import columns
+from ...runtime.files import check_writable
 from . import core, journal
 from .journal import Journal, Sample
 

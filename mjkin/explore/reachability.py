@@ -26,16 +26,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import goals as G
-from . import spatial
-from .checks import check_count, check_number, shown
-from .errors import InputError, MjkinIOError
-from .files import atomic_path
-from .ik.evaluate import singular_values
-from .ik.method import MAX_RESTARTS
-from .ik.reasons import reach_bound
-from .ik.solve import solve
-from .kinematics.tree import FAR, Tree, fingerprint
+from .. import goals as G
+from .. import spatial
+from ..errors import InputError, MjkinIOError
+from ..ik.evaluate import singular_values
+from ..ik.method import MAX_RESTARTS
+from ..ik.reasons import reach_bound
+from ..ik.solve import solve
+from ..kinematics.tree import FAR, Tree, fingerprint
+from ..runtime.checks import check_count, check_number, shown
+from ..runtime.files import atomic_path
 
 Array = NDArray[np.float64]
 VERSION = 1  # of the cache files' contents

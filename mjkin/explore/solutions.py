@@ -18,19 +18,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .checks import check_count, check_number
-from .errors import GoalError, InputError
-from .goals import Goal
-from .goals.program import as_goals, encode
-from .ik.evaluate import evaluate_program
-from .ik.kernel import summarise
-from .ik.method import Method
-from .ik.problem import Problem
-from .ik.reasons import NOT_FOUND
-from .ik.result import Result
-from .kinematics import qspace
-from .kinematics.qspace import HINGE
-from .kinematics.tree import Tree
+from ..errors import GoalError, InputError
+from ..goals import Goal
+from ..goals.program import as_goals, encode
+from ..ik.evaluate import evaluate_program
+from ..ik.kernel import summarise
+from ..ik.method import Method
+from ..ik.problem import Problem
+from ..ik.reasons import NOT_FOUND
+from ..ik.result import Result
+from ..kinematics import qspace
+from ..kinematics.qspace import HINGE
+from ..kinematics.tree import Tree
+from ..runtime.checks import check_count, check_number
 
 Array = NDArray[np.float64]
 STARTS = 128  # seeded starts per round

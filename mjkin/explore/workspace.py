@@ -33,10 +33,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from . import spatial
-from .errors import InputError, MjkinIOError
-from .files import atomic_path
-from .kinematics.tree import Tree
+from .. import spatial
+from ..errors import InputError, MjkinIOError
+from ..kinematics.tree import Tree
+from ..runtime.files import atomic_path
 
 Array = NDArray[np.float64]
 FrameKind = Literal["body", "site"]
@@ -104,7 +104,7 @@ def workspace(tree: Tree, frame: str, n: int = 100_000, seed: int = 0, dexterous
     mostly those solves; arm7's 7 joints about 30 s). The samples only need to be dense enough to
     offer a nearby start in every bin: 5 000 already match the closed form of a three-link arm.
     """
-    from .render import planar_axis
+    from ..render import planar_axis
 
     if int(n) < 2:
         raise InputError(f"a workspace needs at least 2 samples, got {n}")
@@ -215,8 +215,8 @@ def _confirmed(tree: Tree, frame: tuple[str, FrameKind], q: Array, pts: Array, R
     farthest neighbour first (the bin most likely to fail at the workspace's edge), so non-dexterous points stop
     early. A point whose neighbourhood lacks more than ``nbins - need`` bins is never tried.
     """
-    from . import goals as G
-    from .ik.solve import solve
+    from .. import goals as G
+    from ..ik.solve import solve
 
     name, kind = frame
     nbins = near.shape[1]

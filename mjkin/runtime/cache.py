@@ -94,7 +94,7 @@ def _file_info(path: str) -> tuple[str, tuple[str, ...]]:
 def stamp(path: str | os.PathLike) -> str:
     """Digest of the source file ``path`` and of every package file it imports, transitively.
 
-    Imports are read from the source (``from ..kinematics.fk import ...``, ``import mjkin.jit``),
+    Imports are read from the source (``from ..kinematics.fk import ...``, ``import mjkin.runtime.jit``),
     ``TYPE_CHECKING`` ones included: a superset of what a kernel compiles in, never less.
     """
     seen: dict[str, str] = {}

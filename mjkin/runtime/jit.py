@@ -4,7 +4,7 @@ The kernels (FK, Jacobians, IK iterations) are plain loops over a leading
 batch axis compiled by numba: numpy's per-call overhead (~1 µs a call, dozens
 of calls per FK) would otherwise dominate single configurations, and its
 stacked 3x3 products are slow for large batches. Nothing compiles at import: a
-kernel compiles when first called, and is cached on disk (:mod:`mjkin.cache`),
+kernel compiles when first called, and is cached on disk (:mod:`mjkin.runtime.cache`),
 so only the first run that uses it pays for it.
 
 One rule for the hot kernels: in numba every array bound to a variable, sliced,
@@ -38,9 +38,9 @@ CLOCK_MONOTONIC = 1  # Linux
 
 
 def _jit(**options: Any) -> Callable[[Callable], Any]:
-    """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.cache.KernelCache`.
+    """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.runtime.cache.KernelCache`.
 
-    The dispatcher is a :class:`mjkin.tier.Kernel`: its first small calls may run interpreted.
+    The dispatcher is a :class:`mjkin.runtime.tier.Kernel`: its first small calls may run interpreted.
     """
 
     def decorate(fn: Callable) -> Any:
@@ -297,7 +297,7 @@ def on_stack(n: int) -> np.ndarray:
 
 
 def unshared_python(buf: np.ndarray, start: int, shape: tuple[int, ...]) -> np.ndarray:
-    """:func:`unshared` interpreted (:mod:`mjkin.tier`): a view."""
+    """:func:`unshared` interpreted (:mod:`mjkin.runtime.tier`): a view."""
     return buf[start:start + int(np.prod(shape))].reshape(shape)
 
 

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 _threads: int | None = None
 

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from . import spatial
-from .errors import InputError, MjkinIOError
+from .. import spatial
+from ..errors import InputError, MjkinIOError
 
 Array = NDArray[np.float64]
 CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError, MjkinIOError
+from ..errors import InputError, MjkinIOError
 
 TEMP_MARK = "mjkin-tmp"
 STARTED = time.time()  # when this process imported mjkin: leftovers must be older than this

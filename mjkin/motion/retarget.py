@@ -42,16 +42,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import bvh, spatial
-from . import goals as G
-from .checks import check_number, shown
-from .errors import InputError, MjkinIOError
-from .ik import Problem
-from .ik.kernel import HARD_TOL
-from .kinematics.geoms import contact_pairs
-from .kinematics.tree import Tree, fingerprint
-from .motion import Trajectory, outside_limits, sole_points
-from .scene import Scene
+from .. import goals as G
+from .. import spatial
+from ..errors import InputError, MjkinIOError
+from ..ik import Problem
+from ..ik.kernel import HARD_TOL
+from ..kinematics.geoms import contact_pairs
+from ..kinematics.tree import Tree, fingerprint
+from ..runtime.checks import check_number, shown
+from ..scene import Scene
+from . import Trajectory, bvh, outside_limits, sole_points
 
 Array = NDArray[np.float64]
 SIDES = ("left", "right")
@@ -408,7 +408,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
 
     Args:
-        source: a BVH path or a parsed :class:`mjkin.bvh.Clip`.
+        source: a BVH path or a parsed :class:`mjkin.motion.bvh.Clip`.
         tree: the figure; it needs a free root joint.
         mapping: ``{"source": {role: joint}, "figure": {role: body}}`` (or a JSON file of it);
             by default roles are found by name (:data:`SOURCE_NAMES`, :data:`FIGURES`).

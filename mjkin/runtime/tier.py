@@ -40,8 +40,8 @@ import numpy as np
 from numba.core.dispatcher import Dispatcher
 from numba.core.registry import CPUDispatcher
 
+from ..errors import InputError
 from . import progress
-from .errors import InputError
 
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
@@ -246,8 +246,8 @@ settle = _COMPILER.settle
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
     """A child process (its own session: it outlives this one) that compiles ``jobs`` into the disk cache."""
     env = {**os.environ, "MJKIN_COMPILE": "wait", "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    child = subprocess.Popen([sys.executable, "-m", "mjkin.tier"], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+    child = subprocess.Popen([sys.executable, "-m", "mjkin.runtime.tier"], stdin=subprocess.PIPE,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
     assert child.stdin is not None
     child.stdin.write(pickle.dumps(jobs))
     child.stdin.close()
