@@ -32,7 +32,7 @@ from typing import Any
 
 from numba.core import caching, config
 
-PACKAGE = Path(__file__).resolve().parent
+PACKAGE = Path(__file__).resolve().parent.parent  # mjkin/
 
 
 def _locator(*names: str) -> Any:  # numba 0.61 dropped the leading underscore of these names
