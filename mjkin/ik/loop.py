@@ -303,7 +303,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                     changed = True
             if not changed:
                 break
-        any_locked = False
+        if attempts > 0:  # after a rejection, go only as far as the first limit the step crosses: clipped there,
+            _to_first_limit(q, dq, locked, kin, lo, hi)  # the step bent and was rejected again and again (a run
+        any_locked = False                               # stalled 4e-4 from a limit); the next step locks it
         for d in range(nv):
             held[d] = locked[d] and active[d]
             any_locked = any_locked or held[d]
@@ -344,6 +346,24 @@ def _inward(d: int, q: Array, lo: Array, hi: Array, dof_q: Index, dof_j: Index, 
         for r in range(v.shape[0]):
             dot += J[r, d] * v[r]
     return side * dot
+
+
+@njit
+def _to_first_limit(q: Array, dq: Array, locked: NDArray[np.bool_], kin: Kinematics, lo: Array, hi: Array) -> None:
+    """Shorten ``dq (1, nv)`` so that no free hinge or slide of ``q (1, nq)`` goes past its limit (it may reach it)."""
+    t = 1.0
+    for d in range(dq.shape[1]):
+        jj = kin.dof_jnt[d]
+        if locked[d] or not (kin.jnt_type[jj] == HINGE or kin.jnt_type[jj] == SLIDE):
+            continue
+        qd, v = q[0, kin.dof_qadr[d]], dq[0, d]
+        if v < 0.0 and qd + v < lo[jj]:
+            t = min(t, (lo[jj] - qd) / v)
+        elif v > 0.0 and qd + v > hi[jj]:
+            t = min(t, (hi[jj] - qd) / v)
+    if t < 1.0:
+        for d in range(dq.shape[1]):
+            dq[0, d] *= t
 
 
 @njit
