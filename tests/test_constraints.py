@@ -354,3 +354,22 @@ def test_bad_clearance_fails_in_one_line(kwargs, error, match):
     with pytest.raises(error, match=match) as info:
         mjkin.solve(tree, [G.Position("ee", [0.3, 0, 0.5]), G.Clearance(**kwargs)])
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("arm", ["arm7", "panda"])
+def test_clearance_answers_nearly_every_answerable_target_among_obstacles(arm):
+    """Issue 38: 150 pose targets of configurations MuJoCo finds clear of three spheres and a table by the margin
+    plus 1 mm (an answer exists for each). The default method answered 137 of 150; the goal is 99 %, and no
+    answer it calls a success may be closer than the margin by MuJoCo's ``mj_geomDistance``."""
+    from mjkin.apps.bench.constraints import ARMS, MARGIN, ROT_TOL, TOL, Judge, obstacle_scene
+
+    tree, frame = obstacle_scene(arm), ARMS[arm]
+    judge = Judge(tree, MARGIN)
+    qs = [q for q in tree.random_q(np.random.default_rng(11), 1500) if judge.clearance(q) >= MARGIN + 1e-3][:150]
+    assert len(qs) == 150
+    T = tree.pose(np.array(qs), frame)
+    q0 = np.broadcast_to(tree.model.key_qpos[0], (150, tree.nq)).copy()
+    res = mjkin.solve(tree, [G.Pose(frame, T=T), G.Clearance(MARGIN)], q0=q0, tol=TOL, rot_tol=ROT_TOL)
+    clear = np.array([judge.clear(q) for q in res.q])
+    assert not (res.success & ~clear).any()
+    assert (res.success & clear).sum() >= 149, set(res.status[~res.success])
