@@ -12,8 +12,8 @@ from typing import IO
 # before mujoco is imported: it picks its GL backend then, and a later MUJOCO_GL would stop mjkin's own fallback
 # to EGL (found running the suite without MUJOCO_GL: the renderer went to GLFW, with no display)
 os.environ.setdefault("MUJOCO_GL", "egl")
-# every kernel compiled before its first call, as numba does (not interpreted while a child compiles it, mjkin.runtime.tier):
-# the same bits on every run; tests/test_tier.py tests the other modes
+# every kernel compiled before its first call, as numba does (not interpreted while a child compiles it,
+# mjkin.runtime.tier): the same bits on every run; tests/test_tier.py tests the other modes
 os.environ.setdefault("MJKIN_COMPILE", "wait")
 
 import mujoco

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mjkin import bvh
 from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.errors import InputError, MjkinError
+from mjkin.motion import bvh
 
 MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)
 need_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"the shared clips are not here ({MOCAP})")

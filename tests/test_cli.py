@@ -16,9 +16,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
-from mjkin import motion, progress
+from mjkin import motion
 from mjkin.apps.argtypes import nonnegative_int
 from mjkin.apps.cli import build_parser, join_negative_vectors, main
+from mjkin.runtime import progress
 
 
 def test_info_outlines_the_tree(capsys):

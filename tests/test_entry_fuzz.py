@@ -29,9 +29,9 @@ from hypothesis.extra import numpy as hnp
 from test_bvh import small
 
 import mjkin
-from mjkin import bvh
 from mjkin import goals as G
 from mjkin.ik.methods import METHODS
+from mjkin.motion import bvh
 from mjkin.motion.bvh import _is_number
 
 T = TypeVar("T")

@@ -90,7 +90,7 @@ def test_generated_code_is_never_taken_from_a_folder_another_user_can_write(tmp_
     """A folder planted by another user (or writable by others) is refused; the code goes to a private one."""
     import os
 
-    from mjkin import cache
+    from mjkin.runtime import cache
 
     planted = tmp_path / "xdg" / "mjkin" / "generated"
     planted.mkdir(parents=True)
@@ -120,7 +120,7 @@ def test_generated_code_written_ahead_is_read_where_it_cannot_be_written(tmp_pat
     in a folder others may write to is not."""
     import os
 
-    from mjkin import cache
+    from mjkin.runtime import cache
 
     warmed, open_to_all, ours = tmp_path / "warmed", tmp_path / "open", tmp_path / "ours"
     for folder in (warmed, open_to_all):

@@ -1349,7 +1349,8 @@ def test_cli_serves_and_stops_cleanly_on_ctrl_c_saving_the_recording_that_was_on
     assert list(tmp_path.iterdir()) == [script]  # the journal is gone, no temporary file is left
     traj = motion.Trajectory.load(script, arm())
     assert len(traj.q) >= len(lines) - 1 and traj.meta["play"]["frames"] == ["ee"]
-    # a first run's compilation says so itself (mjkin.runtime.progress); a start with the kernels cached says nothing of it
+    # a first run's compilation says so itself (mjkin.runtime.progress); a start with the kernels cached says
+    # nothing of it
     assert "mjkin play: loading arm7...\n" in err and "first run compiles" not in err
 
 

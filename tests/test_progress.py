@@ -11,7 +11,7 @@ import sys
 import numba
 import pytest
 
-from mjkin import progress
+from mjkin.runtime import progress
 
 
 class Terminal(io.StringIO):

@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 
 import mjkin
-from mjkin import bvh
 from mjkin.apps.bench.report import shared_models_dir
 from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.apps.cli import run
 from mjkin.errors import InputError
 from mjkin.goals import HalfSpace
-from mjkin.motion import Trajectory
+from mjkin.motion import Trajectory, bvh
 from mjkin.motion.retarget import plan, report, source_mapping
 
 MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)

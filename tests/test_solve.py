@@ -368,7 +368,7 @@ def test_goal_concatenate_rejects_pieces_of_different_goals():
 
 # ---------------------------------------------------------------- threads
 def test_thread_setting(monkeypatch):
-    from mjkin import parallel
+    from mjkin.runtime import parallel
 
     monkeypatch.setattr(parallel, "_threads", None)  # whatever an earlier test set
     monkeypatch.delenv("MJKIN_NUM_THREADS", raising=False)
@@ -390,7 +390,7 @@ def test_thread_setting(monkeypatch):
 
 @pytest.mark.parametrize("omp, expected", [("4,2", 4), (" 3 ", 3), ("0", None), ("auto", None), ("", None)])
 def test_omp_num_threads_is_another_librarys_and_never_an_error(monkeypatch, omp, expected):
-    from mjkin import parallel
+    from mjkin.runtime import parallel
 
     monkeypatch.setattr(parallel, "_threads", None)
     monkeypatch.delenv("MJKIN_NUM_THREADS", raising=False)
@@ -402,7 +402,7 @@ def test_omp_num_threads_is_another_librarys_and_never_an_error(monkeypatch, omp
 def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):
     import threading
 
-    from mjkin import parallel
+    from mjkin.runtime import parallel
 
     seen = set()
     monkeypatch.setattr(parallel, "_threads", None)
@@ -502,7 +502,7 @@ def test_every_method_returns_its_tree(method):
 
 
 def test_threads_set_restores_the_setting_not_the_number(monkeypatch):
-    from mjkin import parallel
+    from mjkin.runtime import parallel
 
     monkeypatch.setattr(parallel, "_threads", None)
     monkeypatch.setenv("MJKIN_NUM_THREADS", "2")

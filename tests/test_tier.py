@@ -1,5 +1,5 @@
-"""Interpreted first, compiled behind (mjkin.runtime.tier): the Python versions solve as the compiled kernels do, a child
-compiles into the disk cache, and the first call after it runs compiled, loaded, not compiled here."""
+"""Interpreted first, compiled behind (mjkin.runtime.tier): the Python versions solve as the compiled kernels do, a
+child compiles into the disk cache, and the first call after it runs compiled, loaded, not compiled here."""
 
 import os
 import subprocess
@@ -11,8 +11,8 @@ import pytest
 
 import mjkin
 import mjkin.goals as G
-from mjkin import tier
 from mjkin.errors import InputError
+from mjkin.runtime import tier
 
 PANDA_T = np.array([[1, 0, 0, 0.4], [0, -1, 0, 0.1], [0, 0, -1, 0.5], [0, 0, 0, 1.0]])
 
@@ -101,7 +101,7 @@ _CHILD = textwrap.dedent("""
     import sys, time
     import numpy as np
     sys.path.insert(0, sys.argv[1])
-    from mjkin import progress, tier
+    from mjkin.runtime import progress, tier
     from tiered import triple
     progress.enable(True)
     x = np.arange(3.0)
