@@ -80,7 +80,11 @@ class Clip:
                              f"{', '.join(self.names)}") from None
 
     def local(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:
-        """Local transforms ``(F, J, 4, 4)`` of each joint in its parent; ``rest``: channels zero, ``(1, J, 4, 4)``."""
+        """Local transforms ``(F, J, 4, 4)`` of each joint in its parent.
+
+        ``rest``: the rest pose ``(1, J, 4, 4)``: rotations zero, every joint at its offset (its position channels
+        unread: LAFAN1 gives every joint position channels, which zero would put at its parent).
+        """
         values = np.zeros((1, self.values.shape[1])) if rest else self.values[slice(None) if frames is None else frames]
         F, J = len(values), len(self.names)
         T = np.broadcast_to(np.eye(4), (F, J, 4, 4)).copy()
@@ -89,7 +93,7 @@ class Clip:
         for j, chans in enumerate(self.channels):
             rot = [(c[0], k) for k, c in enumerate(chans) if c.endswith("rotation")]
             for k, c in enumerate(chans):
-                if c.endswith("position"):
+                if c.endswith("position") and not rest:
                     T[:, j, "xyz".index(c[0]), 3] = values[:, self.columns[j] + k]
             if rot:
                 cols = [self.columns[j] + k for _, k in rot]

@@ -1,0 +1,230 @@
+"""Reading AMASS / SMPL / SMPL-H / SMPL-X motion (``.npz``) as a BVH :class:`~mjkin.motion.bvh.Clip`.
+
+A clip file holds ``poses (F, 3 J)`` (each joint's turn in its parent as a rotation vector, radians, in
+the body model's joint order), ``trans (F, 3)`` (metres), ``betas (K,)`` (the body's shape) and
+``mocap_framerate`` or ``mocap_frame_rate`` (frames per second). The skeleton comes from the user's own
+body-model file (an ``.npz``: the models are licensed by their authors, so mjkin ships none): its
+joints at rest are ``J_regressor (J, V) @ (v_template (V, 3) + shapedirs (V, 3, S) @ betas)``, its tree
+``kintree_table (2, J)``. SMPL (24 joints), SMPL-H (52: body and hands) and SMPL-X (55: body, jaw,
+eyes and hands) are read; face expressions are not.
+
+The clip's joints are named as Mixamo's and LAFAN1's (:data:`SKELETONS`), so the retargeting roles
+find them by name (SMPL's own ``left_foot`` is the toe, its ``left_shoulder`` the upper arm). Each joint
+has the channels ``Zrotation Yrotation Xrotation`` (degrees: :func:`euler_channels`), the root also
+``Xposition Yposition Zposition``; offsets are the shaped rest joints' (metres, the model's y-up
+frame, facing +z, as BVH's). AMASS's world is z-up: the clip's world is it turned y-up
+(:data:`Y_UP`), which :func:`mjkin.retarget` turns back.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import spatial
+from ..errors import InputError, MjkinIOError
+from . import bvh
+
+Array = NDArray[np.float64]
+SEQ = "ZYX"  # the clip's Euler sequence: intrinsic, R = Rz @ Ry @ Rx
+ROTATION = ("zrotation", "yrotation", "xrotation")
+POSITION = ("xposition", "yposition", "zposition")
+Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # AMASS (x, y, z up) -> BVH (z, x, y up)
+FRAME_RATES = ("mocap_framerate", "mocap_frame_rate")  # AMASS's SMPL-H files use the first, its SMPL-X files the second
+SMPLX_SHAPES = 300  # SMPL-X's shapedirs hold 300 shape then 100 expression directions (10 and 10 in its 2019 files)
+
+_BODY = (("Hips", -1), ("LeftUpLeg", 0), ("RightUpLeg", 0), ("Spine", 0), ("LeftLeg", 1), ("RightLeg", 2),
+         ("Spine1", 3), ("LeftFoot", 4), ("RightFoot", 5), ("Spine2", 6), ("LeftToeBase", 7), ("RightToeBase", 8),
+         ("Neck", 9), ("LeftShoulder", 9), ("RightShoulder", 9), ("Head", 12), ("LeftArm", 13), ("RightArm", 14),
+         ("LeftForeArm", 16), ("RightForeArm", 17), ("LeftHand", 18), ("RightHand", 19))
+_FINGERS = ("Index", "Middle", "Pinky", "Ring", "Thumb")  # SMPL-H's and SMPL-X's order, three joints each
+
+
+def _hand(side: str, wrist: int, first: int) -> tuple[tuple[str, int], ...]:
+    """A hand's 15 finger joints (name, parent), the first at index ``first``, knuckles on joint ``wrist``."""
+    return tuple((f"{side}Hand{finger}{k}", wrist if k == 1 else first + 3 * n + k - 2)
+                 for n, finger in enumerate(_FINGERS) for k in (1, 2, 3))
+
+
+def _skeleton(*parts: tuple[tuple[str, int], ...]) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    joints = sum(parts, ())
+    return tuple(n for n, _ in joints), tuple(p for _, p in joints)
+
+
+# joint count -> (model kind, joint names, parents), in the models' joint order
+SKELETONS: dict[int, tuple[str, tuple[str, ...], tuple[int, ...]]] = {
+    24: ("SMPL", *_skeleton(_BODY, (("LeftFingers", 20), ("RightFingers", 21)))),
+    52: ("SMPL-H", *_skeleton(_BODY, _hand("Left", 20, 22), _hand("Right", 21, 37))),
+    55: ("SMPL-X", *_skeleton(_BODY, (("Jaw", 15), ("LeftEye", 15), ("RightEye", 15)), _hand("Left", 20, 25),
+                              _hand("Right", 21, 40))),
+}
+
+
+class SmplError(MjkinIOError):
+    """An AMASS/SMPL clip or body model cannot be read or is malformed (the message names the file and key)."""
+
+
+@dataclass(frozen=True)
+class BodyModel:
+    """What a clip needs of a body model: its skeleton at rest and how the body's shape moves it.
+
+    ``kind`` (SMPL, SMPL-H, SMPL-X), joint ``parents (J,)`` (-1: root), the rest joints ``template (J, 3)``
+    and their shape directions ``shapes (J, 3, S)`` (metres, the model's y-up frame), ``source`` its file.
+    """
+
+    kind: str
+    parents: NDArray[np.int64]
+    template: Array
+    shapes: Array
+    source: str = ""
+
+    def joints(self, betas: Array) -> Array:
+        """Rest joint positions ``(J, 3)`` of the body of shape ``betas (K,)``: the first ``S`` used, missing ones 0."""
+        n = min(len(betas), self.shapes.shape[2])
+        return self.template + self.shapes[:, :, :n] @ betas[:n]
+
+
+def euler_channels(q: Array) -> Array:
+    """``Zrotation Yrotation Xrotation`` channel values ``(..., 3)``, degrees, of unit quaternions ``(..., 4)``.
+
+    Read from the quaternion (:func:`mjkin.spatial.quat_to_euler`): exact to rounding up to gimbal lock.
+    """
+    return np.rad2deg(spatial.quat_to_euler(q, SEQ))
+
+
+def _npz(path: str | os.PathLike[str], what: str) -> np.lib.npyio.NpzFile:
+    """The ``.npz`` archive at ``path`` (read without pickles: loading cannot run code)."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise SmplError(f"{what} not found: {str(path)!r}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise SmplError(f"cannot read {what} {str(path)!r} as an .npz archive: {e}") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise SmplError(f"{what} {str(path)!r} is a single .npy array; expected an .npz archive of named arrays")
+    return data
+
+
+def _numbers(data: np.lib.npyio.NpzFile, key: str, what: str, expect: str) -> Array:
+    """The finite numbers of ``data[key]`` as float64; ``expect`` describes them for the message."""
+    if key not in data.files:
+        raise SmplError(f"{what} has no {key!r}; expected {expect}")
+    try:
+        a = np.asarray(data[key])
+    except (ValueError, OSError, zipfile.BadZipFile) as e:
+        raise SmplError(f"{what}: cannot read {key!r} ({e}); expected {expect}") from None
+    if a.dtype.kind not in "biuf":
+        raise SmplError(f"{what}: {key!r} holds {a.dtype} values; expected {expect}")
+    a = a.astype(np.float64)
+    if not np.isfinite(a).all():
+        raise SmplError(f"{what}: {key!r} holds nan or inf; expected {expect}")
+    return a
+
+
+def _shaped(a: Array, shape: tuple[int | None, ...], key: str, what: str, expect: str) -> Array:
+    """``a`` if its shape matches ``shape`` (None: any size)."""
+    if a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape, strict=True)):
+        raise SmplError(f"{what}: {key!r} has shape {a.shape}; expected {expect}")
+    return a
+
+
+def load_model(path: str | os.PathLike[str]) -> BodyModel:
+    """The body model at ``path`` (an SMPL, SMPL-H or SMPL-X ``.npz``), kept while the file stays the same.
+
+    Raises:
+        SmplError: missing, a ``.pkl``, not an ``.npz``, a key missing or malformed, an unknown skeleton.
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".pkl":
+        raise SmplError(f"body model {str(path)!r} is a pickle, which mjkin does not load (it can run code); give the "
+                        "model's .npz (SMPL-X and AMASS's SMPL+H are published as .npz)")
+    try:
+        stat = p.stat()
+    except OSError:
+        raise SmplError(f"body model not found: {str(path)!r}") from None
+    return _load_model(str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_model(path: str, mtime_ns: int, size: int) -> BodyModel:
+    """:func:`load_model` of the file ``path`` as it was at ``mtime_ns`` with ``size`` bytes."""
+    what = f"body model {path!r}"
+    with _npz(path, "body model") as data:
+        kintree = _numbers(data, "kintree_table", what, "(2, joints) integers: each joint's parent, then itself")
+        J = _shaped(kintree, (2, None), "kintree_table", what, "(2, joints)").shape[1]
+        if J not in SKELETONS:
+            raise SmplError(f"{what} has {J} joints; expected " + ", ".join(
+                f"{n} ({kind})" for n, (kind, _, _) in SKELETONS.items()))
+        kind, _, parents = SKELETONS[J]
+        got = np.where((kintree[0] < 0) | (kintree[0] >= J), -1, kintree[0]).astype(np.int64)
+        wrong = np.flatnonzero(got != parents)
+        if wrong.size:
+            j = int(wrong[0])
+            raise SmplError(f"{what}: kintree_table gives joint {j} the parent {got[j]}; {kind}'s is {parents[j]}")
+        regressor = _shaped(_numbers(data, "J_regressor", what, f"({J}, vertices) joint regressor"),
+                            (J, None), "J_regressor", what, f"({J}, vertices)")
+        V = regressor.shape[1]
+        template = _shaped(_numbers(data, "v_template", what, f"({V}, 3) rest vertices (m)"), (V, 3), "v_template",
+                           what, f"({V}, 3): one row per J_regressor column")
+        dirs = _shaped(_numbers(data, "shapedirs", what, f"({V}, 3, shapes) shape directions"), (V, 3, None),
+                       "shapedirs", what, f"({V}, 3, shapes)")
+    S = dirs.shape[2]
+    n = (SMPLX_SHAPES if S >= SMPLX_SHAPES + 100 else min(S, 10)) if kind == "SMPL-X" else S  # not the expressions
+    arrays = np.array(parents, dtype=np.int64), regressor @ template, np.tensordot(regressor, dirs[:, :, :n], (1, 0))
+    for a in arrays:  # shared by every read of the file
+        a.setflags(write=False)
+    return BodyModel(kind, *arrays, source=path)
+
+
+def read(path: str | os.PathLike[str], body_model: str | os.PathLike[str] | BodyModel | None) -> bvh.Clip:
+    """The AMASS/SMPL clip at ``path`` as a :class:`~mjkin.motion.bvh.Clip` (metres, y up), with ``body_model``.
+
+    Raises:
+        InputError: no body model given.
+        SmplError: the clip or model cannot be read, a key is missing or malformed (nan, wrong shape), or the
+            model's joints do not match the clip's pose size.
+    """
+    if body_model is None:
+        raise InputError(f"the AMASS/SMPL clip {str(path)!r} needs its body model: give body_model= (--body-model "
+                         "PATH), the SMPL-H or SMPL-X .npz the clip was made with")
+    model = body_model if isinstance(body_model, BodyModel) else load_model(body_model)
+    what = f"clip {str(path)!r}"
+    with _npz(path, "AMASS/SMPL clip") as data:
+        poses = _shaped(_numbers(data, "poses", what, "(frames, 3 x joints) rotation vectors (rad)"), (None, None),
+                        "poses", what, "(frames, 3 x joints)")
+        F, J = len(poses), len(model.parents)
+        trans = _shaped(_numbers(data, "trans", what, f"({F}, 3) root translations (m)"), (F, 3), "trans", what,
+                        f"({F}, 3): one row per frame of 'poses'")
+        betas = _numbers(data, "betas", what, "(shapes,) body shape coefficients")
+        betas = _shaped(betas.reshape(-1) if betas.ndim == 2 and len(betas) == 1 else betas, (None,), "betas", what,
+                        "(shapes,) or (1, shapes)")
+        key = next((k for k in FRAME_RATES if k in data.files), FRAME_RATES[0])
+        fps = _numbers(data, key, what, f"frames per second (one number; {' or '.join(FRAME_RATES)})")
+    if F == 0:
+        raise SmplError(f"{what}: 'poses' has no frames; expected (frames, {3 * J}) with at least one frame")
+    if poses.shape[1] != 3 * J:
+        kinds = {3 * n: kind for n, (kind, _, _) in SKELETONS.items()}
+        kind = f" ({kinds[poses.shape[1]]})" if poses.shape[1] in kinds else ""
+        raise SmplError(f"{what}: 'poses' has {poses.shape[1]} values a frame{kind} but the {model.kind} body model "
+                        f"{model.source!r} has {J} joints ({3 * J} values); give the model the clip was made with")
+    lo, hi = 1.0 / bvh.FRAME_TIME[1], 1.0 / bvh.FRAME_TIME[0]
+    if fps.size != 1 or not lo <= float(fps.flat[0]) <= hi:
+        raise SmplError(f"{what}: {key!r} must be one number of frames per second from {lo:g} to {hi:g}, got "
+                        f"{fps.tolist()}")
+    rest = model.joints(betas)
+    offsets = rest.copy()
+    offsets[1:] -= rest[model.parents[1:]]
+    turns = spatial.rotvec_to_quat(poses.reshape(F, J, 3))
+    turns[:, 0] = spatial.quat_mul(spatial.mat_to_quat(Y_UP), turns[:, 0])  # the z-up world turned y-up
+    values = np.concatenate([(rest[0] + trans) @ Y_UP.T, euler_channels(turns).reshape(F, -1)], axis=1)
+    _, names, _ = SKELETONS[J]
+    return bvh.Clip(names=names, parents=model.parents.copy(), offsets=offsets,
+                    channels=((*POSITION, *ROTATION), *(ROTATION,) * (J - 1)),
+                    columns=np.array([0, *range(6, 3 * J + 3, 3)], dtype=np.int64), values=values,
+                    frame_time=1.0 / float(fps.flat[0]), ends=np.zeros(J, dtype=np.bool_), source=str(path))
