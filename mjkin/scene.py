@@ -213,18 +213,6 @@ def _segment_gap(C: NDArray[np.float64], H: NDArray[np.float64], i: int, j: int,
 
 
 @njit
-def _segment_gap_of(C: NDArray[np.float64], H: NDArray[np.float64]) -> float:
-    return _segment_gap(C, H, 0, 1, np.empty((4, 3)))
-
-
-def segment_distance(c1: ArrayLike, h1: ArrayLike, c2: ArrayLike, h2: ArrayLike) -> float:
-    """Distance between segments ``c1 ± h1`` and ``c2 ± h2`` (centres and half-vectors, ``(3,)`` each)."""
-    C = np.array([c1, c2], dtype=np.float64)
-    H = np.array([h1, h2], dtype=np.float64)
-    return float(_segment_gap_of(C, H))
-
-
-@njit
 def near_kernel(rot: NDArray[np.float64], pos: NDArray[np.float64], geom_body: NDArray[np.int64],
                 geom_pos: NDArray[np.float64], geom_axis: NDArray[np.float64], half: NDArray[np.float64],
                 pairs: NDArray[np.int64], reach: NDArray[np.float64], other: NDArray[np.int64],

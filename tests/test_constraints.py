@@ -284,7 +284,8 @@ def mujoco_clearance(tree, q):
 
 
 def test_clearance_rows_are_the_closest_pairs_with_their_gradients(rng):
-    from mjkin.kinematics.distance import distance_jacobians
+    from test_geoms import distance_jacobians
+
     from mjkin.kinematics.geoms import contact_pairs, native_pairs
 
     tree = cluttered()

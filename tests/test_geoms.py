@@ -41,6 +41,22 @@ def as_set(pairs: np.ndarray) -> set[tuple[int, int]]:
     return {(min(a, b), max(a, b)) for a, b in pairs.tolist()}
 
 
+def distance_jacobians(tree: mjkin.Tree, q: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances ``(P,)`` of the geom pairs ``(P, 2)`` at one ``q`` and their gradients ``(P, nv)``.
+
+    mjkin's compiled :func:`~mjkin.kinematics.distance.pair_distance_jacobian` where it measures the pair, else
+    :func:`~mjkin.kinematics.distance.fallback_distance` (as ``Tree.distances`` does).
+    """
+    f = forward(tree, np.asarray(q, float).reshape(1, -1))
+    d, J = np.empty(len(pairs)), np.empty((len(pairs), tree.nv))
+    for k, (g1, g2) in enumerate(pairs):
+        d[k] = D.pair_distance_jacobian(tree.kin, tree.geoms, f.rot, f.pos, f.inner_rot, f.inner_pos, int(g1),
+                                        int(g2), J[k])
+    for k in np.flatnonzero(~native_pairs(tree.geoms, pairs)):
+        d[k], J[k] = D.fallback_distance(tree, q, int(pairs[k, 0]), int(pairs[k, 1]))
+    return d, J
+
+
 @pytest.mark.parametrize("path", ALL_MODELS, ids=model_id)
 def test_contact_pairs_are_mujocos(path, rng):
     """Every pair MuJoCo tests is listed once; each listed pair MuJoCo reports when within its margin.
@@ -198,7 +214,7 @@ def test_primitive_pairs_equal_mj_geomDistance(kinds, s1, s2, pose):
 def fd_check(tree: mjkin.Tree, q: np.ndarray, pairs: np.ndarray, tol: float = FD_TOL, kinks: bool = False,
              h: float = 1e-6) -> None:
     """Gradients against central differences; ``kinks=True`` skips where the one-sided ones disagree."""
-    d, J = D.distance_jacobians(tree, q, pairs)
+    d, J = distance_jacobians(tree, q, pairs)
     np.testing.assert_array_equal(d, tree.distances(q, pairs))
     for i in range(tree.nv):
         e = np.zeros(tree.nv)
@@ -226,7 +242,7 @@ def test_primitive_distance_jacobians_match_finite_differences(kinds, s1, s2, po
     # off the poses where features tie exactly (as identical boxes one inside the other): no derivative there
     q[-7:-4] += [0.0123, -0.0071, 0.0049]
     q[-4:] = mjkin.spatial.quat_mul(q[-4:], mjkin.spatial.quat_normalize([1.0, 0.013, -0.021, 0.008]))
-    d, _ = D.distance_jacobians(tree, q, np.array([[0, 1]]))
+    d, _ = distance_jacobians(tree, q, np.array([[0, 1]]))
     # at contact the distance has a kink, and so have penetration depths where two faces tie (skipped by kinks=True),
     # where a capsule's deepest point is as far from a cylinder's side as from its cap, or where the cores of two
     # capsules cross (left out)

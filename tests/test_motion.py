@@ -57,7 +57,7 @@ def test_rounded_corners_stay_near_the_waypoints_without_sharp_turns():
 @pytest.fixture(scope="module")
 def walk():
     tree = tree_of("primate")
-    return tree, motion.walk_cycle(tree, steps=3, stride=0.3, frames_per_step=16)
+    return tree, motion.walk_cycle(tree, steps=3, gait=motion.Gait(stride=0.3, frames_per_step=16))
 
 
 def test_walk_feet_do_not_slide_heel_to_toe(walk):

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import tree_of
-from mjkin.scene import Scene, segment_distance
+from mjkin.scene import Scene, _segment_gap
 
 # a chain whose parent-child pair MuJoCo would report: an explicit <pair>, and filterparent disabled
 LINK = ('<body name="{name}" pos="{x} 0 0"><joint name="j{name}" type="hinge" axis="0 1 0" range="-2.8 2.8"/>'
@@ -19,6 +19,11 @@ OVERLAPPING = ('<mujoco><compiler angle="radian"/><option><flag filterparent="{f
                '<geom name="ground" type="plane" size="2 2 .1" pos="0 0 -0.5"/>'
                + LINK.format(name="a", x=0) + LINK.format(name="b", x=0.5) + LINK.format(name="c", x=0.5)
                + '</body></body></body></worldbody>{pair}</mujoco>')
+
+
+def segment_distance(c1, h1, c2, h2) -> float:
+    """Distance between segments ``c1 ± h1`` and ``c2 ± h2`` by the broad phase's compiled test."""
+    return _segment_gap(np.array([c1, c2], float), np.array([h1, h2], float), 0, 1, np.empty((4, 3)))
 
 
 def reference_contacts(tree, q, exclude_adjacent=True):

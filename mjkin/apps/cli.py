@@ -395,8 +395,8 @@ def cmd_walk(args: argparse.Namespace) -> int:
 
     frame = check_output(args, args.steps * WALK_FRAMES_PER_STEP)  # a clear error before the work
     tree = load("primate")
-    walk = motion.walk_cycle(tree, steps=args.steps, stride=args.stride, frames_per_step=WALK_FRAMES_PER_STEP,
-                             fps=args.fps)
+    gait = motion.Gait(stride=args.stride, frames_per_step=WALK_FRAMES_PER_STEP)
+    walk = motion.walk_cycle(tree, steps=args.steps, gait=gait, fps=args.fps)
     ok = walk.success if walk.success is not None else np.ones(len(walk.q), bool)
     print(f"walk: {args.steps} steps of {args.stride} m, {len(walk.q)} frames, feet on target in {ok.mean():.0%}")
     write_images(args, render.frames(tree, walk.q, args.width, args.height, view=render.WALK_VIEW, follow=True),

@@ -29,6 +29,11 @@ class Aim(FrameGoal):
     units: ClassVar[Units] = RADIANS
     _batched: ClassVar[tuple[str, ...]] = ("point",)
 
+    @classmethod
+    def from_target(cls, frame: str, xyz: Array, quat: Array) -> Aim:
+        """The frame's z axis (out of a flange) pointed at a placed target's point ``xyz (3,)`` (world, m)."""
+        return cls(frame, axis=(0.0, 0.0, 1.0), point=xyz)
+
     def _validate(self) -> list[Array]:
         axis = unit(self.axis, "Aim axis")
         if axis.ndim != 1:

@@ -133,10 +133,6 @@ def _geom(tree: Tree, g: int | str) -> int:
     return int(i)
 
 
-def _name(tree: Tree, g: int) -> str:
-    return tree.model.geom(int(g)).name or f"#{int(g)}"
-
-
 @njit
 def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, i: int, rot: Array, pos: Array,
                    irot: Array, ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> None:

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .. import spatial
 from ..runtime.jit import njit_ir_inline
 from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation_matrix
 from .compiled import orientation_rows, position_rows
@@ -28,6 +29,11 @@ class Pose(FrameGoal):
     units: ClassVar[Units] = METRES_AND_RADIANS
     _batched: ClassVar[tuple[str, ...]] = ("T",)
     _cores: ClassVar[tuple[int, ...]] = (2, 1)
+
+    @classmethod
+    def from_target(cls, frame: str, xyz: Array, quat: Array) -> Pose:
+        """The frame at a placed target: point ``xyz (3,)`` (world, m), orientation ``quat (4,)`` (w, x, y, z)."""
+        return cls(frame, T=spatial.make_transform(spatial.quat_to_mat(quat), xyz))
 
     def _validate(self) -> list[Array]:
         T = array(self.T, (4, 4), "Pose T")

@@ -28,6 +28,11 @@ class Position(FrameGoal):
     _batched: ClassVar[tuple[str, ...]] = ("xyz",)
     _cores: ClassVar[tuple[int, ...]] = (1,)
 
+    @classmethod
+    def from_target(cls, frame: str, xyz: Array, quat: Array) -> Position:
+        """The frame's origin at a placed target's point ``xyz (3,)`` (world, m); its ``quat (4,)`` is not used."""
+        return cls(frame, xyz=xyz)
+
     def _validate(self) -> list[Array]:
         return [array(self.xyz, (3,), "Position xyz")]
 

@@ -25,13 +25,13 @@ from numpy.typing import NDArray
 from ..errors import GoalError
 from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
-from ..kinematics.qspace import BALL, HINGE, SLIDE, _quat_angle_clip, _turn
+from ..kinematics.qspace import BALL, HINGE, SLIDE, quat_angle_clip, quat_turn
 from ..kinematics.tree import Tree
 from ..runtime.checks import check_count
 from ..runtime.jit import matvec3, monotonic_ns, njit
 from ..runtime.parallel import parallel_chunks
 from . import kernel
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, _fk
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, fk_into
 from .method import MAX_ITERS, Method, Problem
 from .result import History, Result, package
 
@@ -64,7 +64,7 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
     best, since, status, it = np.inf, 0, MAX_ITERATIONS, 0
     pinned = False
     while True:
-        _fk(kin, q, rot, pos, irot, ipos)
+        fk_into(kin, q, rot, pos, irot, ipos)
         _tool(rot, pos, body, lpos, p)
         e = np.sqrt((p[0] - goal[0]) ** 2 + (p[1] - goal[1]) ** 2 + (p[2] - goal[2]) ** 2)
         if it < hist_q.shape[0]:
@@ -88,7 +88,7 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
         it += 1
         pinned = False
         for j in order:
-            _fk(kin, q, rot, pos, irot, ipos)
+            fk_into(kin, q, rot, pos, irot, ipos)
             _tool(rot, pos, body, lpos, p)
             R, x = (irot[0, inner[j]], ipos[0, inner[j]]) if inner[j] >= 0 else (rot[0, jbody[j]], pos[0, jbody[j]])
             matvec3(R, axis[j], u)
@@ -129,10 +129,10 @@ def ccd_one(kin: Kinematics, q: Array, body: int, lpos: Array, goal: Array, orde
                 angle = np.arctan2(s, v1 @ v2)
                 for k in range(3):  # R^T (axis * angle): angular velocity in the joint frame
                     u[k] = (R[0, k] * w[0] + R[1, k] * w[1] + R[2, k] * w[2]) * angle / s
-                _turn(q[0], c, u[0], u[1], u[2])
+                quat_turn(q[0], c, u[0], u[1], u[2])
                 for k in range(4):
                     w4[k] = q[0, c + k]
-                _quat_angle_clip(q[0], c, hi[j])
+                quat_angle_clip(q[0], c, hi[j])
                 for k in range(4):
                     pinned = pinned or abs(w4[k] - q[0, c + k]) > 1e-12  # the cone cut the turn
     return it, status, e

@@ -95,14 +95,15 @@ def timeout_ns(timeout: float | None) -> int:
 
 # ------------------------------------------------------------------ kinematics
 @njit_inline
-def _fk(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
+def fk_into(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
+    """Forward kinematics of ``q (1, nq)``: world ``rot (1, nbody, 3, 3)``, ``pos (1, nbody, 3)`` and inner frames."""
     _fk_in(kin, q, rot, pos, irot, ipos, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
 
 
 @njit_inline
 def _fk_in(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array, A: Array, t: Array,
            R: Array) -> None:
-    """:func:`_fk` with its scratch given (:func:`mjkin.kinematics.fk.fk_kernel_in`): the IK loop's, once a solve."""
+    """:func:`fk_into` with its scratch given (:func:`mjkin.kinematics.fk.fk_kernel_in`): the IK loop's."""
     fk_kernel_in(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
                  kin.fixed_plain, kin.hinge_coord, kin.anchor_zero, kin.jnt_type, kin.jnt_qadr, kin.jnt_axis,
                  kin.jnt_pos, kin.qpos0, rot, pos, irot, ipos, A, t, R)

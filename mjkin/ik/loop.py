@@ -37,7 +37,6 @@ from mjkin.ik.kernel import (
     _costs,
     _damped_solve,
     _finite_row,
-    _fk,
     _fk_in,
     _levels_met,
     _max_abs,
@@ -46,6 +45,7 @@ from mjkin.ik.kernel import (
     _scaled_errors,
     _step,
     _violation,
+    fk_into,
     step_scratch,
     summarise,
 )
@@ -437,7 +437,7 @@ def evaluate_batch(kin: Kinematics, ga: GoalArrays, q: Array, g: Array, J: Array
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     ws = scratch(J.shape[2])
     for b in range(q.shape[0]):
-        _fk(kin, q[b:b + 1], rot, pos, irot, ipos)
+        fk_into(kin, q[b:b + 1], rot, pos, irot, ipos)
         evaluate_goals(kin, ga, ws, b, q[b:b + 1], rot, pos, irot, ipos, g[b], J[b], err[b])
 
 

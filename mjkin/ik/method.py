@@ -79,6 +79,15 @@ class Method(metaclass=_Options):
         if self.restarts is not None:
             check_count(self.restarts, "restarts", 0, whole_floats=True, most=MAX_RESTARTS)
 
+    @classmethod
+    def iterative(cls) -> bool:
+        """Whether it steps toward the goals and can stop after any step (it takes ``max_iters``).
+
+        Such a method follows a moving target from the current pose, as the playground's panel
+        does, and its step mode runs it one iteration a frame; a closed form (``analytic2``) does not.
+        """
+        return any(f.name == "max_iters" for f in fields(cls))
+
     def restart_count(self, timed: bool) -> int:
         """How many restart starts a problem prepares (``timed``: a time limit is set)."""
         return 0 if self.restarts is None else int(self.restarts)

@@ -39,10 +39,10 @@ from numpy.typing import NDArray
 from ..errors import GoalError
 from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
-from ..kinematics.qspace import BALL, FREE, HINGE, _quat_angle_clip, _turn
+from ..kinematics.qspace import BALL, FREE, HINGE, quat_angle_clip, quat_turn
 from ..kinematics.tree import Tree
 from ..runtime.checks import check_count
-from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, _fk
+from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, fk_into
 from .method import MAX_ITERS, Method, Problem
 from .result import History, Result, package
 
@@ -144,7 +144,7 @@ class _Chain:
         """World anchors ``(nj, 3)``, axes ``(nj, 3)`` of the chain's joints, the tool ``(3,)``, joint frames."""
         rot, pos, irot, ipos = self.scratch
         kin = self.kin
-        _fk(kin, q[None], rot, pos, irot, ipos)
+        fk_into(kin, q[None], rot, pos, irot, ipos)
         inner, jbody, axis, anchor = kin.jnt_inner, kin.jnt_body, kin.jnt_axis, kin.jnt_pos
         anchors, axes, Rs = [], [], []
         for j in self.joints:
@@ -198,9 +198,9 @@ class _Chain:
                     if s < 1e-15 * max(float(np.linalg.norm(v1) * np.linalg.norm(v2)), 1e-300):
                         continue
                     u = Rs[k].T @ (w * np.arctan2(s, v1 @ v2) / s)
-                    _turn(q, c, u[0], u[1], u[2])
+                    quat_turn(q, c, u[0], u[1], u[2])
                     before = q[c:c + 4].copy()
-                    _quat_angle_clip(q, c, hi[j])
+                    quat_angle_clip(q, c, hi[j])
                     pinned = pinned or not np.allclose(before, q[c:c + 4], atol=1e-12)
         return pinned
 

@@ -122,16 +122,6 @@ class Result:
 
         return singular_values(self.tree, self.goals, self.q)
 
-    @property
-    def position_error(self) -> Array:
-        """Worst position error (m), ``(...)``."""
-        return self.error[..., 0]
-
-    @property
-    def rotation_error(self) -> Array:
-        """Worst rotation error (rad), ``(...)``."""
-        return self.error[..., 1]
-
 
 def _shaped(batch: tuple[int, ...], a: NDArray) -> NDArray:
     return a.reshape(batch + a.shape[1:])

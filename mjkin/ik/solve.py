@@ -15,14 +15,12 @@ from .result import Result
 
 
 def solve(tree: Tree, goals: Goal | Sequence[Goal], q0: ArrayLike | None = None, method: str | Method = "auto",
-          tol: float = 1e-6, rot_tol: float = 1e-5, *, timeout: float | None = None, base: str | None = None,
-          joints: Sequence[str] | None = None, root: str | None = None, **options: Any) -> Result:
+          tol: float = 1e-6, rot_tol: float = 1e-5, **options: Any) -> Result:
     """Find ``q`` that meets the goals, from ``q0`` (default ``qpos0``), inside the joint limits.
 
-    ``Problem(tree, goals, method=method, tol=tol, ...).solve(q0)``, equal to it bit for
-    bit; see :class:`~mjkin.Problem` for every argument and option (``history``,
-    ``seed``, ``avoid_collisions``, and the method's own: ``max_iters``, ``restarts``,
-    ``damping``, ...). A loop of solves with new targets is faster through one Problem.
+    ``Problem(tree, goals, method=method, tol=tol, rot_tol=rot_tol, **options).solve(q0)``, equal
+    to it bit for bit; see :class:`~mjkin.Problem` for every option. A loop of solves with new
+    targets is faster through one Problem.
 
     Args:
         tree: the kinematic tree.
@@ -31,14 +29,11 @@ def solve(tree: Tree, goals: Goal | Sequence[Goal], q0: ArrayLike | None = None,
         method: a name (``"auto"``, ``"lm"``, ``"dls"``, ...) or a method object.
         tol: position tolerance in metres.
         rot_tol: rotation tolerance in radians.
-        timeout: seconds each target may take, restarts included.
-        base: only joints between this body and the goal frames move.
-        joints: only these joints move.
-        root: a body that stays where it is in ``q0`` (a planted foot).
-        **options: problem options and the method's options.
+        **options: the problem's options, by keyword: ``timeout`` (seconds per target), ``base``,
+            ``joints`` and ``root`` (which joints move), ``history``, ``seed``, ``avoid_collisions``;
+            and the named method's (``max_iters``, ``restarts``, ``damping``, ...).
 
     Raises:
         GoalError, UnknownNameError, InputError: malformed goals, names or options.
     """
-    return Problem(tree, goals, method=method, tol=tol, rot_tol=rot_tol, timeout=timeout, base=base, joints=joints,
-                   root=root, **options).solve(q0)
+    return Problem(tree, goals, method=method, tol=tol, rot_tol=rot_tol, **options).solve(q0)

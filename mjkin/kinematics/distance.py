@@ -590,28 +590,3 @@ def distances(tree: Measured, q: ArrayLike, pairs: ArrayLike | None = None) -> A
                 out[b, i] = fallback_distance(tree, flat[b], int(p[i, 0]), int(p[i, 1]), data=data)[0]
     return out.reshape(f.batch + (len(p),))
 
-
-@njit
-def _distance_jacobians(kin: Kinematics, geoms: Geoms, rot: Array, pos: Array, irot: Array, ipos: Array,
-                        pairs: Index, d: Array, J: Array) -> None:
-    for p in range(pairs.shape[0]):
-        d[p] = pair_distance_jacobian(kin, geoms, rot, pos, irot, ipos, pairs[p, 0], pairs[p, 1], J[p])
-
-
-def distance_jacobians(tree: Measured, q: ArrayLike, pairs: ArrayLike | None = None) -> tuple[Array, Array]:
-    """Signed distances ``(P,)`` of geom pairs at one ``q (nq,)`` and their gradients ``(P, nv)``.
-
-    As :func:`distances` (mjkin's own where :func:`native`, else :func:`fallback_distance`);
-    row ``p`` is the rate of distance ``p`` per unit velocity (``d' = J[p] @ v``).
-    """
-    qs = tree.check_q(q).reshape(1, -1)
-    p = contact_pairs(tree) if pairs is None else np.ascontiguousarray(np.asarray(pairs, dtype=np.int64))
-    p = p.reshape(-1, 2)
-    f = forward(tree, qs)
-    d, J = np.empty(len(p)), np.empty((len(p), tree.nv))
-    _distance_jacobians(tree.kin, tree.geoms, f.rot, f.pos, f.inner_rot, f.inner_pos, p, d, J)
-    data = None
-    for i in np.flatnonzero(~native_pairs(tree.geoms, p)):
-        data = mujoco.MjData(tree.model) if data is None else data
-        d[i], J[i] = fallback_distance(tree, qs[0], int(p[i, 0]), int(p[i, 1]), data=data)
-    return d, J

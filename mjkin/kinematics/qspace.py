@@ -189,7 +189,7 @@ def _batch_shape(n: object) -> tuple[int, ...]:
 
 
 @njit
-def _quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
+def quat_angle_clip(q: Array, a: int, max_angle: float) -> None:
     """Normalise the quaternion at ``q[a:a+4]`` and pull it back onto a cone of ``max_angle``.
 
     Huge components (1e308), whose squares overflow, are scaled by the largest first.
@@ -224,13 +224,13 @@ def clip_kernel(q: Array, jnt_type: Index, jnt_qadr: Index, lo: Array, hi: Array
             if jnt_type[j] == HINGE or jnt_type[j] == SLIDE:
                 q[b, a] = min(max(q[b, a], lo[j]), hi[j])
             elif jnt_type[j] == BALL:
-                _quat_angle_clip(q[b], a, hi[j])
+                quat_angle_clip(q[b], a, hi[j])
             else:
-                _quat_angle_clip(q[b], a + 3, np.inf)
+                quat_angle_clip(q[b], a + 3, np.inf)
 
 
 @njit
-def _turn(q: Array, a: int, wx: float, wy: float, wz: float) -> None:
+def quat_turn(q: Array, a: int, wx: float, wy: float, wz: float) -> None:
     """``q[a:a+4] <- q ⊗ exp(w)``, normalised (local-frame angular velocity, as mj_integratePos)."""
     th = np.sqrt(wx * wx + wy * wy + wz * wz)
     c = np.cos(0.5 * th)
@@ -254,11 +254,11 @@ def integrate_kernel(q: Array, v: Array, jnt_type: Index, jnt_qadr: Index, jnt_d
             if jnt_type[j] == HINGE or jnt_type[j] == SLIDE:
                 q[b, a] += v[b, d]
             elif jnt_type[j] == BALL:
-                _turn(q[b], a, v[b, d], v[b, d + 1], v[b, d + 2])
+                quat_turn(q[b], a, v[b, d], v[b, d + 1], v[b, d + 2])
             else:
                 for i in range(3):
                     q[b, a + i] += v[b, d + i]
-                _turn(q[b], a + 3, v[b, d + 3], v[b, d + 4], v[b, d + 5])
+                quat_turn(q[b], a + 3, v[b, d + 3], v[b, d + 4], v[b, d + 5])
 
 
 @njit

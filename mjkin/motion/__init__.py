@@ -11,8 +11,8 @@ from .follow import follow
 from .keyframes import circle, interpolate, line, min_jerk, waypoints
 from .retime import retime
 from .trajectory import FORMAT, LIMIT_TOL, Trajectory, outside_limits
-from .walk import HEEL_STRIKE, TOE_OFF, sole_points, swing_foot, walk_cycle
+from .walk import HEEL_STRIKE, TOE_OFF, Gait, Rig, sole_points, swing_foot, walk_cycle
 
-__all__ = ["FORMAT", "HEEL_STRIKE", "LIMIT_TOL", "TOE_OFF", "Trajectory", "circle", "fingerprint", "follow",
-           "interpolate", "line", "min_jerk", "outside_limits", "retime", "sole_points", "swing_foot", "walk_cycle",
-           "waypoints"]
+__all__ = ["FORMAT", "HEEL_STRIKE", "LIMIT_TOL", "TOE_OFF", "Gait", "Rig", "Trajectory", "circle", "fingerprint",
+           "follow", "interpolate", "line", "min_jerk", "outside_limits", "retime", "sole_points", "swing_foot",
+           "walk_cycle", "waypoints"]

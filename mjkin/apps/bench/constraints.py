@@ -94,8 +94,8 @@ class Judge:
 
 
 @dataclass(frozen=True)
-class Scene:
-    """One arm among the obstacles: its tree, frame, start, targets ``(N, 4, 4)`` and MuJoCo's judge."""
+class ClearanceCase:
+    """A clearance benchmark case: one arm among the obstacles, its frame, start, targets ``(N, 4, 4)`` and judge."""
 
     name: str
     tree: Tree
@@ -105,7 +105,7 @@ class Scene:
     judge: Judge
 
 
-def scene(name: str, n: int, rng: np.random.Generator, margin: float = MARGIN) -> Scene:
+def clearance_case(name: str, n: int, rng: np.random.Generator, margin: float = MARGIN) -> ClearanceCase:
     """``n`` targets from random configurations MuJoCo finds clear by ``margin`` (an answer exists for each)."""
     tree = obstacle_scene(name)
     judge = Judge(tree, margin)
@@ -118,7 +118,7 @@ def scene(name: str, n: int, rng: np.random.Generator, margin: float = MARGIN) -
     else:
         raise InputError(f"{name}: too few random configurations keep {margin} m of clearance; give a smaller margin")
     q0 = tree.model.key_qpos[0].copy() if tree.model.nkey else tree.qpos0.copy()
-    return Scene(name, tree, frame, q0, tree.pose(np.array(qs), frame), judge)
+    return ClearanceCase(name, tree, frame, q0, tree.pose(np.array(qs), frame), judge)
 
 
 def pose_ok(tree: Tree, frame: str, q: Array, T: Array) -> bool:
@@ -155,7 +155,7 @@ def timed(solve_one: Callable[[int], tuple[Array, bool]], n: int) -> Answers:
     return Answers(np.array(qs), seconds, said)
 
 
-def mjkin_answers(s: Scene, clearance: bool, margin: float) -> Answers:
+def mjkin_answers(s: ClearanceCase, clearance: bool, margin: float) -> Answers:
     """One ``problem.solve`` per target from the home pose, with or without a hard Clearance of ``margin``."""
     extra = [G.Clearance(margin)] if clearance else []
     problem = Problem(s.tree, [G.Pose(s.frame, T=s.targets[0]), *extra], tol=TOL, rot_tol=ROT_TOL)
@@ -167,7 +167,7 @@ def mjkin_answers(s: Scene, clearance: bool, margin: float) -> Answers:
     return timed(one, len(s.targets))
 
 
-def reject_and_retry(s: Scene, rng: np.random.Generator) -> Answers:
+def reject_and_retry(s: ClearanceCase, rng: np.random.Generator) -> Answers:
     """The baseline a user writes: solve without clearance; while MuJoCo finds a pair inside the margin,
     solve again from a random start (up to :data:`RETRIES` times). MuJoCo's checks are inside the timed call.
     """  # noqa: D205
@@ -185,7 +185,7 @@ def reject_and_retry(s: Scene, rng: np.random.Generator) -> Answers:
     return timed(one, len(s.targets))
 
 
-def mink_answers(s: Scene, margin: float) -> Answers:
+def mink_answers(s: ClearanceCase, margin: float) -> Answers:
     """Mink as its collision example runs it: FrameTask, ConfigurationLimit and ``CollisionAvoidanceLimit`` over
     every moving geom against every other geom, ``solve_ik`` (daqp) and integrate until ``compute_error`` is
     within tolerance (at most :data:`MINK_ITERS` steps). Only mink's calls are timed.
@@ -216,7 +216,7 @@ def mink_answers(s: Scene, margin: float) -> Answers:
     return timed(one, len(s.targets))
 
 
-def judged_row(s: Scene, solver: str, a: Answers, baseline_ms: float | None) -> Row:
+def judged_row(s: ClearanceCase, solver: str, a: Answers, baseline_ms: float | None) -> Row:
     """Success judged by MuJoCo (pose within tolerance and clearance kept), violations among the solver's own
     successes, median time and its ratio to the solve without clearance.
     """  # noqa: D205
@@ -235,7 +235,7 @@ def bench_clearance(n: int, seed: int, margin: float, skipped: list[Row]) -> lis
     rows: list[Row] = []
     rng = np.random.default_rng(seed)
     for name in track(tuple(ARMS), "bench constraints: arms"):
-        s = scene(name, n, rng, margin)
+        s = clearance_case(name, n, rng, margin)
         plain = mjkin_answers(s, False, margin)
         base = 1e3 * float(np.median(plain.seconds))
         rows.append(judged_row(s, "mjkin Clearance", mjkin_answers(s, True, margin), base))

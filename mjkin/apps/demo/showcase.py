@@ -129,7 +129,7 @@ def walk_motion(n: int, fps: float) -> tuple[Tree, Array, Callable[[int], str]]:
     """The walk scene's primate, its poses ``(T, nq)`` (:data:`WALK_STEPS` whole steps of ``n`` frames) and captions."""
     tree = load("primate")
     steps, per = WALK_STEPS, max(2, n // WALK_STEPS)
-    walk = motion.walk_cycle(tree, steps=steps, frames_per_step=per, fps=fps)
+    walk = motion.walk_cycle(tree, steps=steps, gait=motion.Gait(frames_per_step=per), fps=fps)
 
     def caption(t: int) -> str:
         return f"primate walk, heel to toe\nstep {t // per + 1} of {steps} · arms swing\nIK root: the planted foot"

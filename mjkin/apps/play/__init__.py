@@ -13,6 +13,9 @@ from typing import Any
 
 __all__ = ["serve"]
 
+# the web server's packages are the play extra; the rest of the playground (and mjkin) imports without them
+NEEDS_PLAY_EXTRA = "mjkin play needs the play extra (no module {missing!r}): pip install 'mjkin[play]'"
+
 
 def __getattr__(name: str) -> Any:
     """``serve``, imported when first asked for: reading a journal (``mjkin replay``) needs no web server."""

@@ -12,7 +12,7 @@ a thread or a GL context, so all of it is tested without a browser.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -24,6 +24,7 @@ from ... import goals as G
 from ... import spatial
 from ...errors import InputError
 from ...explore.solutions import solutions
+from ...goals import registry
 from ...goals.clearance import bounded_geoms
 from ...ik import METHODS, Problem
 from ...kinematics.distance import pair_distance
@@ -34,10 +35,7 @@ from ...kinematics.tree import Tree
 
 Array = NDArray[np.float64]
 
-PANEL_METHODS = tuple(m for m in ("auto", "dls", "pinv", "transpose", "ccd", "reach", "optimize") if m in METHODS)
-GOAL_KINDS = ("position", "pose", "aim")
 AUTO_ITERS = 200  # auto follows without restarts, so it gets more iterations than its 50 per restart
-AIM_AXIS = (0.0, 0.0, 1.0)  # the effector axis that aim goals point at the target (z: out of the flange)
 # targets farther than FAR model extents from the model's centre are refused (Tree.check_near): no figure reaches
 # them, and at ~1e154 m the position error overflows (every panel method still gives finite results at FAR)
 
@@ -299,17 +297,33 @@ def with_frames(tree: Tree, state: State, frames: Sequence[str]) -> State:
     return replace(state, targets=targets, iterations=0, stalled=False)
 
 
+def panel_methods() -> tuple[str, ...]:
+    """The IK methods the panel offers: every registered one (:data:`mjkin.ik.METHODS`) that is
+    :meth:`~mjkin.ik.Method.iterative`, so it follows a drag from the current pose and step mode can step it.
+    """  # noqa: D205
+    return tuple(name for name, method in METHODS.items() if method.iterative())
+
+
+def goal_kinds() -> dict[str, Callable[[str, Array, Array], G.Goal]]:
+    """The goal kinds the panel offers, by lower-case class name (``position``, ``pose``, ``aim``, ...).
+
+    Every registered kind (:data:`mjkin.goals.registry.KINDS`) with a class method ``from_target(frame, xyz, quat)``
+    that makes it from a placed target (a point ``(3,)`` and a quaternion ``(4,)``, world), mapped to that method.
+    """
+    return {kind.__name__.lower(): kind.from_target for kind in registry.KINDS if hasattr(kind, "from_target")}
+
+
 def with_method(state: State, method: str) -> State:
-    """The same state solved by another method (one of :data:`PANEL_METHODS`)."""
-    if method not in PANEL_METHODS:
-        raise InputError(f"unknown method {method!r}; choose one of: {', '.join(PANEL_METHODS)}")
+    """The same state solved by another method (one of :func:`panel_methods`)."""
+    if method not in (offered := panel_methods()):
+        raise InputError(f"unknown method {method!r}; choose one of: {', '.join(offered)}")
     return replace(state, method=method, iterations=0, stalled=False)
 
 
 def with_goal(state: State, goal: str) -> State:
-    """The same state with another goal kind: ``position``, ``pose`` or ``aim``."""
-    if goal not in GOAL_KINDS:
-        raise InputError(f"unknown goal kind {goal!r}; choose one of: {', '.join(GOAL_KINDS)}")
+    """The same state with another goal kind (one of :func:`goal_kinds`: ``position``, ``pose``, ``aim``, ...)."""
+    if goal not in (offered := goal_kinds()):
+        raise InputError(f"unknown goal kind {goal!r}; choose one of: {', '.join(offered)}")
     return pending(replace(state, goal=goal))
 
 
@@ -374,17 +388,10 @@ def pending(state: State) -> State:
 
 
 def goals_for(state: State) -> list[G.Goal]:
-    """The IK goals of the targets for the state's goal kind."""
-    out: list[G.Goal] = []
-    for frame, t in state.targets.items():
-        t = np.asarray(t, float)
-        if state.goal == "pose":
-            out.append(G.Pose(frame, T=spatial.make_transform(spatial.quat_to_mat(t[3:]), t[:3])))
-        elif state.goal == "aim":
-            out.append(G.Aim(frame, axis=AIM_AXIS, point=t[:3]))
-        else:
-            out.append(G.Position(frame, xyz=t[:3]))
-    return out
+    """The IK goals of the targets for the state's goal kind (made by its ``from_target``)."""
+    make = goal_kinds()[state.goal]
+    targets = {frame: np.asarray(t, float) for frame, t in state.targets.items()}
+    return [make(frame, t[:3], t[3:]) for frame, t in targets.items()]
 
 
 # ----------------------------------------------------------------- constraints

@@ -75,21 +75,24 @@ from types import FrameType
 from typing import Any, ClassVar
 from urllib.parse import parse_qs
 
-import uvicorn
-from starlette.applications import Starlette
-from starlette.concurrency import run_in_threadpool
-from starlette.datastructures import Headers
-from starlette.requests import ClientDisconnect, Request
-from starlette.responses import PlainTextResponse, Response, StreamingResponse
-from starlette.routing import Route
-from starlette.types import ASGIApp, Receive, Scope, Send
-from uvicorn.protocols.http.h11_impl import H11Protocol
-
 from ...errors import InputError, MjkinError, MjkinIOError
 from ...kinematics.tree import Tree, load, source_of
 from ...runtime.files import strict_json
-from . import core, journal
+from . import NEEDS_PLAY_EXTRA, core, journal
 from .session import Busy, Playground, recordings_folder
+
+try:  # the play extra: without it, one line saying what to install (mjkin play's exit status 2)
+    import uvicorn
+    from starlette.applications import Starlette
+    from starlette.concurrency import run_in_threadpool
+    from starlette.datastructures import Headers
+    from starlette.requests import ClientDisconnect, Request
+    from starlette.responses import PlainTextResponse, Response, StreamingResponse
+    from starlette.routing import Route
+    from starlette.types import ASGIApp, Receive, Scope, Send
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+except ModuleNotFoundError as missing:
+    raise MjkinError(NEEDS_PLAY_EXTRA.format(missing=missing.name)) from None
 
 MAX_BODY = 1 << 16
 BOUNDARY = "mjkin-play-frame"

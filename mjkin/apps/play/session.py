@@ -268,7 +268,7 @@ class Playground:
         return self._change(client, lambda s: self._settle(core.with_method(s, method)))
 
     def set_goal(self, client: str, goal: str) -> dict:
-        """Switch the goal kind: position, pose or aim."""
+        """Switch the goal kind (one of :func:`~mjkin.apps.play.core.goal_kinds`: position, pose, aim, ...)."""
         return self._change(client, lambda s: self._settle(core.with_goal(s, goal)))
 
     def set_frames(self, client: str, frames: Sequence[str]) -> dict:
@@ -489,7 +489,7 @@ class Playground:
 
     def info(self) -> dict:
         """What the page needs once: methods, goal kinds, frames, sliders, image size."""
-        return {"model": self.tree.name, "methods": list(core.PANEL_METHODS), "goals": list(core.GOAL_KINDS),
+        return {"model": self.tree.name, "methods": list(core.panel_methods()), "goals": list(core.goal_kinds()),
                 "sites": [n for n in self.tree.names("site") if n],
                 "bodies": [n for n in self.tree.names("body")[1:] if n],
                 "joints": core.joint_sliders(self.tree), "width": self.width, "height": self.height,
