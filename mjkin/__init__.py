@@ -15,6 +15,7 @@ from .explore.workspace import workspace
 from .ik import Problem, Result, singular_values, solve
 from .kinematics import build
 from .kinematics.tree import Tree, bundled_models, load
+from .motion.dataset import retarget_many
 from .motion.retarget import retarget
 from .runtime.parallel import set_threads, threads
 
@@ -39,6 +40,7 @@ __all__ = [
     "singular_values",
     "solutions",
     "retarget",
+    "retarget_many",
     "set_threads",
     "solve",
     "spatial",

@@ -21,6 +21,11 @@ gradient are drawn; links with nothing visible (mesh-free models) get capsule
 bones between their bodies' origins. These are geoms put into each frame's
 scene, as the markers are; a model with a light, a floor and visible links is
 drawn exactly as it was.
+
+A figure drawn on a scene (``terrain``: :class:`mjkin.motion.terrain.Terrain`, the ground it was
+retargeted onto) stands among the scene's geoms in place of its own model's world geoms: the scene's
+highest plane facing up as the checker floor, its other geoms in their colours (meshes and height
+fields as their bounding boxes: a frame's scene holds only the figure model's meshes).
 """
 
 from __future__ import annotations
@@ -49,6 +54,8 @@ from .scene import Scene
 
 if TYPE_CHECKING:
     from PIL import ImageFont
+
+    from .motion.terrain import Terrain
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MARGIN = 0.07  # the camera keeps the figure this fraction of the image away from every edge (≥ 5 % asked)
@@ -402,14 +409,15 @@ def _nice(x: float) -> float:
     return float(next(f * e for f in (1, 2, 5, 10) if f * e >= x * (1 - 1e-9)))
 
 
-def fit_floor(tree: Tree, qs: ArrayLike, stage: Stage) -> Floor:
-    """The floor under the figure in every pose of ``qs (T, nq)``: at z = 0 when the figure stands on it (its
-    lowest point from 5 % of its size below to 10 % above), else at its lowest point; checker squares of about a
-    tenth of its size over its path and a figure's size around, the squares larger when the path is long.
+def fit_floor(tree: Tree, qs: ArrayLike, stage: Stage, z: float | None = None) -> Floor:
+    """The floor under the figure in every pose of ``qs (T, nq)``: at ``z``, or at z = 0 when the figure stands on
+    it (its lowest point from 5 % of its size below to 10 % above), else at its lowest point; checker squares of
+    about a tenth of its size over its path and a figure's size around, the squares larger when the path is long.
     """  # noqa: D205
     qs = np.atleast_2d(tree.check_q(qs))
     lo, hi = _figure_box(tree, qs, stage.bones, stage.radius)
-    z = 0.0 if -0.05 * stage.size <= lo[2] <= 0.1 * stage.size else float(lo[2])
+    if z is None:
+        z = 0.0 if -0.05 * stage.size <= lo[2] <= 0.1 * stage.size else float(lo[2])
     tile = _nice(stage.size / 10)
     while True:
         first, last = np.floor((lo[:2] - stage.size) / tile), np.ceil((hi[:2] + stage.size) / tile)
@@ -523,6 +531,38 @@ def _add_sky(scene: mujoco.MjvScene, aspect: float, floor: Floor) -> None:
             g.emission, g.specular = glow, 0.0
 
 
+TerrainGeom = tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float32]]
+TERRAIN_REACH = 50.0  # m: how far an unbounded plane of a scene is drawn
+
+
+def terrain_geoms(terrain: Terrain) -> list[TerrainGeom]:
+    """The scene's geoms to draw: ``(type, size, pos, mat (9,), rgba)`` each, the floor (drawn as the checker)
+    and hidden geoms left out, meshes and height fields as their bounding boxes, unbounded planes
+    :data:`TERRAIN_REACH` across.
+    """  # noqa: D205
+    m, d = terrain.model, terrain.data
+    out: list[TerrainGeom] = []
+    for g in np.flatnonzero(terrain.colors[:, 3] > 0):
+        kind, size, pos = int(m.geom_type[g]), m.geom_size[g].copy(), d.geom_xpos[g].copy()
+        mat = d.geom_xmat[g].reshape(3, 3)
+        if kind == mujoco.mjtGeom.mjGEOM_PLANE:
+            if terrain.floor is not None and mat[2, 2] > 1 - 1e-9 and abs(pos[2] - terrain.floor) < 1e-9:
+                continue
+            size[:2] = np.where(size[:2] > 0, size[:2], TERRAIN_REACH)
+        elif kind in (mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_HFIELD):
+            kind, size, pos = int(mujoco.mjtGeom.mjGEOM_BOX), m.geom_aabb[g, 3:].copy(), pos + mat @ m.geom_aabb[g, :3]
+        out.append((kind, size, pos, mat.ravel().copy(), terrain.colors[g]))
+    return out
+
+
+def _add_terrain(scene: mujoco.MjvScene, geoms: Sequence[TerrainGeom]) -> None:
+    """The scene's geoms (:func:`terrain_geoms`), casting shadows as a model's static geoms do."""
+    for kind, size, pos, mat, rgba in geoms:
+        g = _stage_geom(scene, kind, size, pos, mat, rgba)
+        if g is not None:
+            g.category = mujoco.mjtCatBit.mjCAT_STATIC
+
+
 def _add_bones(scene: mujoco.MjvScene, xpos: NDArray[np.float64], stage: Stage) -> None:
     """Capsules of ``stage.radius`` between the world origins ``xpos (nbody, 3)`` of each bone's two bodies."""
     for a, b in xpos[stage.bones]:
@@ -630,15 +670,21 @@ class Painter:
     the last :meth:`draw` put into the scene. :attr:`stage` is what it adds to a
     model that lacks it (a light, floor and sky, bones: :class:`Stage`; none with
     ``stage=False``), and :attr:`floor` the floor it draws, fitted to ``qpos0`` until
-    :meth:`fit` (or :meth:`cameras`) fits it to the poses of a video.
+    :meth:`fit` (or :meth:`cameras`) fits it to the poses of a video. With a ``terrain`` the figure
+    stands on that scene instead of its model's world geoms (see the module).
     """
 
-    def __init__(self, tree: Tree, width: int = 640, height: int = 480, stage: bool = True) -> None:
+    def __init__(self, tree: Tree, width: int = 640, height: int = 480, stage: bool = True,
+                 terrain: Terrain | None = None) -> None:
         _check_size(width, height)
         model = tree.model
         self.tree, self.scene, self.added = tree, Scene(tree), 0
         self.width, self.height = width, height
         self.stage = Stage.of(tree) if stage else Stage()
+        self.terrain = terrain
+        self.option = mujoco.MjvOption()  # with a terrain, the model's static geoms are not drawn
+        self.option.flags[mujoco.mjtVisFlag.mjVIS_STATIC] = terrain is None
+        self._terrain = [] if terrain is None else terrain_geoms(terrain)
         self.floor: Floor | None = None
         self.fit(tree.qpos0)
         # the offscreen buffer (and its multisample resolve) is sized to the frame, not to the model's
@@ -674,8 +720,13 @@ class Painter:
         return cameras(self.tree, camera, qs, points, self.width / self.height, view, follow)
 
     def fit(self, qs: ArrayLike) -> None:
-        """Place the floor (when the stage has one) under the figure in all poses ``qs (T, nq)``: :func:`fit_floor`."""
-        if self.stage.backdrop:
+        """Place the floor (when the stage has one) under the figure in all poses ``qs (T, nq)``: :func:`fit_floor`
+        (at the terrain's floor, when there is a terrain).
+        """  # noqa: D205
+        if self.terrain is not None:
+            z = self.terrain.floor
+            self.floor = None if z is None else fit_floor(self.tree, qs, self.stage, z)
+        elif self.stage.backdrop:
             self.floor = fit_floor(self.tree, qs, self.stage)
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
@@ -688,11 +739,13 @@ class Painter:
         r = self.renderer
         data = self.scene.set(q)
         with _headlight(self.tree.model, self.stage.light):
-            r.update_scene(data, camera)
+            r.update_scene(data, camera, self.option)
         _planes_cast_no_shadow(r.scene)
         if self.floor is not None:
             _add_floor(r.scene, self.floor, self.width / self.height)
-            _add_sky(r.scene, self.width / self.height, self.floor)
+            if self.stage.backdrop:
+                _add_sky(r.scene, self.width / self.height, self.floor)
+        _add_terrain(r.scene, self._terrain)
         _add_bones(r.scene, data.xpos, self.stage)
         first = r.scene.ngeom
         for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
@@ -739,7 +792,7 @@ def cameras(tree: Tree, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.fl
 
 def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camera: mujoco.MjvCamera | str | None = None,
            overlay: Overlay | None = None, desc: str = "render", view: tuple[float, float] | None = None,
-           follow: bool | None = None) -> Iterator[NDArray[np.uint8]]:
+           follow: bool | None = None, terrain: Terrain | None = None) -> Iterator[NDArray[np.uint8]]:
     """RGB frames ``(height, width, 3)`` of configurations ``qs (T, nq)``, made one at a time as they are taken.
 
     Memory does not grow with ``T`` (pass the iterator to :func:`write_video`);
@@ -753,7 +806,7 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     the figure; default: when it travels). ``overlay.points``
     are ``(n, 3)`` for every frame or ``(T, n, 3)`` per frame; the trail grows frame
     by frame, decimated to ``overlay.trail_points``. The figure is staged (:class:`Stage`), its floor
-    under it in every frame.
+    under it in every frame, or stands on ``terrain`` (the scene it was retargeted onto).
     """
     qs = tree.check_q(qs)
     if qs.ndim == 1:
@@ -769,7 +822,7 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     cams = cameras(tree, camera, qs, seen, width / height, view, follow)
 
     def draw() -> Iterator[NDArray[np.uint8]]:
-        with Painter(tree, width, height) as painter:
+        with Painter(tree, width, height, terrain=terrain) as painter:
             painter.fit(qs)
             for t in track(range(len(qs)), desc, total=len(qs)):
                 yield painter.draw(qs[t], cams[t], points[t] if points.ndim == 3 else points,

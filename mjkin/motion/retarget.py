@@ -3,27 +3,30 @@
 The method, per clip (targets for every frame worked out at once, then one warm-started
 solve per frame through one :class:`mjkin.Problem`):
 
-1. The source is read (:mod:`mjkin.bvh`), put in metres (``scale`` metres per BVH unit, by
+1. The source is read (:mod:`mjkin.motion.bvh`), put in metres (``scale`` metres per BVH unit, by
    default the unit its height suggests), turned z-up and so that it first faces the figure's +x.
 2. Roles (pelvis, hips, knees, ankles, toes, shoulders, elbows, wrists, head) are
-   matched to source joints by name (Mixamo, CMU/MotionBuilder, the 19-joint
-   ``Hips/Chest/LeftHip`` rig: :data:`SOURCE_NAMES`) and to figure bodies
-   (:data:`FIGURES`, by model name), or given by a mapping.
+   matched to source joints by name (Mixamo, LAFAN1/AMASS, CMU/MotionBuilder, the 19-joint
+   ``Hips/Chest/LeftHip`` rig) and to figure bodies from the figure's tree and names
+   (:mod:`mjkin.motion.roles`), or given by a mapping.
 3. Targets keep the figure's proportions: the pelvis moves as the source's, in metres
    with a given ``scale``, else scaled by the ratio of leg lengths; each limb point is its parent's target plus
    the figure's segment length along the source segment's direction; pelvis, torso
    and feet turn as frames built from the source's points do (relative to its rest
    pose).
 4. Foot contacts come from the source (toe or ankle near the floor and slow, with
-   hysteresis). A planted foot's target is frozen flat on the floor for the whole
-   contact and eased back to the source's over :data:`EASE` frames after it lifts.
-   Swinging feet are lifted so no sole point is below the floor.
+   hysteresis). The ground is the plane z = 0 or a scene's world geoms (:mod:`~mjkin.motion.terrain`,
+   ray casts down). A planted foot's target is frozen for the whole contact, resting on the ground
+   under it by the lowest points of its geoms (tilted onto a slope), and eased back to the source's over
+   :data:`EASE` frames after it lifts. Swinging feet are lifted so no point of their geoms is under the
+   ground. The pelvis (and with it every limb) rises and falls with the ground under the planted feet.
 5. Goals, in one priority level: both feet's toe and heel points weighted far above
    (:data:`FOOT_WEIGHT`) the pelvis, limb points, head, torso/pelvis orientations and the
    previous frame's pose; each frame is warm-started from the previous one. A hard
    :class:`~mjkin.goals.StepLimit` keeps each frame's change from the previous one within
-   the joint speed limit, inside the solve (and, with ``clearance``, a hard
-   :class:`~mjkin.goals.Clearance` keeps the figure's bodies apart).
+   the joint speed limit, and hard :class:`~mjkin.goals.HalfSpace` goals keep the soles' corners above
+   the ground planes under them, inside the solve, and a hard :class:`~mjkin.goals.Clearance` keeps the
+   figure's own bodies :data:`SELF_CLEARANCE` apart (``clearance``).
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
 limits, speeds and self-penetration (MuJoCo contacts between non-adjacent bodies).
@@ -31,66 +34,31 @@ limits, speeds and self-penetration (MuJoCo contacts between non-adjacent bodies
 
 from __future__ import annotations
 
-import json
 import os
-import re
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import goals as G
 from .. import spatial
-from ..errors import InputError, MjkinIOError
+from ..errors import InputError
 from ..ik import Problem
 from ..ik.kernel import HARD_TOL
 from ..kinematics.geoms import contact_pairs
+from ..kinematics.qspace import BALL, HINGE
 from ..kinematics.tree import Tree, fingerprint
 from ..runtime.checks import check_number, shown
 from ..scene import Scene
 from . import Trajectory, bvh, outside_limits, sole_points
+from .clips import read_clip
+from .roles import SIDES, figure_mapping, pelvis_lean, read_mapping, role_offsets, source_mapping
+from .terrain import TEXT_SOURCE, Terrain, foot_points, lowest, sole_corners
 
 Array = NDArray[np.float64]
-SIDES = ("left", "right")
-LIMB = ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")
-REQUIRED = ("pelvis", "head", *(f"{s}_{p}" for s in SIDES for p in LIMB))
-ROLES = (*REQUIRED, "left_toe", "right_toe", "neck")
-
-# Source joint names per role, by preference, compared lower-case without a namespace ('mixamorig:') or '_ -.';
-# {s} is 'left'/'right', {c} 'l'/'r'. Mixamo's LeftShoulder is the collarbone, the 19-joint rig's the upper arm:
-# LeftArm comes first, so each rig gets its own.
-SOURCE_NAMES: dict[str, tuple[str, ...]] = {
-    "pelvis": ("hips", "pelvis", "hip", "root"),
-    "head": ("head",),
-    "neck": ("neck", "neck1"),
-    "hip": ("{s}upleg", "{s}hip", "{s}thigh", "{s}upperleg", "{c}thigh", "{c}hip", "{c}upleg"),
-    "knee": ("{s}leg", "{s}knee", "{s}shin", "{s}lowerleg", "{c}shin", "{c}knee", "{c}leg"),
-    "ankle": ("{s}foot", "{s}ankle", "{c}foot", "{c}ankle"),
-    "toe": ("{s}toebase", "{s}toe", "{s}toes", "{c}toe", "{c}toes", "{s}footend", "{s}ankleend", "{c}footend"),
-    "shoulder": ("{s}arm", "{s}upperarm", "{c}shldr", "{c}upperarm", "{c}humerus", "{s}shoulder", "{c}shoulder"),
-    "elbow": ("{s}forearm", "{s}elbow", "{s}lowerarm", "{c}forearm", "{c}elbow", "{c}radius"),
-    "wrist": ("{s}hand", "{s}wrist", "{c}hand", "{c}wrist"),
-}
-
-# Figure bodies per role for the figures mjkin knows by model name (body origins at the joint centres).
-FIGURES: dict[str, dict[str, str]] = {
-    "primate": {"pelvis": "lower_torso", "torso": "upper_torso", "head": "head",
-                **{f"{s}_{p}": f"{s}_{b}" for s in SIDES for p, b in
-                   (("hip", "thigh"), ("knee", "shin"), ("ankle", "foot"), ("shoulder", "upper_arm"),
-                    ("elbow", "forearm"), ("wrist", "hand"))}},
-    "g1": {"pelvis": "pelvis", "torso": "torso_link", "head": "torso_link",
-           **{f"{s}_{p}": f"{s}_{b}" for s in SIDES for p, b in
-              (("hip", "hip_roll_link"), ("knee", "knee_link"), ("ankle", "ankle_roll_link"),
-               ("shoulder", "shoulder_roll_link"), ("elbow", "elbow_pitch_link"), ("wrist", "zero_link"))}},
-}
-FIGURE_OFFSETS = {"g1": {"head": (0.0, 0.0, 0.45)}}  # a role's point in its body, where it is not the origin
-# how much of the source's lean (pelvis to mid-shoulders, from upright) the pelvis takes, by model name: half
-# (the primate's waist turns 0.7 rad at most), all on the G1 (its torso only turns about the vertical)
-FIGURE_LEAN = {"g1": 1.0}
-
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 SCALE = (1e-6, 1e6)  # metres per BVH unit a clip may be given (micrometres to thousands of kilometres)
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
@@ -103,83 +71,22 @@ MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no 
 MAX_ITERS = 6
 FOOT_WEIGHT = 1000.0
 REST_WEIGHT = 0.02
+# The body's goals against each other. The pelvis point leads (every key point follows it) and the pelvis's turn
+# counts least: the lean it takes from the source (all of it on the G1) pulls the hips back of where a deep
+# crouch needs them; at 1 and 0.3 the G1 crouched with one knee straight and its pelvis 10 cm high (key points
+# 4.0 cm off at the median, 2.0 cm with these weights; the walks and the primate's crouch improve too).
+BODY_WEIGHTS = {"pelvis": 3.0, "pelvis_turn": 0.05, "torso_turn": 0.3, "head": 0.5, "knee": 0.5, "shoulder": 0.5,
+                "elbow": 0.5, "wrist": 1.0}
+# Metres kept between the figure's own geoms (a hard Clearance in every frame's solve) unless the caller says
+# otherwise: limbs that come close in the source (hands at the hips, knees brushing, legs crossing at 120 Hz)
+# stay apart, at 9-16 % of the primate's frames/s and 2-9 % of the G1's (`mjkin bench retarget`).
+SELF_CLEARANCE = 0.002
 EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
-
-
-def _norm(name: str) -> str:
-    return re.sub(r"[\s_.\-]", "", name.rsplit(":", 1)[-1]).lower()
-
-
-def source_mapping(clip: bvh.Clip, given: dict[str, str] | None = None) -> dict[str, int]:
-    """Role -> joint index in ``clip``: ``given`` names first, the rest found by :data:`SOURCE_NAMES`.
-
-    Raises:
-        InputError: a required role has no joint (the message lists those and the clip's joint names).
-    """
-    found: dict[str, int] = {}
-    by_norm: dict[str, int] = {}
-    for i, n in enumerate(clip.names):
-        by_norm.setdefault(_norm(n), i)
-    for role, name in (given or {}).items():
-        if role not in ROLES:
-            raise InputError(f"unknown role {role!r} in the mapping; roles are: {', '.join(ROLES)}")
-        found[role] = clip.index(name)
-    for role in ROLES:
-        if role in found:
-            continue
-        side, _, part = role.partition("_")
-        pats = SOURCE_NAMES[part] if part else SOURCE_NAMES[role]
-        for pat in pats:
-            cand = pat.format(s=side, c=side[:1]) if part else pat
-            if cand in by_norm and by_norm[cand] not in found.values():
-                found[role] = by_norm[cand]
-                break
-    missing = [r for r in REQUIRED if r not in found]
-    if missing:
-        shown = ", ".join(clip.names[:40]) + (f", ... ({len(clip.names) - 40} more)" if len(clip.names) > 40 else "")
-        raise InputError(f"cannot map {', '.join(missing)} of BVH {clip.source or 'clip'} by joint names; give a "
-                         f"mapping file with those roles (its joints: {shown})")
-    return found
-
-
-def figure_mapping(tree: Tree, given: dict[str, str] | None = None) -> dict[str, str]:
-    """Role -> body of ``tree`` (plus ``torso``): :data:`FIGURES` for known model names, overridden by ``given``.
-
-    Raises:
-        InputError: a required role (or ``torso``) has no body.
-    """
-    known = dict(FIGURES.get(tree.name, {}))
-    known.update(given or {})
-    missing = [r for r in (*REQUIRED, "torso") if r not in known]
-    if missing:
-        raise InputError(f"model {tree.name!r} has no retargeting roles for {', '.join(missing)}; give them in the "
-                         f"mapping file's \"figure\" object (role -> body; known figures: {', '.join(FIGURES)})")
-    for body in known.values():
-        tree.id(body, "body")  # UnknownNameError lists the bodies
-    return known
-
-
-def read_mapping(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
-    """A mapping file: ``{"source": {role: bvh joint}, "figure": {role: body}}``, either part optional.
-
-    Raises:
-        MjkinIOError: missing or not JSON.
-        InputError: not of that shape.
-    """
-    try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise MjkinIOError(f"mapping file not found: {str(path)!r}") from None
-    except (OSError, ValueError) as e:
-        raise MjkinIOError(f"cannot read mapping {str(path)!r}: {e}") from None
-    if not isinstance(doc, dict) or set(doc) - {"source", "figure"} or not all(
-            isinstance(v, dict) and all(isinstance(a, str) and isinstance(b, str) for a, b in v.items())
-            for v in doc.values()):
-        raise InputError(f"mapping {str(path)!r} must be {{\"source\": {{role: joint}}, \"figure\": {{role: body}}}} "
-                         f"with string names; roles: {', '.join(ROLES)}")
-    return {k: dict(v) for k, v in doc.items()}
+GROUND_SMOOTH = 0.1  # s: the ground height the pelvis follows is smoothed over this (a Gaussian's sigma)
+TILT_MAX = 0.5  # rad: a planted foot lies on a slope up to this steep (beyond, it rests level on the highest point)
+TILT_AGREE = 0.03  # rad: ... and only where the normals under its geoms agree this well (one plane, not an edge)
 
 
 # ------------------------------------------------------------------ geometry
@@ -218,7 +125,8 @@ class Retarget:
     ``feet (2, F, 4, 4)`` the foot bodies' target poses; ``source (F, J, 3)`` the source
     points in the figure's world (scaled as the root path), for drawing; ``metres_per_unit`` the
     clip's unit (given or from its height); ``root_ratio`` the figure's root path (m) per metre of the
-    source's: 1 with a given scale, else the ratio of leg lengths (figure / source).
+    source's: 1 with a given scale, else the ratio of leg lengths (figure / source); ``footing`` left/right
+    :class:`Footing`, the ground planes under the soles' corners.
     """
 
     points: dict[str, Array]
@@ -232,6 +140,15 @@ class Retarget:
     bodies: dict[str, str]
     offsets: dict[str, Array]
     parents: NDArray[np.int64]
+    footing: tuple[Footing, ...]
+
+
+class Footing(NamedTuple):
+    """Where a foot's sole corners must stay in every frame: on the positive side of the ground planes under them."""
+
+    corners: Array  # (K, 3) ball centres in the foot body's frame (:func:`.terrain.sole_corners`)
+    points: Array  # (F, K, 3) a point of each corner's plane, moved out by the ball's radius (world, m)
+    normals: Array  # (F, K, 3) the planes' unit normals
 
 
 def _contacts(height: Array, speed: Array) -> NDArray[np.bool_]:
@@ -246,67 +163,191 @@ def _contacts(height: Array, speed: Array) -> NDArray[np.bool_]:
     return out
 
 
-def _foot_targets(R: Array, p: Array, soles: Array, floor: float, rest: Array, contact: NDArray[np.bool_],
-                  heel: NDArray[np.bool_], toe: Array) -> Array:
+def _turn(a: Array, b: Array) -> Array:
+    """Rotations ``(S, 3, 3)`` turning unit vectors ``a (S, 3)`` onto unit ``b (S, 3)`` the shortest way (Rodrigues)."""
+    v = np.cross(a, b)
+    K = np.zeros((len(v), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    K -= np.swapaxes(K, 1, 2)
+    return np.eye(3) + K + K @ K / (1.0 + np.einsum("si,si->s", a, b))[:, None, None]
+
+
+def _about(axis: Array, angle: Array) -> Array:
+    """Rotations ``(n, 3, 3)`` by ``angle (n,)`` (rad) about the fixed unit ``axis (3,)`` (Rodrigues)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle)[:, None, None] * K + (1 - np.cos(angle))[:, None, None] * (K @ K)
+
+
+def _foot_rolls(tree: Tree, shin: str, foot: str) -> bool:
+    """Whether a foot can roll (turn about its forward axis) on its own: a ball joint, or a hinge within 60° of
+    that axis, on a body from the foot up to (not including) the shin. A planar leg's foot (an ankle that only
+    pitches) cannot: it rolls as the leg does.
+    """  # noqa: D205
+    T = tree.fk(tree.qpos0)
+    f, stop = tree.id(foot, "body"), tree.id(shin, "body")
+    ahead = _unit(T[f, :3, 0] * [1.0, 1.0, 0.0])
+    chain = []
+    while f not in (stop, 0):
+        chain.append(f)
+        f = int(tree.body_parent[f])
+    for j in np.flatnonzero(np.isin(tree.jnt_body, chain)):
+        if tree.jnt_type[j] == BALL or (tree.jnt_type[j] == HINGE and abs(
+                (T[tree.jnt_body[j], :3, :3] @ tree.jnt_axis[j]) @ ahead) >= 0.5):
+            return True
+    return False
+
+
+def _ground_height(runs: Sequence[list[tuple[int, int]]], heights: Sequence[Array], F: int, dt: float) -> Array:
+    """The height ``(F,)`` (m) of the ground under the feet: each foot's as it stands in its contacts
+    (``runs``, ``heights`` one a contact), straight between them, both feet's mean, smoothed over
+    :data:`GROUND_SMOOTH` (0 without contacts).
+    """  # noqa: D205
+    frames = np.arange(F)
+    tracks = [np.interp(frames, np.ravel([(a, e - 1) for a, e in r]), np.repeat(h, 2)) for r, h in zip(runs, heights,
+                                                                                                      strict=True) if r]
+    base = np.mean(tracks, axis=0) if tracks else np.zeros(F)
+    sigma = GROUND_SMOOTH / dt
+    reach = int(np.ceil(3 * sigma))
+    if reach < 1:
+        return base
+    kernel = np.exp(-0.5 * (np.arange(-reach, reach + 1) / sigma) ** 2)
+    return np.convolve(np.pad(base, reach, mode="edge"), kernel / kernel.sum(), mode="valid")
+
+
+class Foot(NamedTuple):
+    """A foot body's geometry in its own frame (m): its geoms as balls and the points and axes of its sole."""
+
+    points: Array  # (P, 3) ball centres (:func:`.terrain.foot_points`)
+    radius: Array  # (P,)
+    toe: Array  # (3,) the front of the sole (:func:`mjkin.motion.sole_points`), held through a contact
+    middle: Array  # (3,) the middle of the sole, at its lowest
+    ahead: Array  # (3,) unit: forward, level at rest
+    across: Array  # (3,) unit: to the foot's left, level at rest
+    rolls: bool  # it can roll (turn about ``ahead``) on its own (:func:`_foot_rolls`)
+
+
+def _foot(tree: Tree, shin: str, body: str, rest: Array) -> Foot:
+    """The :class:`Foot` of ``body`` (below ``shin``), posed ``rest (4, 4)`` at ``qpos0``."""
+    pts, radius = foot_points(tree, body)
+    level = _unit(rest[:3, 0] * [1.0, 1.0, 0.0])
+    middle = np.array([*pts[:, :2].mean(axis=0), (pts[:, 2] - radius).min()])
+    return Foot(pts, radius, sole_points(tree, body)[0], middle, rest[:3, :3].T @ level,
+                rest[:3, :3].T @ np.cross([0.0, 0.0, 1.0], level), _foot_rolls(tree, shin, body))
+
+
+def _plant(R: Array, p: Array, foot: Foot, ground: Terrain, rest: Array, contact: NDArray[np.bool_],
+           side: str) -> tuple[Array, Array, Array]:
+    """Held poses ``(F, 4, 4)`` of a foot in its contacts (``contact (F,)``; identity elsewhere), the tilts
+    ``(F, 3, 3)`` onto the ground's slope, and the height ``(S,)`` of the ground under each of its S contacts.
+
+    At touch-down the foot keeps the driven pose's (``R (F, 3, 3)``, ``p (F, 3)``) place across and its
+    heading, with ``rest``'s tilt turned onto the ground's slope under it (when the normals under its balls
+    agree within :data:`TILT_AGREE` and are at most :data:`TILT_MAX` steep; else it stays level, resting
+    on the highest ground under it), raised or lowered until its lowest ball touches the ground, and held
+    there through the contact.
+
+    Raises:
+        InputError: no ground under the foot at a touch-down.
+    """  # noqa: D205
+    F = len(p)
+    starts = np.array([a for a, _ in _runs(contact)], dtype=np.int64)
+    S = len(starts)
+    level = _unit(rest[:3, 0] * [1.0, 1.0, 0.0])
+    H = np.broadcast_to(np.eye(4), (S, 4, 4)).copy()
+    heading = R[starts] @ foot.ahead + np.cross(R[starts] @ foot.across, [0.0, 0.0, 1.0])  # toes down: the across
+    yaw = np.arctan2(heading[:, 1], heading[:, 0]) - np.arctan2(level[1], level[0])
+    H[:, :3, :3] = _about(np.array([0.0, 0.0, 1.0]), yaw) @ rest[:3, :3]  # level, turned to the driven heading
+    H[:, :3, 3] = p[starts]
+    low = lowest(H, foot.points, foot.radius)  # (S, P, 3)
+    h, n = ground.under(low.reshape(-1, 3))
+    h, n = h.reshape(low.shape[:2]), n.reshape(low.shape)
+    hit = np.isfinite(h)
+    if not hit.any(axis=1).all():
+        f = int(starts[np.argmin(hit.any(axis=1))])
+        x, y = p[f, :2]
+        raise InputError(f"no ground under the {side} foot at frame {f} (x={x:.2f}, y={y:.2f} m) in scene "
+                         f"{ground.source!r}: extend the scene's geoms under the walk's path")
+    mean = _unit(np.where(hit[..., None], n, 0.0).sum(axis=1))
+    agree = (np.where(hit, np.einsum("spi,si->sp", n, mean), 1.0) >= np.cos(TILT_AGREE)).all(axis=1)
+    slope = hit.all(axis=1) & agree & (mean[:, 2] >= np.cos(TILT_MAX))
+    Q = np.tile(np.eye(3), (S, 1, 1))
+    Q[slope] = _turn(np.tile([0.0, 0.0, 1.0], (int(slope.sum()), 1)), mean[slope])
+    centre = low.mean(axis=1)
+    H[:, :3, :3] = Q @ H[:, :3, :3]
+    H[:, :3, 3] = centre + np.einsum("sij,sj->si", Q, H[:, :3, 3] - centre)
+    moved = lowest(H, foot.points, foot.radius)
+    grade = np.where(slope[:, None], -mean[:, :2] / mean[:, 2:], 0.0)  # the slope's dz/dx, dz/dy
+    h = h + np.einsum("spi,si->sp", moved[..., :2] - low[..., :2], grade)  # the ground under the balls moved
+    H[:, 2, 3] += np.where(hit, h - moved[..., 2], -np.inf).max(axis=1)
+    held = np.broadcast_to(np.eye(4), (F, 4, 4)).copy()
+    tilt = held[:, :3, :3].copy()
+    r = _contact_number(contact)
+    held[contact], tilt[contact] = H[r[contact]], Q[r[contact]]
+    return held, tilt, (H[:, :3, :3] @ foot.middle + H[:, :3, 3])[:, 2]
+
+
+def _contact_number(contact: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Which contact (0, 1, ...) each frame of ``contact (F,)`` is in or last was (-1 before the first)."""
+    return np.cumsum(np.diff(np.concatenate([[0], contact.astype(np.int8)])) == 1) - 1
+
+
+def _lean(held: Array, hip: Array, foot: Foot) -> Array:
+    """How far ``(F,)`` (rad, + left side up) a planted foot that cannot roll on its own leans across.
+
+    Its leg is planar (an ankle that only pitches): the leg's plane holds the hip ``(F, 3)``, the ankle
+    and the foot's forward axis, so the foot's left axis is across it (``held (F, 4, 4)``'s forward axis
+    crossed with the way up the leg); 0 for a foot that rolls.
+    """
+    if foot.rolls:
+        return np.zeros(len(held))
+    left = _unit(np.cross(hip - held[:, :3, 3], held[:, :3, :3] @ foot.ahead))
+    up = held[:, :3, :3] @ np.cross(foot.ahead, foot.across)
+    return np.arcsin(np.clip(np.einsum("fi,fi->f", left, up), -1.0, 1.0))
+
+
+def _foot_targets(R: Array, p: Array, foot: Foot, ground: Terrain, contact: NDArray[np.bool_], held: Array,
+                  tilt: Array, lean: Array, heel: NDArray[np.bool_]) -> Array:
     """Foot body poses ``(F, 4, 4)`` from the source-driven ``R (F, 3, 3)``, ``p (F, 3)`` and the contacts ``(F,)``.
 
-    Swinging: as driven, lifted so no sole point (``soles (P, 3)``, body frame) is below ``floor``.
-    At touch-down the pose is frozen flat (``rest``'s tilt and height, the driven yaw); while
-    ``heel`` is up in a contact the foot turns as driven about its frozen ``toe`` point.
-    After lift-off the target eases from the last held pose to the driven one over :data:`EASE` frames.
+    In a contact the foot is as ``held`` (``(F, 4, 4)``, :func:`_plant`), leaning across by ``lean (F,)``
+    (:func:`_lean`) about the middle of its sole and onto its lower edge. While ``heel`` is up it pitches
+    heel up as the driven pose does (relative to the slope it stands on, ``tilt (F, 3, 3)``) about its
+    frozen toe. After lift-off the target eases from the last held pose to the driven one over
+    :data:`EASE` frames. Every pose is raised as far as a ball is under the ground straight below it.
     """
     F = len(p)
     T = np.broadcast_to(np.eye(4), (F, 4, 4)).copy()
     T[:, :3, :3], T[:, :3, 3] = R, p
-    lowest = (np.einsum("fij,pj->fpi", R, soles) + p[:, None])[..., 2].min(axis=1)
-    T[:, 2, 3] += np.maximum(0.0, floor - lowest)
     out = T.copy()
-    held: Array | None = None
-    last, since = 0, EASE
-    pivot_f: list[int] = []  # contact frames with the heel up, their held pose's frame, eased frames, from, u
-    pivot_from: list[int] = []
-    ease_f: list[int] = []
-    ease_from: list[int] = []
-    ease_u: list[float] = []
-    for f in range(F):
-        if contact[f]:
-            if held is None:
-                held = T[f].copy()
-                yaw = np.arctan2(T[f, 1, 0], T[f, 0, 0]) - np.arctan2(rest[1, 0], rest[0, 0])
-                held[:3, :3] = _yaw(yaw) @ rest[:3, :3]
-                held[2, 3] = rest[2, 3]
-                start = f
-            out[f] = held
-            if not heel[f]:
-                pivot_f.append(f)
-                pivot_from.append(start)
-            last, since = f, 0
-        else:
-            held = None
-            if since < EASE:
-                since += 1
-                ease_f.append(f)
-                ease_from.append(last)
-                ease_u.append(since / EASE)
-    if pivot_f:  # toe pivot: the driven turn about the frozen toe, unless it tips the heel under the floor
-        R, H = T[pivot_f, :3, :3], out[pivot_from]
-        p = H[:, :3, :3] @ toe + H[:, :3, 3] - R @ toe
-        ok = (np.einsum("fij,pj->fpi", R, soles) + p[:, None])[..., 2].min(axis=1) >= floor - 1e-9
-        out[np.array(pivot_f)[ok], :3, :3], out[np.array(pivot_f)[ok], :3, 3] = R[ok], p[ok]
-    if ease_f:  # after a lift-off: from the last pose in contact to the driven one
-        A, u = out[ease_from], np.array(ease_u)
-        out[ease_f, :3, 3] = (1 - u)[:, None] * A[:, :3, 3] + u[:, None] * T[ease_f, :3, 3]
-        out[ease_f, :3, :3] = spatial.quat_to_mat(spatial.slerp(
-            spatial.mat_to_quat(A[:, :3, :3]), spatial.mat_to_quat(T[ease_f, :3, :3]), u))
+    at = np.flatnonzero(contact)
+    H = held[at]
+    H[:, :3, :3] = H[:, :3, :3] @ _about(foot.ahead, lean[at])
+    H[:, :3, 3] = held[at, :3, :3] @ foot.middle + held[at, :3, 3] - H[:, :3, :3] @ foot.middle
+    pitch = np.arcsin(np.clip(-np.einsum("nji,nj->ni", tilt[at], R[at] @ foot.ahead)[:, 2], -1.0, 1.0))
+    up = ~heel[at] & (pitch > 0)  # toe pivot: the heel as far up as the driven foot's, about the frozen toe
+    P = H[up].copy()
+    P[:, :3, :3] = H[up, :3, :3] @ _about(foot.across, pitch[up])
+    P[:, :3, 3] = H[up, :3, :3] @ foot.toe + H[up, :3, 3] - P[:, :3, :3] @ foot.toe
+    H[up] = P
+    out[at] = H
+    last = np.maximum.accumulate(np.where(contact, np.arange(F), -1))  # the last frame in contact
+    ease = np.flatnonzero(~contact & (last >= 0) & (np.arange(F) - last < EASE))
+    if len(ease):  # after a lift-off: from the last pose in contact to the driven one
+        A, u = out[last[ease]], (ease - last[ease]) / EASE
+        out[ease, :3, 3] = (1 - u)[:, None] * A[:, :3, 3] + u[:, None] * T[ease, :3, 3]
+        out[ease, :3, :3] = spatial.quat_to_mat(spatial.slerp(
+            spatial.mat_to_quat(A[:, :3, :3]), spatial.mat_to_quat(T[ease, :3, :3]), u))
+    out[:, 2, 3] += ground.lift(lowest(out, foot.points, foot.radius))
     return out
 
 
 def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None = None,
-         scale: float | None = None) -> Retarget:
+         scale: float | None = None, terrain: Terrain | None = None) -> Retarget:
     """Targets for every frame of ``clip`` on ``tree`` (see the module's steps 1–4); ``scale`` in metres per unit.
 
     With ``scale`` the root moves the source's distance in metres (``scale`` times its BVH units);
     without it the root path is fitted to the figure (the source's times the ratio of leg lengths).
+    The feet stand on ``terrain`` (default: the plane z = 0).
     """
     mapping = mapping or {}
     roles = source_mapping(clip, mapping.get("source"))
@@ -324,11 +365,12 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
 
     # the figure at qpos0: role points, segment lengths, orientations
     q0 = tree.qpos0
-    offsets = {r: np.asarray(FIGURE_OFFSETS.get(tree.name, {}).get(r, (0.0, 0.0, 0.0)), float) for r in bodies}
+    offsets = role_offsets(tree, bodies)
     fig_T = {r: tree.pose(q0, b, "body") for r, b in bodies.items()}
     fig = {r: fig_T[r][:3, :3] @ offsets[r] + fig_T[r][:3, 3] for r in bodies}
-    fig_floor = min(float((fig_T[f"{s}_ankle"][:3, :3] @ pt + fig_T[f"{s}_ankle"][:3, 3])[2])
-                    for s in SIDES for pt in sole_points(tree, bodies[f"{s}_ankle"]))
+    feet_geom = [_foot(tree, bodies[f"{s}_knee"], bodies[f"{s}_ankle"], fig_T[f"{s}_ankle"]) for s in SIDES]
+    fig_floor = min(float(lowest(fig_T[f"{s}_ankle"], f.points, f.radius)[:, 2].min())
+                    for f, s in zip(feet_geom, SIDES, strict=True))
 
     def seg(a: str, b: str, pts: Array) -> Array:
         return np.linalg.norm(pts[..., roles[b], :] - pts[..., roles[a], :], axis=-1)
@@ -339,12 +381,13 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
                              + np.linalg.norm(fig[f"{s}_ankle"] - fig[f"{s}_knee"]) for s in SIDES]))
     k = fig_leg / src_leg if scale is None else 1.0
 
+    lean = pelvis_lean(tree, bodies)
+
     def frames_of(pts: Array) -> dict[str, Array]:
         """Constructed rotations of pelvis, torso and feet from source points ``(..., J, 3)``."""
         up = np.array([0.0, 0.0, 1.0])
         P = lambda r: pts[..., roles[r], :]  # noqa: E731
         mid_sh = 0.5 * (P("left_shoulder") + P("right_shoulder"))
-        lean = FIGURE_LEAN.get(tree.name, 0.5)
         pelvis = _frame(P("left_hip") - P("right_hip"), lean * _unit(mid_sh - P("pelvis")) + (1 - lean) * up)
         torso = _frame(P("left_shoulder") - P("right_shoulder"), mid_sh - P("pelvis"))
         out = {"pelvis": pelvis, "torso": torso}
@@ -363,7 +406,8 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
     pelvis_src = p[:, roles["pelvis"]]
     pts["pelvis"] = np.empty((F, 3))
     pts["pelvis"][:, :2] = fig["pelvis"][:2] + k * (pelvis_src[:, :2] - pelvis_src[0, :2])
-    pts["pelvis"][:, 2] = fig["pelvis"][2] + k * ((pelvis_src[:, 2] - floor) - (rest[roles["pelvis"], 2] - rest_floor))
+    pts["pelvis"][:, 2] = fig["pelvis"][2] - fig_floor + k * ((pelvis_src[:, 2] - floor)
+                                                              - (rest[roles["pelvis"], 2] - rest_floor))
     R_pel0, R_tor0 = fig_T["pelvis"][:3, :3], fig_T["torso"][:3, :3]
     torso_at = pts["pelvis"] + np.einsum("fij,j->fi", rot["pelvis"], R_pel0.T @ (fig_T["torso"][:3, 3] - fig["pelvis"]))
     for r, base, R, R0 in (("head", torso_at, rot["torso"], R_tor0),):
@@ -377,11 +421,13 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
             length = np.linalg.norm(fig[f"{s}_{b}"] - fig[f"{s}_{a}"])
             pts[f"{s}_{b}"] = pts[f"{s}_{a}"] + length * _unit(p[:, roles[f"{s}_{b}"]] - p[:, roles[f"{s}_{a}"]])
 
-    # feet: contacts from the source; a planted foot is frozen flat on the floor, then pivots on its frozen toe
-    # once its heel lifts; swinging feet follow the source above the floor, eased in after a lift-off
+    # feet: contacts from the source; a planted foot rests on the ground under it, then pivots on its frozen toe
+    # once its heel lifts; swinging feet follow the source above the ground, eased in after a lift-off; the body
+    # rises and falls with the ground under the feet
+    ground = terrain or Terrain.flat()
     contact = np.zeros((2, F), dtype=np.bool_)
     heel = np.zeros((2, F), dtype=np.bool_)
-    feet = np.empty((2, F, 4, 4))
+    driven, held, tilt, stand = [], [], [], []
     for i, s in enumerate(SIDES):
         idx = feet_idx[i]
         h = p[:, idx, 2] - floor - (rest[idx, 2] - rest_floor)
@@ -390,28 +436,45 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         v[0] = v[1] if F > 1 else 0.0
         contact[i] = _contacts(h, v)
         heel[i] = contact[i] & _contacts(h[:, :1], v[:, :1])
-        body = fig_T[f"{s}_ankle"]
-        toe_local, _ = sole_points(tree, bodies[f"{s}_ankle"])
-        feet[i] = _foot_targets(rot[f"{s}_ankle"], pts[f"{s}_ankle"] - rot[f"{s}_ankle"] @ offsets[f"{s}_ankle"],
-                                np.array(sole_points(tree, bodies[f"{s}_ankle"])), fig_floor, body, contact[i],
-                                heel[i], toe_local)
+        driven.append((rot[f"{s}_ankle"], pts[f"{s}_ankle"] - rot[f"{s}_ankle"] @ offsets[f"{s}_ankle"]))
+        H, Q, z = _plant(*driven[i], feet_geom[i], ground, fig_T[f"{s}_ankle"], contact[i], s)
+        held.append(H)
+        tilt.append(Q)
+        stand.append(z)
+    base = _ground_height([_runs(c) for c in contact], stand, F, clip.frame_time)
+    for r in pts:
+        pts[r][:, 2] += base
+    feet = np.empty((2, F, 4, 4))
+    footing = []
+    for i, s in enumerate(SIDES):
+        R, at = driven[i]
+        foot = feet_geom[i]
+        feet[i] = _foot_targets(R, at + base[:, None] * [0.0, 0.0, 1.0], foot, ground, contact[i], held[i], tilt[i],
+                                _lean(held[i], pts[f"{s}_hip"], foot), heel[i])
+        corners, radius = sole_corners(foot.points, foot.radius)
+        centres = np.einsum("fij,kj->fki", feet[i, :, :3, :3], corners) + feet[i, :, None, :3, 3]
+        at_plane, normal = ground.planes(centres.reshape(-1, 3), np.tile(radius, F))
+        footing.append(Footing(corners, at_plane.reshape(centres.shape), normal.reshape(centres.shape)))
     src = fig["pelvis"] + k * (p - np.array([*pelvis_src[0, :2], floor + rest[roles["pelvis"], 2] - rest_floor]))
-    src[..., 2] += fig_floor
+    src[..., 2] += base[:, None]
     return Retarget(points=pts, rotations=rot, contact=contact, heel=heel, feet=feet, source=src, metres_per_unit=unit,
-                    root_ratio=k, bodies=bodies, offsets=offsets, parents=clip.parents)
+                    root_ratio=k, bodies=bodies, offsets=offsets, parents=clip.parents, footing=tuple(footing))
 
 
 def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
              mapping: dict | str | os.PathLike[str] | None = None, *, scale: float | None = None,
-             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, clearance: float | None = None,
-             extra_goals: Sequence[G.Goal] = (), model_source: str = "") -> Trajectory:
-    """Retarget a BVH clip onto ``tree``: a :class:`Trajectory` of ``q (F, nq)`` at the clip's frame times.
+             max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, clearance: float | None = SELF_CLEARANCE,
+             extra_goals: Sequence[G.Goal] = (), model_source: str = "",
+             body_model: str | os.PathLike[str] | None = None,
+             scene: str | os.PathLike[str] | Terrain | None = None) -> Trajectory:
+    """Retarget a clip (BVH or AMASS/SMPL ``.npz``) onto ``tree``: a :class:`Trajectory`, ``q (F, nq)`` per frame.
 
     Args:
-        source: a BVH path or a parsed :class:`mjkin.motion.bvh.Clip`.
+        source: a BVH path, an AMASS/SMPL-H/SMPL-X ``.npz`` path (with ``body_model``) or a parsed
+            :class:`mjkin.motion.bvh.Clip`.
         tree: the figure; it needs a free root joint.
         mapping: ``{"source": {role: joint}, "figure": {role: body}}`` (or a JSON file of it);
-            by default roles are found by name (:data:`SOURCE_NAMES`, :data:`FIGURES`).
+            by default roles are found (:mod:`mjkin.motion.roles`).
         scale: metres per BVH unit: the root then moves the source's distance in metres (its
             path in BVH units times ``scale``). Default: the unit suggested by the skeleton's
             height, and the root path fitted to the figure (times the ratio of leg lengths).
@@ -419,12 +482,16 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
             :class:`~mjkin.goals.StepLimit` of ``max_speed`` times the frame time in every frame's
             solve (a joint's limit is the least of its dofs').
         tol: IK position tolerance (m).
-        clearance: when given (metres), a hard :class:`~mjkin.goals.Clearance` of that margin between
-            the figure's own geoms (MuJoCo's contact pairs without the world's) in every frame's solve.
+        clearance: a hard :class:`~mjkin.goals.Clearance` of that margin (m, default
+            :data:`SELF_CLEARANCE`) between the figure's own geoms (:func:`self_pairs`) in every
+            frame's solve; None: none (about 15 % more frames/s, limbs may pass through each other).
         extra_goals: goals added to every frame's as they are (targets that do not change from
             frame to frame, such as a clearance between the figure's bodies); their priority
             decides whether they outrank the feet (0) or join the body's goals (1).
         model_source: where ``tree`` was loaded from, recorded so ``mjkin replay`` finds it.
+        body_model: the SMPL-H/SMPL-X body-model ``.npz`` of an ``.npz`` source (:mod:`mjkin.motion.smpl`).
+        scene: the ground, an MJCF file whose world geoms the feet stand on (floors, ramps, steps; a
+            Menagerie ``scene.xml``) or a :class:`~mjkin.motion.terrain.Terrain`; default: the plane z = 0.
 
     Returns:
         The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, ``metres_per_unit`` and
@@ -433,9 +500,10 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         (:data:`KEYS`; the feet's as held).
 
     Raises:
-        BvhError, InputError: unreadable clip, roles that cannot be mapped, bad options.
+        MjkinIOError, InputError: unreadable clip, body model or scene, roles that cannot be mapped, bad options.
+        ModelError: a scene MuJoCo cannot compile.
     """
-    clip = source if isinstance(source, bvh.Clip) else bvh.read(source)
+    clip = source if isinstance(source, bvh.Clip) else read_clip(source, body_model)
     if mapping is not None and not isinstance(mapping, dict):
         mapping = read_mapping(mapping)
     try:
@@ -447,11 +515,13 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"max_speed must be positive rad/s, got {max_speed!r}")
     if tree.nq < 7 or tree.layout.free_q.size == 0:
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
+    ground = scene if isinstance(scene, Terrain) else None if scene is None else Terrain.load(scene)
     t0 = time.perf_counter()
-    plan_ = plan(clip, tree, mapping, scale)
+    plan_ = plan(clip, tree, mapping, scale, ground)
     extra = tuple(extra_goals)
     if clearance is not None:
-        extra += (G.Clearance(check_number(clearance, "clearance (m)"), pairs=self_pairs(tree)),)
+        margin, pairs = check_number(clearance, "clearance (m)"), self_pairs(tree)
+        extra += (G.Clearance(margin, pairs=pairs),) if pairs else ()
     q, t_first = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
@@ -461,7 +531,8 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                          "root_ratio": plan_.root_ratio,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
-                         "max_speed": speed.tolist(), "bodies": plan_.bodies}}
+                         "max_speed": speed.tolist(), "bodies": plan_.bodies,
+                         "scene": None if ground is None else ground.source}}
     times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
     return Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
                       source=model_source)
@@ -488,9 +559,10 @@ class FrameGoals:
 def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> FrameGoals:
     """Every frame's goals (see :class:`FrameGoals`), made from targets laid out as arrays over the clip.
 
-    At priority 1, weighted: the feet's toe and heel points (:data:`FOOT_WEIGHT`), the pelvis,
-    the torso's and pelvis's turn, the limb points and head, the previous frame's pose
-    (:data:`REST_WEIGHT`); ``extra`` as given.
+    At priority 1, hard: the soles' corners above the ground (:class:`Footing`); weighted: the feet's toe and
+    heel points (:data:`FOOT_WEIGHT`), the pelvis,
+    the torso's and pelvis's turn, the limb points and head (:data:`BODY_WEIGHTS`), the previous
+    frame's pose (:data:`REST_WEIGHT`); ``extra`` as given.
     """
     b = plan_.bodies
     F = len(plan_.points["pelvis"])
@@ -500,14 +572,20 @@ def frame_goals(tree: Tree, plan_: Retarget, extra: Sequence[G.Goal] = ()) -> Fr
         for point in sole_points(tree, b[f"{s}_ankle"]):
             per_goal.append(G.Position(b[f"{s}_ankle"], T[:, :3, :3] @ point + T[:, :3, 3], kind="body",
                                        offset=tuple(point), priority=1, weight=FOOT_WEIGHT).unbatch())
-    per_goal.append(G.Position(b["pelvis"], plan_.points["pelvis"], kind="body", priority=1).unbatch())
+        ground = plan_.footing[i]
+        for k, corner in enumerate(ground.corners):  # hard: each sole corner above the ground plane under it
+            per_goal.append(G.HalfSpace(b[f"{s}_ankle"], kind="body", offset=tuple(corner), point=ground.points[:, k],
+                                        normal=ground.normals[:, k], priority=1).unbatch())
+    per_goal.append(G.Position(b["pelvis"], plan_.points["pelvis"], kind="body", priority=1,
+                               weight=BODY_WEIGHTS["pelvis"]).unbatch())
     for r in ("pelvis", "torso"):
-        per_goal.append(G.Orientation(b[r], plan_.rotations[r], kind="body", priority=1, weight=0.3).unbatch())
+        per_goal.append(G.Orientation(b[r], plan_.rotations[r], kind="body", priority=1,
+                                      weight=BODY_WEIGHTS[f"{r}_turn"]).unbatch())
     for r in ("head", *(f"{s}_{p}" for s in SIDES for p in ("knee", "shoulder", "elbow", "wrist"))):
         off = plan_.offsets[r]
         per_goal.append(G.Position(b[r], plan_.points[r], kind="body", priority=1,
                                    offset=tuple(off) if np.any(off) else None,
-                                   weight=1.0 if "wrist" in r else 0.5).unbatch())
+                                   weight=BODY_WEIGHTS[r.rpartition("_")[2]]).unbatch())
     per_goal.extend([g] * F for g in extra)
     rest = G.Rest(q_rest=tree.qpos0, weight=REST_WEIGHT, priority=1)
     return FrameGoals(tuple(zip(*per_goal, strict=True)), rest)
@@ -564,40 +642,61 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
 
 
-def _point(tree: Tree, q: Array, body: str, role: str) -> Array:
-    """World point ``(F, 3)`` of a role on its body (the body origin, or :data:`FIGURE_OFFSETS`)."""
+def _ground(scene: str | os.PathLike[str] | Terrain | None) -> Terrain:
+    """The ground a report measures against: a :class:`Terrain`, a scene file's, or the plane z = 0 (None, "").
+
+    Raises:
+        InputError: the clip's scene was XML text, which the trajectory does not keep.
+    """
+    if isinstance(scene, Terrain):
+        return scene
+    if scene == TEXT_SOURCE:
+        raise InputError("the clip was retargeted onto a scene given as XML text: pass it to report(..., terrain=...)")
+    return Terrain.load(scene) if scene else Terrain.flat()
+
+
+def _point(tree: Tree, q: Array, body: str, offset: Array) -> Array:
+    """World point ``(F, 3)`` at ``offset (3,)`` in a body: a role's point (:func:`.roles.role_offsets`)."""
     T = tree.pose(q, body, "body")
-    return T[..., :3, :3] @ np.asarray(FIGURE_OFFSETS.get(tree.name, {}).get(role, (0.0, 0.0, 0.0))) + T[..., :3, 3]
+    return T[..., :3, :3] @ offset + T[..., :3, 3]
 
 
-def report(tree: Tree, traj: Trajectory) -> dict:
+def report(tree: Tree, traj: Trajectory, terrain: str | os.PathLike[str] | Terrain | None = None) -> dict:
     """Measured figures of a retargeted clip (lengths in m, speeds per second); see the keys.
 
     ``metres_per_unit`` (the clip's unit used) and ``root_ratio`` (figure root path per source metre)
     come from ``traj.meta`` (:class:`Retarget`);
     ``keypoint_error_median``/``_max``: hands, feet and head relative to the pelvis against
     their targets; ``skate_per_frame_mean`` (mean horizontal slide of a planted foot per
-    frame), ``skate_per_contact_max`` (its largest drift over one contact); ``floor_min``
-    (lowest sole point, < 0 below the floor); ``limits`` (None or what is outside);
+    frame), ``skate_per_contact_max`` (its largest drift over one contact); ``floor_min`` (the
+    feet's geoms' lowest point above the ground under it, < 0 into it), ``terrain_penetration`` (how
+    deep a foot geom goes into the ground at most, 0 when none) and ``planted_float_max`` (how high a
+    planted foot's lowest point is above the ground at most): the ground is ``terrain`` (by default the
+    one the clip was retargeted onto, ``meta["retarget"]["scene"]``, else the plane z = 0), its height
+    by rays cast down from the lowest points of the feet's geoms (:func:`.terrain.foot_points`, every
+    :data:`.terrain.SPACING` on boxes and meshes); ``limits`` (None or what is outside);
     ``speed_max``/``speed_limit_ratio``; ``self_contact_frames``, ``self_contact_deepest``.
     """
     info = traj.meta["retarget"]
     bodies = info["bodies"]
     q, F = traj.q, len(traj.q)
+    ground = _ground(info.get("scene") if terrain is None else terrain)
     contact = np.array(info["contact"], dtype=np.bool_)
     out: dict = {"frames": F, "frames_per_second": info["frames_per_second"],
                  "metres_per_unit": info["metres_per_unit"], "root_ratio": info["root_ratio"]}
     if traj.targets is not None:
-        got = np.stack([_point(tree, q, bodies[r], r) for r in KEYS], 1)
+        offsets = role_offsets(tree, bodies)
+        got = np.stack([_point(tree, q, bodies[r], offsets[r]) for r in KEYS], 1)
         err = np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)
         out["keypoint_error_median"], out["keypoint_error_max"] = float(np.median(err)), float(err.max())
     heel = np.array(info["heel"], dtype=np.bool_)
-    slide, drift, lowest = [], [], np.inf
+    slide, drift, gap = [], [], np.empty((2, F))
     for i, s in enumerate(SIDES):
         T = tree.pose(q, bodies[f"{s}_ankle"], "body")
         soles = np.array(sole_points(tree, bodies[f"{s}_ankle"]))  # toe, heel
         pts = np.einsum("fij,pj->fpi", T[:, :3, :3], soles) + T[:, None, :3, 3]  # (F, 2, 3)
-        lowest = min(lowest, float(pts[..., 2].min()))
+        low = lowest(T, *foot_points(tree, bodies[f"{s}_ankle"]))  # (F, P, 3)
+        gap[i] = (low[..., 2] - ground.under(low.reshape(-1, 3))[0].reshape(low.shape[:2])).min(axis=1)
         for k, held in ((0, contact[i]), (1, heel[i])):  # the toe is held through a contact, the heel while down
             xy = pts[:, k, :2]
             slide.extend(np.linalg.norm(np.diff(xy, axis=0), axis=-1)[held[1:] & held[:-1]].tolist())
@@ -606,7 +705,9 @@ def report(tree: Tree, traj: Trajectory) -> dict:
     out["contact_frames"] = int(contact.sum())
     out["skate_per_frame_mean"] = float(np.mean(slide)) if slide else 0.0
     out["skate_per_contact_max"] = max(drift) if drift else 0.0
-    out["floor_min"] = lowest
+    out["floor_min"] = float(gap.min())
+    out["terrain_penetration"] = max(0.0, -out["floor_min"])
+    out["planted_float_max"] = float(gap[contact].max()) if contact.any() else 0.0
     out["limits"] = outside_limits(tree, q)
     dt = np.diff(traj.times)
     speed = np.abs(tree.difference(q[1:], q[:-1])) / dt[:, None] if F > 1 else np.zeros((0, tree.nv))

@@ -84,8 +84,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(default mjkin-seeds)")
     common(s)
 
-    s = sub.add_parser("retarget", help="the shared BVH clips onto the primate and the G1: skate, floor, speed")
-    s.add_argument("--repeat", type=positive_int, default=3, help="timed runs after a warm-up (default 3)")
+    s = sub.add_parser("retarget", help="a folder of BVH clips onto figures: frames/s median and IQR over the clips "
+                                        "(the LAFAN1 form), key points, skate, floor, limits, speed, self-contact")
+    s.add_argument("--clips", metavar="DIR", help="folder of BVH clips, searched recursively (default ../shared/mocap)")
+    s.add_argument("--models", nargs="+", metavar="NAME|PATH",
+                   help="figures: primate, g1 or MJCF files with a free root (default primate and, when it is "
+                        "there, g1)")
+    s.add_argument("--repeat", type=positive_int, default=3, help="timed runs per clip after a warm-up (default 3)")
     common(s)
 
     s = sub.add_parser("solutions", help="all IK solutions against closed forms (UR-type and spherical-wrist arms), "

@@ -371,7 +371,7 @@ def run(args: argparse.Namespace) -> Report:
     if args.which == "retarget":
         from .retarget import bench_retarget
 
-        return bench_retarget(args.repeat)
+        return bench_retarget(args.repeat, args.clips, args.models)
     if args.which == "solutions":
         from .solutions import bench_solutions
 
