@@ -640,7 +640,7 @@ def build_parser() -> argparse.ArgumentParser:
     search_options(s)
     s.set_defaults(run=cmd_trajectory)
 
-    s = sub.add_parser("retarget", help="retarget a BVH motion-capture clip onto a figure (script or video)")
+    s = sub.add_parser("retarget", help="retarget mocap clips (BVH, AMASS .npz) or folders of them onto a figure")
     retarget_cli.arguments(s)
     s.set_defaults(run=retarget_cli.run)
 
