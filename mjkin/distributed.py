@@ -53,28 +53,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import goals as G
 from . import motion
-from .errors import InputError, MjkinError
+from .errors import InputError
 from .goals.program import key_of
 from .ik import History, Problem, Result
 from .kinematics.tree import Tree, load
 from .runtime.parallel import set_threads, threads
+from .runtime.ray_session import connect, ray, unwrap
 from .spatial import mat_to_quat, quat_to_mat
-
-try:
-    import ray
-except ImportError:  # pragma: no cover - exercised only without the extra
-    ray = None  # type: ignore[assignment]
 
 IN_FLIGHT = 2  # tasks queued per actor: one runs while the next one's input travels
 Model: TypeAlias = str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec | Tree
-
-
-def _connect(address: str | None) -> None:
-    """Attach to the running Ray session, else to ``address``, else start a local cluster."""
-    if ray is None:
-        raise MjkinError('mjkin.distributed needs Ray: pip install "mjkin[ray]"')
-    if not ray.is_initialized():
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
 
 
 def _tree(model: Model) -> Tree:
@@ -107,17 +95,6 @@ class Worker:
     def threads(self) -> int:
         """Solver threads this worker runs (:func:`mjkin.threads` in its process)."""
         return threads()
-
-
-def _unwrap(ref: Any) -> Any:
-    """``ray.get(ref)``, re-raising an mjkin error from the worker with its own type."""
-    try:
-        return ray.get(ref)
-    except ray.exceptions.RayTaskError as e:
-        cause = getattr(e, "cause", None)
-        if isinstance(cause, MjkinError):
-            raise cause from None
-        raise
 
 
 def _actors(tree: Tree, workers: int | None, threads_per_worker: int, jobs: int) -> list[Any]:
@@ -162,7 +139,7 @@ def _dispatch(actors: list[Any], jobs: Sequence[Callable[[Any], Any]], sizes: Se
                 return out
             done, _ = ray.wait(list(running), num_returns=1)
             k, actor = running.pop(done[0])
-            out[k] = _unwrap(done[0])
+            out[k] = unwrap(done[0])
             idle = [actor]
             bar.update(sizes[k])
     finally:
@@ -237,7 +214,7 @@ def solve_many(model: Model, goals: G.Goal | Sequence[G.Goal], q0: ArrayLike | N
     prog = G.compile_goals(tree, goal_list)
     q = _check_q0(tree, q0, prog.B)
     edges = [(0, prog.B)] if prog.batch == () else [(lo, min(lo + chunk, prog.B)) for lo in range(0, prog.B, chunk)]
-    _connect(address)
+    connect(address)
     actors = _actors(tree, workers, threads_per_worker, len(edges))
 
     def job(lo: int, hi: int) -> Callable[[Any], Any]:
@@ -281,7 +258,7 @@ def render_many(model: Model, scripts: Sequence[str | os.PathLike[str]], out_dir
     if not trajs:
         return []
     out.mkdir(parents=True, exist_ok=True)
-    _connect(address)
+    connect(address)
     actors = _actors(tree, workers, 1, len(trajs))
 
     def job(traj: motion.Trajectory, clip: Path) -> Callable[[Any], Any]:

@@ -48,7 +48,7 @@ import numpy as np
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..kinematics.qspace import BALL, FREE
 from ..kinematics.tree import Tree, load, source_of
-from ..runtime import tier
+from ..runtime import ray_session, tier
 from ..runtime.checks import check_choice, check_count
 from ..runtime.files import remove_stale_temps, write_text, write_with
 from ..runtime.parallel import set_threads
@@ -353,12 +353,10 @@ def _in_processes(work: Work, jobs: Sequence[Job], workers: int) -> Iterator[tup
 
 def _on_ray(work: Work, jobs: Sequence[Job], workers: int | None, address: str | None) -> Iterator[tuple[Job, Outcome]]:
     """``(job, retarget_clip(work, job))`` as Ray tasks (one CPU each, ``workers`` at once at most) finish them."""
-    from .. import distributed
-
     if not jobs:
         return
-    distributed._connect(address)  # says what to install when Ray is missing
-    ray = distributed.ray
+    ray_session.connect(address)  # says what to install when Ray is missing
+    ray = ray_session.ray
     _warm_up(work, jobs)  # a local cluster's workers then load the kernels from the disk cache
     task = ray.remote(num_cpus=1)(retarget_clip)
     shared = ray.put(work)
@@ -372,7 +370,7 @@ def _on_ray(work: Work, jobs: Sequence[Job], workers: int | None, address: str |
         if not running:
             return
         done, _ = ray.wait(list(running), num_returns=1)
-        yield running.pop(done[0]), distributed._unwrap(done[0])
+        yield running.pop(done[0]), ray_session.unwrap(done[0])
 
 
 def _check_options(tree: Tree, options: dict[str, Any]) -> None:

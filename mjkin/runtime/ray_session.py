@@ -1,0 +1,31 @@
+"""Ray, when the ``ray`` extra is installed: joining a session, and results whose mjkin errors keep their type."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import MjkinError
+
+try:
+    import ray
+except ImportError:  # pragma: no cover - exercised only without the extra
+    ray = None
+
+
+def connect(address: str | None) -> None:
+    """Attach to the running Ray session, else to ``address``, else start a local cluster."""
+    if ray is None:
+        raise MjkinError('mjkin.distributed needs Ray: pip install "mjkin[ray]"')
+    if not ray.is_initialized():
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+
+
+def unwrap(ref: Any) -> Any:
+    """``ray.get(ref)``, re-raising an mjkin error from the worker with its own type."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as e:
+        cause = getattr(e, "cause", None)
+        if isinstance(cause, MjkinError):
+            raise cause from None
+        raise
