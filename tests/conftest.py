@@ -140,8 +140,28 @@ def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
 _BACKGROUND: dict[str, tuple[subprocess.Popen, IO[str]]] = {}
 
 
+# The slow tests (`pytest -m "not slow"` runs the rest, the library's own laws, in about a minute on a warm cache):
+# whole modules that start servers, subprocesses, renders, learners or benchmarks, and single tests that compile a
+# loop of their own (balance, clearance) or sweep many targets.
+SLOW_MODULES = {"test_bench", "test_bench_constraints", "test_play", "test_play_constraints", "test_render",
+                "test_showcase", "test_learning", "test_her_example", "test_docs", "test_cli", "test_warmup_cli",
+                "test_tier", "test_jit", "test_progress", "test_distributed", "test_envs", "test_expert_clearance",
+                "test_seeds", "test_hypothesis_profiles", "test_entry_fuzz", "test_retarget_dataset",
+                "test_com_goal", "test_retarget_quality"}
+SLOW_TESTS = {"test_clearance_rows_are_the_closest_pairs_with_their_gradients",
+              "test_hard_rows_match_finite_differences",
+              "test_a_pair_mjkin_cannot_measure_is_kept_by_its_bounding_sphere",
+              "test_clearance_answers_nearly_every_answerable_target_among_obstacles",
+              "test_clearance_holds_on_every_success_by_mujoco"}
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Tests that wait for a BACKGROUND command run last, so the rest of the suite runs while it works."""
+    """Mark the slow tests (:data:`SLOW_MODULES`, :data:`SLOW_TESTS`); tests that wait for a BACKGROUND command run
+    last, so the rest of the suite runs while it works."""
+    for item in items:
+        module = getattr(getattr(item, "module", None), "__name__", "")
+        if module in SLOW_MODULES or getattr(item, "originalname", item.name) in SLOW_TESTS:
+            item.add_marker(pytest.mark.slow)
     items.sort(key=lambda item: bool(getattr(getattr(item, "module", None), "BACKGROUND", None)))  # stable
 
 
@@ -200,4 +220,5 @@ class _CompileNotice(event.Listener):
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: a test of whole commands, servers or benchmarks (see SLOW_MODULES)")
     event.register("numba:compile", _CompileNotice(config))
