@@ -3,7 +3,7 @@ motion (joint positions, retargeted q), the Euler channels, one-line errors; LAF
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -246,6 +246,41 @@ def test_read_clip_dispatches_by_suffix(same: Same) -> None:
         read_clip(same.bvh, same.model)
 
 
+# AMASS's split form: each part's columns of the combined 'poses', in the model's joint order (root, 21 body joints,
+# then SMPL-X's jaw and eyes, then both hands; SMPL's two hand joints have no part)
+SPLIT = {24: {"root_orient": (0, 3), "pose_body": (3, 66)},
+         52: {"root_orient": (0, 3), "pose_body": (3, 66), "pose_hand": (66, 156)},
+         55: {"root_orient": (0, 3), "pose_body": (3, 66), "pose_jaw": (66, 69), "pose_eye": (69, 75),
+              "pose_hand": (75, 165)}}
+
+
+@pytest.mark.parametrize(("joints", "left_out"), [(52, ()), (55, ()), (55, ("pose_jaw", "pose_eye")),
+                                                  (52, ("pose_hand",)), (24, ())])
+def test_the_split_form_reads_as_the_same_clip_as_poses(tmp_path: Path, joints: int,
+                                                        left_out: tuple[str, ...]) -> None:
+    # AMASS's SMPL-X "stage-ii" files (and newer SMPL-H ones) hold the turns in parts, without 'poses'; a part
+    # left out (SMPL's hands, which have none) is at rest
+    model = write_body_model(tmp_path / "model.npz", joints, 16)
+    rng = np.random.default_rng(3)
+    poses, trans, betas = rng.uniform(-1.0, 1.0, (5, 3 * joints)), rng.normal(size=(5, 3)), rng.normal(size=16)
+    parts = {k: poses[:, a:b].copy() for k, (a, b) in SPLIT[joints].items() if k not in left_out}
+    held = np.zeros(3 * joints, dtype=np.bool_)
+    for a, b in (SPLIT[joints][k] for k in parts):
+        held[a:b] = True
+    poses[:, ~held] = 0.0  # what the split file does not hold is at rest
+    np.savez(tmp_path / "poses.npz", poses=poses, trans=trans, betas=betas, mocap_frame_rate=np.array(120.0))
+    np.savez(tmp_path / "split.npz", **parts, trans=trans, betas=betas, mocap_frame_rate=np.array(120.0),
+             gender=np.array("neutral"), surface_model_type=np.array("smplx"))
+    combined, split = (smpl.read(tmp_path / f"{name}.npz", model) for name in ("poses", "split"))
+    for field in fields(bvh.Clip):  # every field the same but the file it came from
+        got, want = getattr(split, field.name), getattr(combined, field.name)
+        if isinstance(want, np.ndarray):
+            np.testing.assert_array_equal(got, want, field.name)
+        elif field.name != "source":
+            assert got == want, field.name
+    assert split.fps == 120.0 and split.frames == 5
+
+
 def bad_files(tmp: Path) -> list[tuple[str, Path | None, type[Exception], str]]:
     """(clip, body model, error, message pattern) of bad input, each made in ``tmp``."""
     model = write_body_model(tmp / "model.npz")
@@ -285,6 +320,17 @@ def bad_files(tmp: Path) -> list[tuple[str, Path | None, type[Exception], str]]:
         (str(good), tmp / "swapped.npz", MjkinIOError, "gives joint 23 the parent 5; SMPL-H's is 22"),
         (str(good), tmp / "model.pkl", MjkinIOError, "is a pickle, which mjkin does not load"),
         (str(good), tmp / "missing.npz", MjkinIOError, "body model not found"),
+        (variant("no_poses", poses=None), model, smpl.SmplError, "has neither 'poses' nor its parts; expected "
+         "'poses' \\(frames, 156\\) or 'root_orient' \\(frames, 3\\), 'pose_body' \\(frames, 63\\), "
+         "'pose_hand' \\(frames, 90\\) \\(rotation vectors, rad; those after 'pose_body' optional\\)$"),
+        (variant("root_only", poses=None, root_orient=data["poses"][:, :3]), model, smpl.SmplError,
+         "has no 'pose_body'; expected \\(3, 63\\) rotation vectors"),
+        (variant("smplx_parts", poses=None, root_orient=np.zeros((3, 3)), pose_body=np.zeros((3, 63)),
+                 pose_jaw=np.zeros((3, 3)), pose_eye=np.zeros((3, 6))), model, smpl.SmplError,
+         "has 'pose_jaw', 'pose_eye' but the SMPL-H body model .* has no such joints"),
+        (variant("short_hand", poses=None, root_orient=np.zeros((3, 3)), pose_body=np.zeros((3, 63)),
+                 pose_hand=np.zeros((2, 90))), model, smpl.SmplError,
+         "'pose_hand' has shape \\(2, 90\\); expected \\(3, 90\\): one row per frame of 'root_orient'"),
         (str(tmp / "missing.npz"), model, MjkinIOError, "AMASS/SMPL clip not found"),
         (str(tmp / "text.npz"), model, MjkinIOError, "cannot read AMASS/SMPL clip .* as an .npz archive"),
     ]

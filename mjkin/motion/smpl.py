@@ -2,7 +2,10 @@
 
 A clip file holds ``poses (F, 3 J)`` (each joint's turn in its parent as a rotation vector, radians, in
 the body model's joint order), ``trans (F, 3)`` (metres), ``betas (K,)`` (the body's shape) and
-``mocap_framerate`` or ``mocap_frame_rate`` (frames per second). The skeleton comes from the user's own
+``mocap_framerate`` or ``mocap_frame_rate`` (frames per second). Without ``poses`` (AMASS's SMPL-X "stage-ii"
+files and newer SMPL-H ones), the turns are read split into parts (:data:`PARTS`): ``root_orient (F, 3)``,
+``pose_body (F, 63)``, then for SMPL-X ``pose_jaw (F, 3)`` and ``pose_eye (F, 6)``, and ``pose_hand (F, 90)``;
+a part the file lacks, other than the first two, is at rest. The skeleton comes from the user's own
 body-model file (an ``.npz``: the models are licensed by their authors, so mjkin ships none): its
 joints at rest are ``J_regressor (J, V) @ (v_template (V, 3) + shapedirs (V, 3, S) @ betas)``, its tree
 ``kintree_table (2, J)``. SMPL (24 joints), SMPL-H (52: body and hands) and SMPL-X (55: body, jaw,
@@ -37,6 +40,11 @@ ROTATION = ("zrotation", "yrotation", "xrotation")
 POSITION = ("xposition", "yposition", "zposition")
 Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # AMASS (x, y, z up) -> BVH (z, x, y up)
 FRAME_RATES = ("mocap_framerate", "mocap_frame_rate")  # AMASS's SMPL-H files use the first, its SMPL-X files the second
+# the split form's parts, with their joints, in each model's joint order; SMPL's two hand joints have none (at rest)
+PARTS = {"SMPL": (("root_orient", 1), ("pose_body", 21)),
+         "SMPL-H": (("root_orient", 1), ("pose_body", 21), ("pose_hand", 30)),
+         "SMPL-X": (("root_orient", 1), ("pose_body", 21), ("pose_jaw", 1), ("pose_eye", 2), ("pose_hand", 30))}
+REQUIRED_PARTS = ("root_orient", "pose_body")  # the split form's parts a clip must have; the others default to rest
 SMPLX_SHAPES = 300  # SMPL-X's shapedirs hold 300 shape then 100 expression directions (10 and 10 in its 2019 files)
 
 _BODY = (("Hips", -1), ("LeftUpLeg", 0), ("RightUpLeg", 0), ("Spine", 0), ("LeftLeg", 1), ("RightLeg", 2),
@@ -182,13 +190,54 @@ def _load_model(path: str, mtime_ns: int, size: int) -> BodyModel:
     return BodyModel(kind, *arrays, source=path)
 
 
+def _poses(data: np.lib.npyio.NpzFile, model: BodyModel, what: str) -> tuple[Array, str]:
+    """The clip's turns ``(F, 3 J)`` (rotation vectors, rad) in ``model``'s joint order, and the key they count from.
+
+    From ``poses``, or else from its parts (:data:`PARTS`; a part the clip lacks is at rest).
+    """
+    J, parts = len(model.parents), PARTS[model.kind]
+    if "poses" in data.files:
+        poses = _shaped(_numbers(data, "poses", what, "(frames, 3 x joints) rotation vectors (rad)"), (None, None),
+                        "poses", what, "(frames, 3 x joints)")
+        if len(poses) and poses.shape[1] != 3 * J:
+            kinds = {3 * n: kind for n, (kind, _, _) in SKELETONS.items()}
+            kind = f" ({kinds[poses.shape[1]]})" if poses.shape[1] in kinds else ""
+            raise SmplError(f"{what}: 'poses' has {poses.shape[1]} values a frame{kind} but the {model.kind} body "
+                            f"model {model.source!r} has {J} joints ({3 * J} values); give the model the clip was made "
+                            "with")
+        return poses, "poses"
+    if not any(k in data.files for k in REQUIRED_PARTS):
+        raise SmplError(f"{what} has neither 'poses' nor its parts; expected 'poses' (frames, {3 * J}) or "
+                        + ", ".join(f"{k!r} (frames, {3 * n})" for k, n in parts)
+                        + f" (rotation vectors, rad; those after {REQUIRED_PARTS[-1]!r} optional)")
+    other = [k for k in dict.fromkeys(k for kind in PARTS.values() for k, _ in kind)
+             if k in data.files and k not in dict(parts)]
+    if other:
+        raise SmplError(f"{what} has {', '.join(map(repr, other))} but the {model.kind} body model {model.source!r} "
+                        "has no such joints; give the model the clip was made with")
+    first = parts[0][0]  # the root's turn, one joint
+    root = _shaped(_numbers(data, first, what, "(frames, 3) rotation vectors (rad)"), (None, 3), first, what,
+                   "(frames, 3)")
+    F = len(root)
+    poses = np.zeros((F, 3 * J))
+    poses[:, :3] = root
+    at = 1  # the joint the next part starts at
+    for key, n in parts[1:]:
+        if key in data.files or key in REQUIRED_PARTS:
+            poses[:, 3 * at:3 * (at + n)] = _shaped(
+                _numbers(data, key, what, f"({F}, {3 * n}) rotation vectors (rad)"), (F, 3 * n), key, what,
+                f"({F}, {3 * n}): one row per frame of {first!r}")
+        at += n
+    return poses, first
+
+
 def read(path: str | os.PathLike[str], body_model: str | os.PathLike[str] | BodyModel | None) -> bvh.Clip:
     """The AMASS/SMPL clip at ``path`` as a :class:`~mjkin.motion.bvh.Clip` (metres, y up), with ``body_model``.
 
     Raises:
         InputError: no body model given.
-        SmplError: the clip or model cannot be read, a key is missing or malformed (nan, wrong shape), or the
-            model's joints do not match the clip's pose size.
+        SmplError: the clip or model cannot be read, a key is missing or malformed (nan, wrong shape), neither
+            ``poses`` nor its parts are there, or the model's joints do not match the clip's turns.
     """
     if body_model is None:
         raise InputError(f"the AMASS/SMPL clip {str(path)!r} needs its body model: give body_model= (--body-model "
@@ -196,23 +245,17 @@ def read(path: str | os.PathLike[str], body_model: str | os.PathLike[str] | Body
     model = body_model if isinstance(body_model, BodyModel) else load_model(body_model)
     what = f"clip {str(path)!r}"
     with _npz(path, "AMASS/SMPL clip") as data:
-        poses = _shaped(_numbers(data, "poses", what, "(frames, 3 x joints) rotation vectors (rad)"), (None, None),
-                        "poses", what, "(frames, 3 x joints)")
+        poses, turns_key = _poses(data, model, what)
         F, J = len(poses), len(model.parents)
         trans = _shaped(_numbers(data, "trans", what, f"({F}, 3) root translations (m)"), (F, 3), "trans", what,
-                        f"({F}, 3): one row per frame of 'poses'")
+                        f"({F}, 3): one row per frame of {turns_key!r}")
         betas = _numbers(data, "betas", what, "(shapes,) body shape coefficients")
         betas = _shaped(betas.reshape(-1) if betas.ndim == 2 and len(betas) == 1 else betas, (None,), "betas", what,
                         "(shapes,) or (1, shapes)")
         key = next((k for k in FRAME_RATES if k in data.files), FRAME_RATES[0])
         fps = _numbers(data, key, what, f"frames per second (one number; {' or '.join(FRAME_RATES)})")
     if F == 0:
-        raise SmplError(f"{what}: 'poses' has no frames; expected (frames, {3 * J}) with at least one frame")
-    if poses.shape[1] != 3 * J:
-        kinds = {3 * n: kind for n, (kind, _, _) in SKELETONS.items()}
-        kind = f" ({kinds[poses.shape[1]]})" if poses.shape[1] in kinds else ""
-        raise SmplError(f"{what}: 'poses' has {poses.shape[1]} values a frame{kind} but the {model.kind} body model "
-                        f"{model.source!r} has {J} joints ({3 * J} values); give the model the clip was made with")
+        raise SmplError(f"{what}: {turns_key!r} has no frames; expected at least one")
     lo, hi = 1.0 / bvh.FRAME_TIME[1], 1.0 / bvh.FRAME_TIME[0]
     if fps.size != 1 or not lo <= float(fps.flat[0]) <= hi:
         raise SmplError(f"{what}: {key!r} must be one number of frames per second from {lo:g} to {hi:g}, got "
