@@ -18,8 +18,9 @@ solve per frame through one :class:`mjkin.Problem`):
    hysteresis). The ground is the plane z = 0 or a scene's world geoms (:mod:`~mjkin.motion.terrain`,
    ray casts down). A planted foot's target is frozen for the whole contact, resting on the ground
    under it by the lowest points of its geoms (tilted onto a slope), and eased back to the source's over
-   :data:`EASE` frames after it lifts. Swinging feet are lifted so no point of their geoms is under the
-   ground. The pelvis (and with it every limb) rises and falls with the ground under the planted feet.
+   :data:`EASE_S` seconds after it lifts, at any frame rate. Swinging feet are lifted so no point of their
+   geoms is under the ground. The pelvis (and with it every limb) rises and falls with the ground under the
+   planted feet.
 5. Goals, in one priority level: both feet's toe and heel points weighted far above
    (:data:`FOOT_WEIGHT`) the pelvis, limb points, head, torso/pelvis orientations and the
    previous frame's pose; each frame is warm-started from the previous one. A hard
@@ -81,7 +82,7 @@ BODY_WEIGHTS = {"pelvis": 3.0, "pelvis_turn": 0.05, "torso_turn": 0.3, "head": 0
 # otherwise: limbs that come close in the source (hands at the hips, knees brushing, legs crossing at 120 Hz)
 # stay apart, at 9-16 % of the primate's frames/s and 2-9 % of the G1's (`mjkin bench retarget`).
 SELF_CLEARANCE = 0.002
-EASE = 6  # frames over which a lifted foot's target returns from where it stood to the source's
+EASE_S = 0.2  # s over which a lifted foot's target returns from where it stood to the source's (6 frames at 30 Hz)
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
 GROUND_SMOOTH = 0.1  # s: the ground height the pelvis follows is smoothed over this (a Gaussian's sigma)
@@ -306,14 +307,15 @@ def _lean(held: Array, hip: Array, foot: Foot) -> Array:
 
 
 def _foot_targets(R: Array, p: Array, foot: Foot, ground: Terrain, contact: NDArray[np.bool_], held: Array,
-                  tilt: Array, lean: Array, heel: NDArray[np.bool_]) -> Array:
+                  tilt: Array, lean: Array, heel: NDArray[np.bool_], ease_frames: int) -> Array:
     """Foot body poses ``(F, 4, 4)`` from the source-driven ``R (F, 3, 3)``, ``p (F, 3)`` and the contacts ``(F,)``.
 
     In a contact the foot is as ``held`` (``(F, 4, 4)``, :func:`_plant`), leaning across by ``lean (F,)``
     (:func:`_lean`) about the middle of its sole and onto its lower edge. While ``heel`` is up it pitches
     heel up as the driven pose does (relative to the slope it stands on, ``tilt (F, 3, 3)``) about its
     frozen toe. After lift-off the target eases from the last held pose to the driven one over
-    :data:`EASE` frames. Every pose is raised as far as a ball is under the ground straight below it.
+    ``ease_frames`` frames (:data:`EASE_S` at the clip's rate). Every pose is raised as far as a ball is under
+    the ground straight below it.
     """
     F = len(p)
     T = np.broadcast_to(np.eye(4), (F, 4, 4)).copy()
@@ -331,9 +333,9 @@ def _foot_targets(R: Array, p: Array, foot: Foot, ground: Terrain, contact: NDAr
     H[up] = P
     out[at] = H
     last = np.maximum.accumulate(np.where(contact, np.arange(F), -1))  # the last frame in contact
-    ease = np.flatnonzero(~contact & (last >= 0) & (np.arange(F) - last < EASE))
+    ease = np.flatnonzero(~contact & (last >= 0) & (np.arange(F) - last < ease_frames))
     if len(ease):  # after a lift-off: from the last pose in contact to the driven one
-        A, u = out[last[ease]], (ease - last[ease]) / EASE
+        A, u = out[last[ease]], (ease - last[ease]) / ease_frames
         out[ease, :3, 3] = (1 - u)[:, None] * A[:, :3, 3] + u[:, None] * T[ease, :3, 3]
         out[ease, :3, :3] = spatial.quat_to_mat(spatial.slerp(
             spatial.mat_to_quat(A[:, :3, :3]), spatial.mat_to_quat(T[ease, :3, :3]), u))
@@ -446,11 +448,12 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
         pts[r][:, 2] += base
     feet = np.empty((2, F, 4, 4))
     footing = []
+    ease = max(1, round(EASE_S / clip.frame_time))
     for i, s in enumerate(SIDES):
         R, at = driven[i]
         foot = feet_geom[i]
         feet[i] = _foot_targets(R, at + base[:, None] * [0.0, 0.0, 1.0], foot, ground, contact[i], held[i], tilt[i],
-                                _lean(held[i], pts[f"{s}_hip"], foot), heel[i])
+                                _lean(held[i], pts[f"{s}_hip"], foot), heel[i], ease)
         corners, radius = sole_corners(foot.points, foot.radius)
         centres = np.einsum("fij,kj->fki", feet[i, :, :3, :3], corners) + feet[i, :, None, :3, 3]
         at_plane, normal = ground.planes(centres.reshape(-1, 3), np.tile(radius, F))
