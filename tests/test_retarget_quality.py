@@ -221,7 +221,7 @@ def test_bench_table_has_frames_per_second_median_and_iqr_over_the_clips(tmp_pat
     assert row["frames_per_s_median"] == round(float(np.median(fps)))
     assert row["frames_per_s_q25"] <= row["frames_per_s_median"] <= row["frames_per_s_q75"]
     assert row["frames_per_s_iqr"] == pytest.approx(row["frames_per_s_q75"] - row["frames_per_s_q25"], abs=1)
-    assert {"keypoint_median_cm", "skate_mm_per_frame", "skate_max_cm", "lowest_sole_mm", "clips_in_limits",
+    assert {"keypoint_median_cm", "skate_mm_per_frame", "skate_max_cm", "floor_min_mm", "clips_in_limits",
             "speed_ratio", "self_contact_frames", "deepest_mm"} <= set(row)
     doc = rep.as_json()
     assert len(doc["rows"]) == 2 and doc["dataset"] == [row]

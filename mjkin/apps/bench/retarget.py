@@ -72,7 +72,10 @@ def clip_files(folder: str | os.PathLike[str] | None = None) -> list[Path]:
 
 
 def clip_row(name: str, tree: Tree, path: Path, repeat: int) -> Row:
-    """One clip onto one figure: frames/s the best of ``repeat`` runs, the measured figures of that run."""
+    """One clip onto one figure: frames/s the best of ``repeat`` runs, the measured figures of that run.
+
+    ``floor_min_mm`` is the lowest point of the foot geoms against the ground under it (mm; negative: below).
+    """
     runs, cpu = [], []
     for _ in range(repeat):
         start = time.process_time()
@@ -86,7 +89,7 @@ def clip_row(name: str, tree: Tree, path: Path, repeat: int) -> Row:
             "keypoint_median_cm": round(100 * m["keypoint_error_median"], 2),
             "skate_mm_per_frame": round(1000 * m["skate_per_frame_mean"], 3),
             "skate_max_cm": round(100 * m["skate_per_contact_max"], 2),
-            "lowest_sole_mm": round(1000 * m["floor_min"], 1),
+            "floor_min_mm": round(1000 * m["floor_min"], 1),
             "limits_ok": m["limits"] is None, "speed_ratio": round(m["speed_limit_ratio"], 3),
             "self_contact_frames": m["self_contact_frames"],
             "deepest_mm": round(1000 * m["self_contact_deepest"], 1)}
@@ -96,7 +99,7 @@ def dataset_row(rows: Sequence[Row]) -> Row:
     """One figure's clips in the dataset form: frames/s median and quartiles over the clips, quality summarised.
 
     Key points and skate per frame: medians over the clips; the worst clip's skate per contact,
-    lowest sole, speed ratio and deepest self-contact; clips inside the limits and self-contact
+    lowest foot geom (``floor_min_mm``), speed ratio and deepest self-contact; clips inside the limits and self-contact
     frames counted over all clips.
     """
     def col(key: str) -> np.ndarray:
@@ -109,7 +112,7 @@ def dataset_row(rows: Sequence[Row]) -> Row:
             "frames_per_cpu_s_median": round(float(np.median(col("frames_per_cpu_s")))),
             "keypoint_median_cm": round(float(np.median(col("keypoint_median_cm"))), 2),
             "skate_mm_per_frame": round(float(np.median(col("skate_mm_per_frame"))), 3),
-            "skate_max_cm": float(col("skate_max_cm").max()), "lowest_sole_mm": float(col("lowest_sole_mm").min()),
+            "skate_max_cm": float(col("skate_max_cm").max()), "floor_min_mm": float(col("floor_min_mm").min()),
             "clips_in_limits": int(col("limits_ok").sum()), "speed_ratio": float(col("speed_ratio").max()),
             "self_contact_frames": int(col("self_contact_frames").sum()),
             "deepest_mm": float(col("deepest_mm").min())}
