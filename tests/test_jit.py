@@ -207,3 +207,35 @@ def test_an_entry_is_the_compiled_code_without_the_dispatch():
     direct = entry(scaled, numba.typeof(a), numba.float64)
     assert direct is not scaled and direct(a, 2.0) == scaled(a, 2.0) == 12.0
     assert len(scaled.signatures) == 1  # compiled once, for those types
+
+
+def test_a_kernel_another_process_is_compiling_is_waited_for_and_loaded_not_compiled_again(tmp_path):
+    """The compile lock: a second process (a test worker, a warmup process) waits, then reads the first's cache."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from numba.core.compiler_lock import global_compiler_lock
+
+    _package(tmp_path / "src")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}  # both write beside the source
+    sys.path.insert(0, str(tmp_path / "src"))
+    try:
+        from kpkg.kern import kernel
+
+        with global_compiler_lock, kernel._cache.compiling():
+            child = subprocess.Popen([sys.executable, "-c", _RUN, str(tmp_path / "src")], env=env, text=True,
+                                     stdout=subprocess.PIPE)
+            deadline = time.monotonic() + 120
+            while "->" not in Path("/proc/locks").read_text():  # the child is blocked on the lock we hold
+                assert child.poll() is None and time.monotonic() < deadline, "the child did not wait for the lock"
+                time.sleep(0.05)
+            assert kernel(1.0) == 4.0  # compiled here, under the lock, into the cache the child then reads
+        out, _ = child.communicate(timeout=120)
+    finally:
+        sys.path.remove(str(tmp_path / "src"))
+        for name in ("kpkg.kern", "kpkg.help", "kpkg"):
+            sys.modules.pop(name, None)
+    assert out.split() == ["4.0", "1"]  # loaded from the cache, not compiled a second time

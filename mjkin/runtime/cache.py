@@ -22,10 +22,13 @@ the same text where it was written ahead (a read-only install warmed by root).
 from __future__ import annotations
 
 import ast
+import contextlib
+import fcntl
 import hashlib
 import os
 import stat
 import tempfile
+from collections.abc import Iterator
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -161,6 +164,35 @@ class KernelCache(caching.FunctionCache):
                 if (payload := cache.load(key)) is not None:
                     return self._impl.rebuild(target_context, payload)
         return data
+
+    @contextlib.contextmanager
+    def compiling(self) -> Iterator[None]:
+        """Hold this kernel's compile lock: a second process that needs it waits, then loads what this one wrote.
+
+        Test workers, ``mjkin warmup``'s processes and a dataset's workers each compile a kernel once between
+        them, not once each. An advisory ``flock`` on a file beside the cache: the system drops it when the
+        process ends, so a killed compile never blocks the next. Without a writable cache folder, no lock.
+        """
+        path = os.path.join(self._cache_path, f"{self._impl.filename_base}.lock")
+        if path in _HELD:  # this process holds it already (a kernel that calls itself)
+            yield
+            return
+        try:
+            self._impl.locator.ensure_cache_path()
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        except OSError:
+            yield
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            _HELD.add(path)
+            yield
+        finally:
+            _HELD.discard(path)
+            os.close(fd)
+
+
+_HELD: set[str] = set()  # the compile locks this process holds (under numba's compiler lock: one thread at a time)
 
 
 def _trusted(folder: Path) -> bool:

@@ -37,11 +37,14 @@ from collections.abc import Callable, Iterator
 from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
+from numba.core import sigutils
+from numba.core.compiler_lock import global_compiler_lock
 from numba.core.dispatcher import Dispatcher
 from numba.core.registry import CPUDispatcher
 
 from ..errors import InputError
 from . import progress
+from .cache import KernelCache
 
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
@@ -304,6 +307,19 @@ class Kernel(CPUDispatcher):
             if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], small):
                 return lambda *a: self._interpreted(*a)
         return super()._compile_for_args(*args, **kws)  # type: ignore[misc]  # numba's, not in its stubs
+
+    def compile(self, sig: Any) -> Any:
+        """Numba's compile, under the kernel's compile lock when it is not in memory yet (:mod:`.cache`).
+
+        numba's own (in-process) compiler lock is taken first, so a thread never holds the file lock while
+        it waits for numba's; kernels lock their callees only, so two processes never wait on each other.
+        """
+        args, _ = sigutils.normalize_signature(sig)
+        cache = getattr(self, "_cache", None)  # set by mjkin.runtime.jit on every kernel
+        if tuple(args) in self.overloads or not isinstance(cache, KernelCache):
+            return super().compile(sig)
+        with global_compiler_lock, cache.compiling():
+            return super().compile(sig)
 
     def _interpreted(self, *args: Any) -> Any:
         """:func:`interpreted_call`, its seconds counted against :data:`BUDGET`."""
