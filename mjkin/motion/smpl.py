@@ -21,7 +21,6 @@ frame, facing +z, as BVH's). AMASS's world is z-up: the clip's world is it turne
 
 from __future__ import annotations
 
-import functools
 import os
 import zipfile
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ from numpy.typing import NDArray
 
 from .. import spatial
 from ..errors import InputError, MjkinIOError
+from ..runtime import files
 from . import bvh
 
 Array = NDArray[np.float64]
@@ -153,15 +153,14 @@ def load_model(path: str | os.PathLike[str]) -> BodyModel:
         raise SmplError(f"body model {str(path)!r} is a pickle, which mjkin does not load (it can run code); give the "
                         "model's .npz (SMPL-X and AMASS's SMPL+H are published as .npz)")
     try:
-        stat = p.stat()
-    except OSError:
+        return _load_model(p)
+    except FileNotFoundError:
         raise SmplError(f"body model not found: {str(path)!r}") from None
-    return _load_model(str(p.resolve()), stat.st_mtime_ns, stat.st_size)
 
 
-@functools.lru_cache(maxsize=4)
-def _load_model(path: str, mtime_ns: int, size: int) -> BodyModel:
-    """:func:`load_model` of the file ``path`` as it was at ``mtime_ns`` with ``size`` bytes."""
+@files.per_file(maxsize=4)
+def _load_model(path: str) -> BodyModel:
+    """:func:`load_model` of the file ``path``."""
     what = f"body model {path!r}"
     with _npz(path, "body model") as data:
         kintree = _numbers(data, "kintree_table", what, "(2, joints) integers: each joint's parent, then itself")

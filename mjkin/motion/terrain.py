@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from ..errors import InputError, MjkinIOError, ModelError
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, MESH, PLANE, SPHERE
 from ..kinematics.tree import Tree
+from ..runtime import files
 
 Array = NDArray[np.float64]
 HEADROOM = 0.5  # m: rays start this far above a point, so ground up to this much above it is found
@@ -83,8 +84,7 @@ class Terrain:
         path = Path(text)
         if not path.is_file():
             raise MjkinIOError(f"scene file not found: {text!r} (give an MJCF file whose world geoms are the ground)")
-        stat = path.stat()
-        return _load_file(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+        return _load_file(path)
 
     def _over(self, lo: Array, hi: Array) -> NDArray[np.bool_]:
         """``(N, G)``: which ground geoms' world boxes overlap the boxes from ``lo (N, 2)`` to ``hi (N, 2)`` across."""
@@ -154,8 +154,8 @@ def _flat() -> Terrain:
     return _build(_spec(FLAT_XML), "")
 
 
-@lru_cache(maxsize=8)
-def _load_file(path: str, mtime_ns: int, size: int) -> Terrain:
+@files.per_file(maxsize=8)
+def _load_file(path: str) -> Terrain:
     return _build(_strip(_spec(path)), path)
 
 

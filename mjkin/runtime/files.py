@@ -19,11 +19,13 @@ import re
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
+from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from ..errors import InputError, MjkinIOError
 
+T = TypeVar("T")
 TEMP_MARK = "mjkin-tmp"
 STARTED = time.time()  # when this process imported mjkin: leftovers must be older than this
 _TEMP = re.compile(rf"\.(?P<name>.+)\.{TEMP_MARK}-(?P<pid>\d+)-[a-z0-9_]{{8}}(?P<suffix>(\.[^.]*)?)")
@@ -161,3 +163,24 @@ def _finite(data: Any) -> Any:
     if isinstance(data, list | tuple):
         return [_finite(v) for v in data]
     return data
+
+
+def per_file(maxsize: int) -> Callable[[Callable[[str], T]], Callable[[str | os.PathLike[str]], T]]:
+    """Decorate ``load(path)`` so a file is read once while it stays the same (its mtime and size).
+
+    The decorated function takes any path; ``load`` gets it resolved. The ``maxsize`` latest files are kept.
+    """
+    def decorate(load: Callable[[str], T]) -> Callable[[str | os.PathLike[str]], T]:
+        @lru_cache(maxsize=maxsize)
+        def kept(path: str, mtime_ns: int, size: int) -> T:
+            return load(path)
+
+        def read(path: str | os.PathLike[str]) -> T:
+            resolved = str(Path(path).resolve())
+            st = os.stat(resolved)
+            return kept(resolved, st.st_mtime_ns, st.st_size)
+
+        read.__doc__ = load.__doc__
+        return read
+
+    return decorate
