@@ -136,7 +136,8 @@ def test_generated_code_written_ahead_is_read_where_it_cannot_be_written(tmp_pat
 
 def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
     """A Pose problem's loop dispatches to Pose alone: no distance or balance code is compiled for it."""
-    from mjkin.goals import Clearance, HalfSpace, Pose
+    from mjkin.goals import Clearance, HalfSpace, Pose, registry
+    from mjkin.goals.com import Balance, ComTarget
     from mjkin.ik import compiled
 
     text = compiled.source((Pose.code,))
@@ -147,7 +148,11 @@ def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
     # a problem's loop: its kinds and the common ones (cheap), so Pose and Position problems share one
     common = compiled.loop_kinds((Pose.code,))
     assert common == compiled.loop_kinds((HalfSpace.code,)) and Clearance.code not in common
-    assert compiled.loop_kinds((Clearance.code,)) == tuple(sorted((*common, Clearance.code)))
+    # the costly kinds come as one group: any of them compiles the loop of all, which every mix of them shares
+    grouped = [c for c, k in enumerate(registry.KINDS) if k.grouped]
+    assert {Clearance.code, ComTarget.code, Balance.code} <= set(grouped) and not set(grouped) & set(common)
+    assert compiled.loop_kinds((Clearance.code,)) == tuple(sorted((*common, *grouped)))
+    assert compiled.loop_kinds((Balance.code, HalfSpace.code)) == compiled.loop_kinds((Clearance.code,))
 
 
 def test_warmup_compiles_every_kernel_mjkin_runs():

@@ -49,12 +49,10 @@ def _ccd(chain: Tree, figure: Tree) -> None:
     solve(chain, G.Position("ee", T[0, :3, 3]), method="ccd")
 
 
-def _clearance(chain: Tree, figure: Tree) -> None:
+def _grouped(chain: Tree, figure: Tree) -> None:
+    """The loop with clearance and balance (one loop for all grouped kinds: :func:`mjkin.ik.compiled.loop_kinds`)."""
     T = chain.pose(chain.random_q(np.random.default_rng(0), 1), "ee")
     solve(chain, G.Pose("ee", T=T[0]), avoid_collisions=True)
-
-
-def _balance(chain: Tree, figure: Tree) -> None:
     goals: list = [G.Position("left_hand", (0.2, 0.3, 1.2)), G.CenterOfMass(xyz=(0.0, 0.0, 0.5), weight=0.1),
                    G.CenterOfMass(support=["left_foot", "right_foot"])]  # (CenterOfMass may give a list: it nests)
     solve(figure, goals)
@@ -62,8 +60,7 @@ def _balance(chain: Tree, figure: Tree) -> None:
 
 GROUPS: dict[str, Callable[[Tree, Tree], None]] = {
     "IK loop (frame, line, plane and joint goals; every Jacobian method)": _ik,
-    "IK loop with clearance": _clearance,
-    "IK loop with balance": _balance,
+    "IK loop with clearance and balance": _grouped,
     "forward kinematics, Jacobians, q-space arithmetic": _kinematics,
     "CCD": _ccd,
 }  # the longest first, so the others fill the cores beside it

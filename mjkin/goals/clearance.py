@@ -58,6 +58,7 @@ class Clearance(Goal):
     rows: ClassVar[int] = -1
     units: ClassVar[Units] = METRES
     hard: ClassVar[bool] = True
+    grouped: ClassVar[bool] = True  # one loop with the balance kinds (mjkin.ik.compiled)
     REACH: ClassVar[float] = 0.1  # m past the margin that a pair must come within to be measured
 
     def __post_init__(self) -> None:

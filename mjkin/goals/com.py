@@ -42,6 +42,7 @@ class ComTarget(Goal):
     xyz: ArrayLike = (0.0, 0.0, 0.0)
     rows: ClassVar[int] = 3
     units: ClassVar[Units] = METRES
+    grouped: ClassVar[bool] = True  # one loop with Balance and Clearance (mjkin.ik.compiled)
     _batched: ClassVar[tuple[str, ...]] = ("xyz",)
     _cores: ClassVar[tuple[int, ...]] = (1,)
 
@@ -72,6 +73,7 @@ class Balance(Goal):
 
     support: Support = ()
     margin: float = 0.0
+    grouped: ClassVar[bool] = True  # one loop with ComTarget and Clearance (mjkin.ik.compiled)
     rows: ClassVar[int] = -1
     units: ClassVar[Units] = METRES
     hard: ClassVar[bool] = True

@@ -7,7 +7,11 @@ branch per kind, to a module in a folder no other user can write
 from there. A problem compiles the loop of the kinds it holds and the common ones
 (:func:`loop_kinds`): a Pose problem compiles no Clearance or CenterOfMass code,
 and shares its loop with every problem of frame, line, plane and joint goals (the
-ten common kinds cost ~15 % more compile time than Pose alone). Each loop is cached
+ten common kinds cost ~15 % more compile time than Pose alone). The costlier kinds
+(Clearance, the centre of mass's two) come as one group: a problem holding any of
+them compiles the loop of all three (92 s on 2 cores against 76-80 s for one alone,
+and each other mix of them is then compiled already; the common loop takes 60 s).
+Each loop is cached
 on disk like every kernel, stamped with the files it imports (:mod:`mjkin.cache`),
 those of its kinds' residuals among them.
 """
@@ -58,10 +62,13 @@ def source(codes: Sequence[int]) -> str:
 
 
 def loop_kinds(codes: Sequence[int]) -> tuple[int, ...]:
-    """The kinds the loop for a problem with the kinds ``codes`` is compiled with: those and every
-    :attr:`~mjkin.goals.Goal.common` one (cheap residuals, so most problems share one cached loop).
+    """The kinds the loop for a problem with the kinds ``codes`` is compiled with: those, every
+    :attr:`~mjkin.goals.Goal.common` one (cheap residuals, so most problems share one cached loop),
+    and, when any :attr:`~mjkin.goals.Goal.grouped` kind is among them, every grouped one.
     """  # noqa: D205
-    return tuple(sorted({int(c) for c in codes} | {c for c, k in enumerate(registry.KINDS) if k.common}))
+    kinds = {int(c) for c in codes} | {c for c, k in enumerate(registry.KINDS) if k.common}
+    grouped = {c for c, k in enumerate(registry.KINDS) if k.grouped}
+    return tuple(sorted(kinds | grouped if kinds & grouped else kinds))
 
 
 def kernels(codes: Sequence[int]) -> ModuleType:
