@@ -612,3 +612,27 @@ def test_restarts_past_their_bound_are_one_line_not_minutes(make):
     with pytest.raises(mjkin.InputError, match=f"restarts must be a whole number from 0 to {MAX_RESTARTS:,}, got"):
         make()
     assert mjkin.ik.LM(restarts=MAX_RESTARTS).restarts == MAX_RESTARTS
+
+
+@pytest.mark.parametrize("options", [{"method": "lm", "max_iters": 10**9, "patience": 10**9},
+                                     {"method": "lm", "restarts": 10_000, "max_iters": 1001},
+                                     {"method": "dls", "max_iters": 10**8}])
+def test_untimed_work_past_its_bound_is_one_line_and_a_timeout_lifts_it(options):
+    """max_iters=1e9 with no timeout ran 76 s: without a time limit a target's iterations are bounded, in one line."""
+    tree = mjkin.load("arm7")
+    goal = mjkin.goals.Position("ee", (0.3, 0.2, 0.5))
+    with pytest.raises(mjkin.InputError, match=r"^max_iters x \(restarts \+ 1\) is [\d,]+ iterations a target, more "
+                                               r"than 10,000,000 without a time limit: give a timeout") as e:
+        mjkin.solve(tree, goal, **options)
+    assert "\n" not in str(e.value)
+    assert mjkin.solve(tree, goal, timeout=0.5, **options).status in ("converged", "timeout")
+
+
+@pytest.mark.parametrize("method", ["pinv", "dls", "lm", "auto", "transpose"])
+@pytest.mark.parametrize("xyz", [(1e308, 0.2, 0.5), (-1e308, 1e308, 0.5), (1e300, 0.0, 0.0)])
+def test_a_target_at_1e308_is_unreachable_not_a_linalg_error(method, xyz):
+    """method="pinv" with 1e308 in a target raised numpy's LinAlgError (SVD did not converge)."""
+    tree = mjkin.load("arm7")
+    res = mjkin.solve(tree, mjkin.goals.Position("ee", xyz), method=method, timeout=0.5)
+    assert not res.success and str(res.reason) == "out_of_reach"
+    assert np.all(np.isfinite(res.q)) and np.array_equal(tree.clip(res.q), res.q)

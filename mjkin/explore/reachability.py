@@ -40,6 +40,8 @@ from ..runtime.files import atomic_path
 Array = NDArray[np.float64]
 VERSION = 1  # of the cache files' contents
 MAX_PLACEMENTS = 1_000_000  # base placements (grid cells x yaws) place_base scores at most
+MAX_SCORED = 20_000_000  # target points place_base scores at most (placements x poses; 24 bytes each, ~0.5 GB)
+MAX_VERIFIED = 1_000_000  # IK solves place_base verifies with at most (verify x poses; seconds to a minute)
 MAX_VOXELS = 1_000_000  # voxels a capability map holds at most (each one a batch of solves)
 SAMPLES = 20_000  # random configurations: the box, and the start of each voxel's solves
 NEAREST = 8  # of the samples nearest a voxel, the start is the one whose z axis is nearest the asked direction
@@ -336,7 +338,8 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
         **options: :func:`reachability` options for the map it builds, and :func:`mjkin.solve` options.
 
     Raises:
-        InputError: malformed poses or region, bad options.
+        InputError: malformed poses or region, bad options; more than :data:`MAX_PLACEMENTS` placements,
+            :data:`MAX_SCORED` placements x poses or :data:`MAX_VERIFIED` verify x poses.
     """
     targets = _poses(poses)
     try:
@@ -359,13 +362,20 @@ def place_base(tree: Tree, frame: str, poses: ArrayLike, region: ArrayLike, *, s
     turns = np.arange(check_count(yaws, "yaws")) * (2 * np.pi / yaws)
     X, Y, Z = np.meshgrid(gx, gy, turns, indexing="ij")
     xy, yaw = np.stack([X.ravel(), Y.ravel()], -1), Z.ravel()
-    local = np.linalg.inv(_base_poses(xy, yaw))[:, None] @ targets[None]  # (c, n, 4, 4): targets in each base frame
-    share = cap.at(local[..., :3, 3])
+    n, verify = len(targets), check_count(verify, "verify")
+    for count, most, what in ((len(yaw) * n, MAX_SCORED, "target points to score (placements x poses)"),
+                              (min(verify, len(yaw)) * n, MAX_VERIFIED, "IK solves to verify (verify x poses)")):
+        if count > most:
+            raise InputError(f"{n:,} poses give {count:,} {what}, more than {most:,}: fewer poses, or a smaller "
+                             "region, a coarser step, fewer yaws or a smaller verify")
+    inv = np.linalg.inv(_base_poses(xy, yaw))  # (c, 4, 4): world to each candidate base
+    share = cap.at(np.einsum("cij,nj->cni", inv[:, :3, :3], targets[:, :3, 3]) + inv[:, None, :3, 3])
     score = (share > 0).sum(-1) + share.mean(-1)
     heat = score.reshape(X.shape).max(-1)
-    best = np.argsort(-score, kind="stable")[:check_count(verify, "verify")]
-    c, n = len(best), len(targets)
-    goal = G.Pose(frame, local[best].reshape(-1, 4, 4), kind=kind)  # type: ignore[arg-type]
+    best = np.argsort(-score, kind="stable")[:verify]
+    c = len(best)
+    local = inv[best][:, None] @ targets[None]  # (c, n, 4, 4): the targets in each verified base's frame
+    goal = G.Pose(frame, local.reshape(-1, 4, 4), kind=kind)  # type: ignore[arg-type]
     found = solve(tree, goal, tol=tol, rot_tol=rot_tol, **options)
     reached = np.asarray(found.success, dtype=bool).reshape(c, n)
     q = np.asarray(found.q).reshape(c, n, tree.nq)

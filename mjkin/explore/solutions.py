@@ -35,7 +35,7 @@ from ..runtime.checks import check_count, check_number
 Array = NDArray[np.float64]
 STARTS = 128  # seeded starts per round
 ROUNDS = 8  # rounds of starts at most: another while the last found a new solution
-MAX_STARTS = 1_000_000  # starts over all rounds at most (starts x rounds; they are drawn ahead)
+MAX_STARTS = 100_000  # starts over all rounds at most (starts x rounds; drawn ahead; ~2e7 iterations, under a minute)
 SPREAD_POOL = 4  # with max_solutions = k, rounds stop once 4 k distinct solutions are there to spread from
 MAX_ITERS = 200  # near a wrist singularity LM creeps: at 50 iterations 7 % of starts converged, at 200 most
 MERGE = 1e-3  # solutions closer than this (largest joint difference, rad or m) are one

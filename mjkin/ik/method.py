@@ -26,6 +26,9 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 MAX_RESTARTS = 10_000  # restarts a method takes at most: their starts are drawn ahead, (restarts, nq) floats
 MAX_ITERS = 10**9  # iterations (and patience) a run takes at most: hours of work, and within the loops' int64
+# iterations a target may take over all its runs (max_iters x (restarts + 1)) when no timeout bounds it: about
+# 10 s on a 7-DoF arm, 1 000 times the defaults' budget; past it a timeout must say how long to search
+MAX_UNTIMED = 10**7
 
 
 class Problem(Protocol):
@@ -91,6 +94,11 @@ class Method(metaclass=_Options):
     def restart_count(self, timed: bool) -> int:
         """How many restart starts a problem prepares (``timed``: a time limit is set)."""
         return 0 if self.restarts is None else int(self.restarts)
+
+    def untimed_iterations(self) -> int:
+        """Iterations a target may take over all its runs without a time limit (``max_iters x (restarts + 1)``)."""
+        runs = self.restart_count(False) + 1
+        return runs * int(getattr(self, "max_iters", 1))
 
     def default_timeout(self) -> float | None:
         """The time limit per target when none is given (seconds; None: none)."""

@@ -26,7 +26,7 @@ from ..runtime import tier
 from ..runtime.checks import check_count, check_flag, check_number
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE, summarise
-from .method import Method
+from .method import MAX_UNTIMED, Method
 from .methods import METHODS
 from .reasons import certify
 from .result import History, Result, package
@@ -67,7 +67,8 @@ class Problem:
         tol: position tolerance in metres; rot_tol: rotation tolerance in radians.
         timeout: seconds each target may take, restarts included, with every method; a target
             that runs out returns its best pose so far with ``status="timeout"``. Default none,
-            except ``optimize``: 5 s per target; ``inf`` means no limit.
+            except ``optimize``: 5 s per target; ``inf`` means no limit. Without one a target may take
+            at most :data:`~mjkin.ik.method.MAX_UNTIMED` iterations (``max_iters x (restarts + 1)``).
         base: only joints between this body and the goal frames move.
         joints: only these joints move.
         root: a body that stays where it is (e.g. a planted foot): a top-priority pose goal
@@ -105,6 +106,9 @@ class Problem:
             timeout = check_number(timeout, "timeout (seconds)", 0, strict=True, infinite=True)
         self.time_limit = self.method.default_timeout() if timeout is None else (
             None if timeout == np.inf else timeout)
+        if timeout is None and self.time_limit is None and (work := self.method.untimed_iterations()) > MAX_UNTIMED:
+            raise InputError(f"max_iters x (restarts + 1) is {work:,} iterations a target, more than {MAX_UNTIMED:,} "
+                             "without a time limit: give a timeout (seconds per target; inf: none) to search longer")
         self.history = check_flag(history, "history")
         self.avoid_collisions = check_flag(avoid_collisions, "avoid_collisions")
         self.seed = None if seed is None else check_count(seed, "seed", 0, whole_floats=True)
