@@ -40,3 +40,9 @@ def test_defaults_shown_in_the_command_line_reference_are_the_real_ones():
                     f"docs/cli.md: mjkin {words[1]} [{flag} {shown}], but the default is {action.default!r}"
                 checked += 1
     assert checked >= 5  # the section really lists defaults (demo, walk)
+
+
+def test_the_readme_says_what_sigterm_and_a_crash_do_to_a_take():
+    """Issue 38 asks the front page, not only the guide, to say it."""
+    play = next(line for line in (ROOT / "README.md").read_text().splitlines() if line.startswith("| `mjkin play"))
+    assert "SIGTERM saves it and exits 0" in play and "a crash loses at most its last second" in play
