@@ -74,15 +74,19 @@ FLOOR_SQUARES = 200  # at most this many dark squares in the checker (larger squ
 
 @dataclass
 class Overlay:
-    """Things drawn into the scene: target points, the trail of a frame (site/body) over time, captions.
+    """Things drawn into the scene: target points and bones between them, the trail of a frame (site/body) over
+    time, captions.
 
-    ``caption`` is one text for every frame, one per frame, or a function of the
-    frame index; it is drawn into the image's top-left corner.
-    """
+    ``bones (k, 2)``: pairs of indices into a frame's ``n`` points, each drawn as a capsule of
+    ``bone_radius`` (m) in ``point_rgba`` (a skeleton). ``caption`` is one text for every frame,
+    one per frame, or a function of the frame index; it is drawn into the image's top-left corner.
+    """  # noqa: D205
 
     points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # (n, 3), or (T, n, 3) per frame
     point_size: float = 0.02
     point_rgba: tuple[float, float, float, float] = (0.95, 0.2, 0.2, 0.9)
+    bones: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    bone_radius: float = 0.01
     trail: str | None = None  # name of the site or body whose path is drawn
     trail_rgba: tuple[float, float, float, float] = (0.1, 0.5, 0.95, 0.9)
     trail_width: float = 3.0  # line width in pixels on 640x480 (scaled with the frame)
@@ -563,13 +567,24 @@ def _add_terrain(scene: mujoco.MjvScene, geoms: Sequence[TerrainGeom]) -> None:
             g.category = mujoco.mjtCatBit.mjCAT_STATIC
 
 
+def _connect(scene: mujoco.MjvScene, kind: int, width: float, ends: NDArray[np.float64],
+             rgba: ArrayLike) -> list[mujoco.MjvGeom]:
+    """Decoration geoms of ``kind`` (capsule: ``width`` = radius in m; line: in px) joining each pair of world
+    points ``ends (k, 2, 3)``; those that fit in the scene.
+    """  # noqa: D205
+    added = []
+    for a, b in ends:
+        g = _add(scene, kind, [0, 0, 0], a, rgba)
+        if g is not None:
+            mujoco.mjv_connector(g, kind, width, a, b)
+            added.append(g)
+    return added
+
+
 def _add_bones(scene: mujoco.MjvScene, xpos: NDArray[np.float64], stage: Stage) -> None:
     """Capsules of ``stage.radius`` between the world origins ``xpos (nbody, 3)`` of each bone's two bodies."""
-    for a, b in xpos[stage.bones]:
-        g = _add(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0, 0, 0], a, BONE_RGBA)
-        if g is not None:
-            mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, stage.radius, a, b)
-            g.category, g.segid = mujoco.mjtCatBit.mjCAT_DYNAMIC, -1  # a part of the figure: it casts a shadow
+    for g in _connect(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, stage.radius, xpos[stage.bones], BONE_RGBA):
+        g.category, g.segid = mujoco.mjtCatBit.mjCAT_DYNAMIC, -1  # a part of the figure: it casts a shadow
 
 
 # ---------------------------------------------------------------------- frames
@@ -732,8 +747,9 @@ class Painter:
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
              caption: str = "", lines: Sequence[tuple[ArrayLike, Sequence[float]]] = ()) -> NDArray[np.uint8]:
-        """One RGB frame ``(height, width, 3)`` of ``q``: target ``points (n, 3)``, a ``trail (k, 3)``, a caption,
-        and ``lines``: polylines ``(k, 3)`` each with its RGBA; on the :attr:`stage` (light, :attr:`floor`, sky, bones).
+        """One RGB frame ``(height, width, 3)`` of ``q``: target ``points (n, 3)`` (and ``overlay.bones`` between them),
+        a ``trail (k, 3)``, a caption, and ``lines``: polylines ``(k, 3)`` each with its RGBA; on the :attr:`stage`
+        (light, :attr:`floor`, sky, bones).
         """  # noqa: D205
         ov = overlay or Overlay()
         r = self.renderer
@@ -748,15 +764,14 @@ class Painter:
         _add_terrain(r.scene, self._terrain)
         _add_bones(r.scene, data.xpos, self.stage)
         first = r.scene.ngeom
-        for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        for p in pts:
             _add(r.scene, mujoco.mjtGeom.mjGEOM_SPHERE, [ov.point_size, 0, 0], p, ov.point_rgba)
+        _connect(r.scene, mujoco.mjtGeom.mjGEOM_CAPSULE, ov.bone_radius, pts[ov.bones], ov.point_rgba)
         width = max(1.0, ov.trail_width * max(self.height, 0.75 * self.width) / 480)
         for path, rgba in ([] if trail is None else [(trail, ov.trail_rgba)]) + list(lines):
-            path = np.asarray(path, dtype=np.float64).reshape(-1, 3)
-            for a, b in zip(path[:-1], path[1:], strict=True):  # lines: a capsule per segment costs ~1 ms (soft GL)
-                g = _add(r.scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], a, rgba)
-                if g is not None:
-                    mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, width, a, b)
+            path = np.asarray(path, dtype=np.float64).reshape(-1, 3)  # lines: a capsule a segment costs ~1 ms (soft GL)
+            _connect(r.scene, mujoco.mjtGeom.mjGEOM_LINE, width, np.stack([path[:-1], path[1:]], axis=1), rgba)
         self.added = r.scene.ngeom - first
         return draw_caption(r.render(), caption)
 
@@ -805,8 +820,9 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     for :func:`camera_path` (``view`` = its azimuth and elevation, ``follow`` = track
     the figure; default: when it travels). ``overlay.points``
     are ``(n, 3)`` for every frame or ``(T, n, 3)`` per frame; the trail grows frame
-    by frame, decimated to ``overlay.trail_points``. The figure is staged (:class:`Stage`), its floor
-    under it in every frame, or stands on ``terrain`` (the scene it was retargeted onto).
+    by frame, decimated to ``overlay.trail_points``; ``overlay.bones`` index the ``n`` points. The figure is
+    staged (:class:`Stage`), its floor under it in every frame, or stands on ``terrain`` (the scene it was
+    retargeted onto).
     """
     qs = tree.check_q(qs)
     if qs.ndim == 1:
@@ -814,6 +830,9 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     _check_size(width, height)
     ov = overlay or Overlay()
     points = np.asarray(ov.points, dtype=np.float64)
+    if np.asarray(ov.bones).size and not 0 <= np.min(ov.bones) <= np.max(ov.bones) < points.shape[-2]:
+        raise InputError(f"overlay bones must index the {points.shape[-2]} points, got indices from "
+                         f"{np.min(ov.bones)} to {np.max(ov.bones)}")
     trail = tree.pose(qs, ov.trail)[:, :3, 3] if ov.trail else None
     seen = points  # what the default camera keeps in view besides the figure: markers and the trail
     if trail is not None:

@@ -459,10 +459,60 @@ def test_overlay_geoms_per_frame_do_not_grow_with_the_video(monkeypatch):
         return image
 
     monkeypatch.setattr(render.Painter, "draw", counting)
-    overlay = render.Overlay(points=np.zeros((2, 3)), trail="tip", trail_points=32)
+    overlay = render.Overlay(points=np.zeros((2, 3)), bones=np.array([[0, 1]]), trail="tip", trail_points=32)
     clip(tree, qs, 32, 24, overlay=overlay)  # every frame drawn
-    assert len(added) == T and max(added) <= 2 + 32  # 2 markers + at most 32 trail segments
-    assert added[-1] >= 2 + 16  # and the trail is still there at the end
+    assert len(added) == T and max(added) <= 2 + 1 + 32  # 2 markers, their bone + at most 32 trail segments
+    assert added[-1] >= 2 + 1 + 16  # and the trail is still there at the end
+
+
+def test_overlay_bones_must_index_its_points():
+    tree = tree_of("planar_2link")
+    with pytest.raises(mjkin.InputError, match="overlay bones must index the 2 points, got indices from 0 to 2"):
+        render.frames(tree, tree.qpos0, overlay=render.Overlay(points=np.zeros((2, 3)), bones=np.array([[0, 2]])))
+
+
+def test_side_by_side_draws_the_source_skeleton_with_bones(tmp_path, monkeypatch):
+    """``mjkin retarget --side-by-side`` drew the source's joints as dots only: now a capsule of their colour joins
+    each drawn joint to its nearest drawn ancestor.
+    """  # noqa: D205
+    from test_retarget import crouch_bvh
+
+    from mjkin.motion import bvh
+    from mjkin.motion.retarget import source_mapping
+
+    text = crouch_bvh(12)
+    write_text(tmp_path / "crouch.bvh", text)
+    overlays = []
+    draw = render.Painter.draw
+
+    def keeping(self, *args, **kwargs):
+        image = draw(self, *args, **kwargs)
+        scene = self.renderer.scene
+        overlays.append([(int(g.type), g.rgba.copy(), g.pos.copy()) for g in scene.geoms[scene.ngeom - self.added:
+                                                                                             scene.ngeom]])
+        return image
+
+    monkeypatch.setattr(render.Painter, "draw", keeping)
+    assert main(["retarget", str(tmp_path / "crouch.bvh"), "--model", "primate", "-o", str(tmp_path / "still.png"),
+                 "--side-by-side", "--width", "160", "--height", "120"]) == 0
+    (overlay,) = overlays
+    dots = np.array([pos for kind, _, pos in overlay if kind == mujoco.mjtGeom.mjGEOM_SPHERE])
+    bones = [(rgba, pos) for kind, rgba, pos in overlay if kind == mujoco.mjtGeom.mjGEOM_CAPSULE]
+    source = bvh.parse(text)
+    joints = sorted(source_mapping(source).values())
+    assert len(dots) == len(joints) == 17
+    at = {source.names[j]: i for i, j in enumerate(joints)}
+    pairs = [("Hips", "Neck"), ("Neck", "Head")] + [(a.replace("*", s), b.replace("*", s)) for s in ("Left", "Right")
+                                                     for a, b in [("Hips", "*Shoulder"), ("*Shoulder", "*Elbow"),
+                                                                  ("*Elbow", "*Wrist"), ("Hips", "*Hip"),
+                                                                  ("*Hip", "*Knee"), ("*Knee", "*Ankle"),
+                                                                  ("*Ankle", "*Ankle_End")]]
+    assert len(bones) == len(pairs) == len(joints) - 1  # one per drawn joint but the root
+    middles = np.array([0.5 * (dots[at[a]] + dots[at[b]]) for a, b in pairs])
+    centres = np.array([pos for _, pos in bones])
+    assert np.abs(centres[:, None] - middles[None]).max(-1).min(0).max() < 1e-5  # each joins its joint to its parent
+    dot_rgba = next(rgba for kind, rgba, _ in overlay if kind == mujoco.mjtGeom.mjGEOM_SPHERE)
+    assert all(np.array_equal(rgba, dot_rgba) for rgba, _ in bones)  # in the dots' colour
 
 
 def test_markers_and_trail_cast_no_shadow():

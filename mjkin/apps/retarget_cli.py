@@ -10,13 +10,17 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..kinematics.tree import load
+from ..kinematics.tree import Tree, load
 from ..motion import retime
+from ..motion.bvh import Clip
 from ..motion.clips import read_clip
 from ..motion.dataset import FORMATS, find_clips, retarget_many, write_motion
 from ..motion.retarget import MAX_SPEED, SELF_CLEARANCE, plan, read_mapping, report, retarget, source_mapping
@@ -24,6 +28,9 @@ from ..motion.roles import found_mapping
 from ..motion.terrain import Terrain
 from ..runtime.files import check_writable, write_text
 from .argtypes import nonnegative_float, positive_float, positive_int
+
+if TYPE_CHECKING:
+    from .. import render
 
 MOTION = (".json", ".npz", ".csv")  # written by write_motion; the rest are rendered
 OUTPUTS = (*MOTION, ".mp4", ".gif", ".png")
@@ -111,11 +118,8 @@ def run(args: argparse.Namespace) -> int:
     if suffix in MOTION:
         write_motion(args.output, traj, tree, clip.fps)
     elif args.output:
-        mapping = read_mapping(args.mapping) if args.mapping else None
-        joints = sorted(source_mapping(clip, (mapping or {}).get("source")).values())  # the mapped joints only
-        skeleton = plan(clip, tree, mapping, args.scale, terrain).source[:, joints] + (BESIDE if args.side_by_side
-                                                                                       else 0.0)
-        overlay = render.Overlay(points=skeleton, point_size=0.025, point_rgba=(0.1, 0.45, 0.95, 0.9))
+        overlay = source_overlay(clip, tree, args, terrain)
+        skeleton = overlay.points
         if Path(args.output).suffix.lower() == ".png":
             k = len(traj.q) // 2 if args.frame is None else args.frame
             if not -len(traj.q) <= k < len(traj.q):
@@ -137,6 +141,35 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         print(json.dumps(measured, indent=1))
     return 0
+
+
+def source_overlay(clip: Clip, tree: Tree, args: argparse.Namespace, terrain: Terrain | None) -> render.Overlay:
+    """The source skeleton to draw: its mapped joints ``(F, n, 3)`` (world, m; :data:`BESIDE` the figure with
+    ``--side-by-side``) as dots, and a bone from each to its nearest mapped ancestor (:func:`skeleton_bones`).
+    """  # noqa: D205
+    from .. import render
+
+    mapping = read_mapping(args.mapping) if args.mapping else None
+    joints = sorted(source_mapping(clip, (mapping or {}).get("source")).values())  # the mapped joints only
+    skeleton = plan(clip, tree, mapping, args.scale, terrain).source[:, joints] + (BESIDE if args.side_by_side
+                                                                                   else 0.0)
+    return render.Overlay(points=skeleton, point_size=0.025, point_rgba=(0.1, 0.45, 0.95, 0.9),
+                          bones=skeleton_bones(clip.parents, joints))
+
+
+def skeleton_bones(parents: NDArray[np.int64], joints: Sequence[int]) -> NDArray[np.int64]:
+    """Bones ``(k, 2)`` of the drawn ``joints`` (indices into ``parents (J,)``, -1 for a root): positions in
+    ``joints`` of each one's nearest drawn ancestor and of itself; a joint with none drawn has no bone.
+    """  # noqa: D205
+    at = {j: i for i, j in enumerate(joints)}
+    bones = []
+    for i, j in enumerate(joints):
+        up = parents[j]
+        while up >= 0 and up not in at:
+            up = parents[up]
+        if up >= 0:
+            bones.append((at[up], i))
+    return np.array(bones, dtype=np.int64).reshape(-1, 2)
 
 
 def print_mapping(args: argparse.Namespace, clip_path: Path) -> int:
