@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 import mjkin
 from mjkin.apps import cli
 from mjkin.apps.bench import peers
+from mjkin.apps.bench import play as play_bench
 from mjkin.apps.bench import suite as bench
 from mjkin.apps.bench.ik import (
     TRAC_IK_ARMS,
@@ -286,6 +287,16 @@ def test_render_bench_compares_the_same_frames():
     assert [r["model"] for r in rows] == ["arm7", "primate"]
     for r in rows:
         assert r["size"] == "64x48" and r["ratio"] == pytest.approx(r["mjkin_frames_per_s"] / r["mujoco_frames_per_s"])
+
+
+def test_play_bench_times_a_take_it_recorded_and_leaves_no_file(tmp_path, monkeypatch):
+    """The save figure is of a real take (0.5 s of drags sampled at 30 Hz), saved in a temporary folder, removed."""
+    monkeypatch.chdir(tmp_path)
+    (rows,) = play_bench.measure(("arm7",), 96, 72, seconds=0.5, drags=2).values()
+    (row,) = rows
+    assert row["take s"] >= 0.5 - 2 / 30 and 0 < row["save s per take s"] < np.inf
+    assert row["stream frames/s"] > 0 and row["latency median ms"] > 0
+    assert not list(tmp_path.iterdir())
 
 
 def test_env_bench_measures_reacher_beside_reach():

@@ -76,9 +76,10 @@ def test_a_base_grid_past_its_bound_is_one_line_not_a_memory_error(ur, ur_map, r
         mjkin.place_base(ur, "ee", poses, region, step=step, capability=ur_map)
 
 
-@pytest.mark.parametrize("n, verify, text", [(10**6, 10, r"target points to score \(placements x poses\), more than "
-                                                             r"20,000,000"),
-                                              (200_000, 10, r"IK solves to verify \(verify x poses\), more than 1,000,000")])
+@pytest.mark.parametrize("n, verify, text", [
+    (10**6, 10, r"target points to score \(placements x poses\), more than 20,000,000"),
+    (200_000, 10, r"IK solves to verify \(verify x poses\), more than 1,000,000"),
+])
 def test_poses_past_their_bound_are_one_line_not_minutes_and_gigabytes(ur, ur_map, n, verify, text):
     """place_base with a million poses grew to 13.4 GB in 151 s: the work it would do is refused first, in one line."""
     poses = np.broadcast_to(ur.pose(ur.qpos0, "ee"), (n, 4, 4))
