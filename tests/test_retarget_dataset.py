@@ -24,7 +24,7 @@ from mjkin.distributed import ray
 from mjkin.errors import InputError, MjkinError, MjkinIOError
 from mjkin.motion import Trajectory, bvh, dataset, smpl
 from mjkin.motion.dataset import REPORT, ReportFile, columns, qpos_names, read_report, retarget_many
-from mjkin.motion.retarget import report
+from mjkin.motion.retarget import SELF_CLEARANCE, report
 from mjkin.runtime.files import TEMP_MARK
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -304,6 +304,25 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert run(["retarget", str(src / "a.bvh"), "--model", "primate", "-o", str(one)]) == 0
     assert "wrote" in capsys.readouterr().out
     assert np.array_equal(np.loadtxt(out / "a.csv", delimiter=","), np.load(one)["qpos"])
+
+
+@pytest.mark.parametrize("value, held", [("off", None), ("none", None), ("0.004", 0.004), (None, SELF_CLEARANCE)])
+def test_command_line_clearance_is_metres_or_off(tmp_path: Path, value: str | None, held: float | None) -> None:
+    """``--clearance off`` turns the self-clearance off, as ``clearance=None`` does in Python; the file says which."""
+    src = crouches(tmp_path / "clips", ["a.bvh"], frames=4) / "a.bvh"
+    out = tmp_path / "a.json"
+    assert run(["retarget", str(src), "--model", "primate", "-o", str(out),
+                *([] if value is None else ["--clearance", value])]) == 0
+    assert Trajectory.load(out, mjkin.load("primate")).meta["retarget"]["clearance"] == held
+
+
+@pytest.mark.parametrize("value", ["-0.01", "nan", "inf", "two mm", ""])
+def test_command_line_clearance_that_is_neither_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                            value: str) -> None:
+    src = crouches(tmp_path / "clips", ["a.bvh"], frames=4) / "a.bvh"
+    assert run(["retarget", str(src), "--model", "primate", "-o", str(tmp_path / "a.json"), "--clearance", value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--clearance: must be metres >= 0, or off" in err
 
 
 @pytest.mark.parametrize("case", ["missing", "empty", "format", "retime", "no output", "not a clip", "same file",

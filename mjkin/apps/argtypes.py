@@ -44,6 +44,16 @@ def nonnegative_float(text: str) -> float:
     return _real(text, False)
 
 
+def distance_or_off(text: str) -> float | None:
+    """An argparse type: metres >= 0, or ``off`` (or ``none``) for no such constraint, returned as ``None``."""
+    if text.strip().lower() in ("off", "none"):
+        return None
+    try:
+        return _real(text, False)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be metres >= 0, or off, got {text!r}") from None
+
+
 def time_limit(text: str) -> float:
     """An argparse type: seconds > 0, or ``none`` (or 0) for no limit, returned as ``inf``."""
     try:

@@ -27,7 +27,7 @@ from ..motion.retarget import MAX_SPEED, SELF_CLEARANCE, plan, read_mapping, rep
 from ..motion.roles import found_mapping
 from ..motion.terrain import Terrain
 from ..runtime.files import check_writable, write_text
-from .argtypes import nonnegative_float, positive_float, positive_int
+from .argtypes import distance_or_off, positive_float, positive_int
 
 if TYPE_CHECKING:
     from .. import render
@@ -71,9 +71,9 @@ def arguments(s: argparse.ArgumentParser) -> None:
                    "z = 0)")
     s.add_argument("--max-speed", type=positive_float, default=MAX_SPEED,
                    help=f"joint speed limit, rad/s (default {MAX_SPEED:g})")
-    s.add_argument("--clearance", type=nonnegative_float, metavar="M", default=SELF_CLEARANCE,
-                   help=f"keep the figure's own geoms at least M metres apart in every frame's solve "
-                        f"(default {SELF_CLEARANCE:g})")
+    s.add_argument("--clearance", type=distance_or_off, metavar="M|off", default=SELF_CLEARANCE,
+                   help=f"keep the figure's own geoms at least M metres apart in every frame's solve, or off "
+                        f"(faster; limbs may pass through the body) (default {SELF_CLEARANCE:g})")
     s.add_argument("--retime", action="store_true", help="time-optimal times under --max-speed and --max-acceleration")
     s.add_argument("--max-acceleration", type=positive_float, default=100.0,
                    help="joint acceleration limit for --retime, rad/s^2 (default 100)")

@@ -498,9 +498,9 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
 
     Returns:
         The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, ``metres_per_unit`` and
-        ``root_ratio`` (see :class:`Retarget`), the frames per second (planning and solving, the first
-        frame left out: it may compile the solver); ``targets (F, 6, 3)`` are the key-point targets
-        (:data:`KEYS`; the feet's as held).
+        ``root_ratio`` (see :class:`Retarget`), the ``clearance`` held (m, or None), the frames per
+        second (planning and solving, the first frame left out: it may compile the solver); ``targets
+        (F, 6, 3)`` are the key-point targets (:data:`KEYS`; the feet's as held).
 
     Raises:
         MjkinIOError, InputError: unreadable clip, body model or scene, roles that cannot be mapped, bad options.
@@ -521,7 +521,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     ground = scene if isinstance(scene, Terrain) else None if scene is None else Terrain.load(scene)
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale, ground)
-    extra = tuple(extra_goals)
+    extra, margin = tuple(extra_goals), None
     if clearance is not None:
         margin, pairs = check_number(clearance, "clearance (m)"), self_pairs(tree)
         extra += (G.Clearance(margin, pairs=pairs),) if pairs else ()
@@ -534,7 +534,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                          "root_ratio": plan_.root_ratio,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
-                         "max_speed": speed.tolist(), "bodies": plan_.bodies,
+                         "max_speed": speed.tolist(), "bodies": plan_.bodies, "clearance": margin,
                          "scene": None if ground is None else ground.source}}
     times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
     return Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
