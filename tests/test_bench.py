@@ -16,6 +16,7 @@ import mjkin
 from mjkin.apps import cli
 from mjkin.apps.bench import peers
 from mjkin.apps.bench import play as play_bench
+from mjkin.apps.bench import startup
 from mjkin.apps.bench import suite as bench
 from mjkin.apps.bench.ik import (
     TRAC_IK_ARMS,
@@ -297,6 +298,14 @@ def test_play_bench_times_a_take_it_recorded_and_leaves_no_file(tmp_path, monkey
     assert row["take s"] >= 0.5 - 2 / 30 and 0 < row["save s per take s"] < np.inf
     assert row["stream frames/s"] > 0 and row["latency median ms"] > 0
     assert not list(tmp_path.iterdir())
+
+
+def test_startup_bench_runs_an_entry_cold_then_warm_in_a_fresh_copy():
+    """Its child imports the package as a user's process does (it once named a module that had moved, and failed)."""
+    report = startup.bench_startup(("pose",))
+    (rows,) = report.tables.values()
+    assert [(r["entry"], r["cache"], r["ok"]) for r in rows] == [("pose", "empty", True), ("pose", "warm", True)]
+    assert all(r["import_s"] > 0 and r["peak_mb"] > 0 for r in rows)
 
 
 def test_env_bench_measures_reacher_beside_reach():

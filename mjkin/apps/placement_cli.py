@@ -1,6 +1,6 @@
 """``mjkin reachability`` (a capability map, one slice plotted) and ``mjkin place-base`` (a base placement heat map).
 
-The library (:mod:`mjkin.reachability`) and matplotlib are imported only when one
+The library (:mod:`mjkin.explore.reachability`) and matplotlib are imported only when one
 of these commands runs.
 """
 

@@ -1,7 +1,7 @@
 """Compile every kernel once, ahead of use (``mjkin warmup``), in parallel processes.
 
 numba compiles mjkin's kernels on first use and caches them on disk (see
-:mod:`mjkin.cache`). A Dockerfile or a CI cache step runs ``mjkin warmup``
+:mod:`mjkin.runtime.cache`). A Dockerfile or a CI cache step runs ``mjkin warmup``
 once so that later processes start in a second, from that cache even when it
 is read-only. The kernels' types do not depend on the model, so two small
 bundled models (a hinge chain and a tree with ball and free joints) reach all

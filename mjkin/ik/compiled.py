@@ -12,7 +12,7 @@ ten common kinds cost ~15 % more compile time than Pose alone). The costlier kin
 them compiles the loop of all three (92 s on 2 cores against 76-80 s for one alone,
 and each other mix of them is then compiled already; the common loop takes 60 s).
 Each loop is cached
-on disk like every kernel, stamped with the files it imports (:mod:`mjkin.cache`),
+on disk like every kernel, stamped with the files it imports (:mod:`mjkin.runtime.cache`),
 those of its kinds' residuals among them.
 """
 

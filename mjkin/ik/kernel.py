@@ -172,7 +172,7 @@ def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array)
 
 
 def _damped_solve_numpy(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
-    """:func:`_damped_solve` interpreted (:mod:`mjkin.tier`): LAPACK's Cholesky, not a Python loop per entry."""
+    """:func:`_damped_solve` interpreted (:mod:`mjkin.runtime.tier`): LAPACK's Cholesky, not a Python loop per entry."""
     from scipy.linalg import cho_factor, cho_solve
 
     tall = A.shape[0] > A.shape[1]

@@ -182,7 +182,7 @@ class Loop:
         self.one: tuple | None = None  # (packed, its arrays) of single targets
         self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
         self.solve_packed: Callable[[Packed, int, int], None] | None = None
-        self.warm = False  # the compiled loop is loaded (mjkin.tier)
+        self.warm = False  # the compiled loop is loaded (mjkin.runtime.tier)
         self.lock = threading.Lock()
 
     def arrays(self, prog: Program, q: Array) -> tuple:

@@ -132,7 +132,7 @@ def fk_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_s
     frame after a body's last joint is the body frame itself. Common cases
     take short cuts: a placement without rotation, a hinge about a coordinate
     axis (only two columns change), a joint anchored at the body origin.
-    Arrays are indexed element by element, never sliced (see :mod:`mjkin.jit`).
+    Arrays are indexed element by element, never sliced (see :mod:`mjkin.runtime.jit`).
     """
     fk_kernel_in(q, parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
                  anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, inner_rot, inner_pos,

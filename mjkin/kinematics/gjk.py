@@ -100,7 +100,7 @@ def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array)
     and its weights to ``lam``, keeps only the face's rows; returns the face's size.
     """
     best, best_mask = np.inf, 1
-    S = on_stack(26)  # scratch on the stack, views without reference counts (see mjkin.jit)
+    S = on_stack(26)  # scratch on the stack, views without reference counts (see mjkin.runtime.jit)
     G, r = unshared(S, 0, (3, 3)), unshared(S, 9, (3,))
     mu, weights, x = unshared(S, 12, (3,)), unshared(S, 15, (4,)), unshared(S, 19, (3,))
     idx = unshared_int64(S, 22, (4,))

@@ -34,7 +34,7 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
     columns are left untouched.
     """
     for b in range(point.shape[0]):
-        for d in dofs:  # element-wise indexing and scalars, no views or scratch arrays (see mjkin.jit)
+        for d in dofs:  # element-wise indexing and scalars, no views or scratch arrays (see mjkin.runtime.jit)
             f00, f01, f02, f10, f11, f12, f20, f21, f22, x0, x1, x2 = _joint_frame(rot, pos, inner_rot, inner_pos, b,
                                                                                    dof_body[d], dof_inner[d])
             a0, a1, a2 = dof_axis[d, 0], dof_axis[d, 1], dof_axis[d, 2]

@@ -6,7 +6,7 @@ caches, then once more in that copy, now warm: the second process is what every
 later run costs. A child reports import seconds, its entry's first call, the
 seconds numba spent compiling each top-level function in it (its
 ``"numba:compile"`` events), the process's peak memory (``ru_maxrss``), and, where
-a cold kernel ran interpreted meanwhile (:mod:`mjkin.tier`, the default mode), the
+a cold kernel ran interpreted meanwhile (:mod:`mjkin.runtime.tier`, the default mode), the
 seconds until the background compile was done and that child's peak memory.
 """
 
@@ -40,7 +40,7 @@ class Listener(event.Listener):
 event.register("numba:compile", Listener())
 t0 = time.perf_counter()
 import mjkin
-import mjkin.tier
+import mjkin.runtime.tier
 imported = time.perf_counter() - t0
 import numpy as np
 from mjkin import goals as G
@@ -86,7 +86,7 @@ elif entry == "render":
     ok = len(list(mjkin.render.frames(tree, qs, 160, 120))) == 3
 first = time.perf_counter() - t1
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-background = mjkin.runtime.tier.settle()  # the children compiling what ran interpreted meanwhile (mjkin.tier)
+background = mjkin.runtime.tier.settle()  # the children compiling what ran interpreted meanwhile (mjkin.runtime.tier)
 print(json.dumps({"import_s": imported, "first_s": first, "ok": ok, "compile_s": sum(compiled.values()),
                   "compiled": compiled.most_common(4), "peak_mb": peak, "background_s": background,
                   "child_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))

@@ -697,7 +697,7 @@ def serve(model: str | Path | Tree = "arm7", host: str = "127.0.0.1", port: int 
     if not is_loopback(host):
         say(f"warning: serving on {host}, not loopback: anyone who can reach it and has the URL (its token) "
             "can control the playground")
-    say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.progress)
+    say(f"loading {tree.name or model}...")  # a first run's compilation says so itself (mjkin.runtime.progress)
 
     playground = Playground(tree, out_dir=out_dir, source="" if isinstance(model, Tree) else source_of(str(model)))
     try:
