@@ -24,6 +24,19 @@ from mjkin.ik import DLS, METHODS
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# ------------------------------------------------------------------ the packages a wheel holds
+def test_every_package_folder_is_in_pyprojects_list():
+    """An editable install finds any folder; a wheel holds only the listed packages (runtime/ and explore/ were not)."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {name: ROOT / where for name, where in setup["package-dir"].items()}
+    listed = set(setup["packages"])
+    found = {".".join(("mjkin", *init.parent.relative_to(ROOT / "mjkin").parts))
+             for init in (ROOT / "mjkin").rglob("__init__.py")}
+    found |= {name for name, folder in folders.items() if (folder / "__init__.py").is_file() or name == "mjkin.models"}
+    assert listed == found
+
+
 # ------------------------------------------------------------------ the play extra
 WITHOUT_WEB_STACK = """
 import sys
