@@ -13,7 +13,7 @@ from typing import IO
 # to EGL (found running the suite without MUJOCO_GL: the renderer went to GLFW, with no display)
 os.environ.setdefault("MUJOCO_GL", "egl")
 # every kernel compiled before its first call, as numba does (not interpreted while a child compiles it,
-# mjkin.runtime.tier): the same bits on every run; tests/test_tier.py tests the other modes
+# mjkin.runtime.tier): the same bits on every run; tests/runtime/test_tier.py tests the other modes
 os.environ.setdefault("MJKIN_COMPILE", "wait")
 
 import mujoco
@@ -39,7 +39,8 @@ settings.load_profile("ci" if os.environ.get("CI") else "dev")
 FK_TOL = 1e-10  # FK and Jacobians against MuJoCo
 FD_TOL = 1e-6  # finite-difference checks (central differences, step 1e-6)
 
-ROOT = Path(__file__).resolve().parent.parent
+TESTS = Path(__file__).resolve().parent  # grouped in folders by the package's layers
+ROOT = TESTS.parent
 GYM_ASSETS = Path(__import__("gymnasium").__file__).parent / "envs" / "mujoco" / "assets"
 
 
@@ -173,7 +174,10 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         command = getattr(module, "BACKGROUND", None)
         if command:
             out = tempfile.TemporaryFile("w+")
-            proc = subprocess.Popen(command, cwd=Path(module.__file__).parent, stdout=out, stderr=subprocess.STDOUT)
+            here = Path(module.__file__).parent  # its own folder, and this one's for ``conftest``
+            path = os.pathsep.join([str(here), str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+            proc = subprocess.Popen(command, cwd=here, env={**os.environ, "PYTHONPATH": path}, stdout=out,
+                                    stderr=subprocess.STDOUT)
             _BACKGROUND[module.__name__] = proc, out
 
 

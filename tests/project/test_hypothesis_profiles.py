@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 from hypothesis import settings
 
-TESTS = Path(__file__).resolve().parent
+from conftest import ROOT
+
+TESTS = ROOT / "tests"
 
 
 def test_ci_profile_is_deterministic_and_keeps_no_database():

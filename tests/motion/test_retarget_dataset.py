@@ -19,6 +19,7 @@ from test_retarget import MOCAP, crouch_bvh
 from test_smpl import motion, shaped_rest, write_body_model, write_clip
 
 import mjkin
+from conftest import ROOT
 from mjkin.apps.cli import run
 from mjkin.distributed import ray
 from mjkin.errors import InputError, MjkinError, MjkinIOError
@@ -26,8 +27,6 @@ from mjkin.motion import Trajectory, bvh, dataset, smpl
 from mjkin.motion.dataset import REPORT, ReportFile, columns, qpos_names, read_report, retarget_many
 from mjkin.motion.retarget import SELF_CLEARANCE, report
 from mjkin.runtime.files import TEMP_MARK
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")

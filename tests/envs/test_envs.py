@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 import mjkin
 import mjkin.envs
+from conftest import ROOT
 from mjkin import spatial
 from mjkin.envs import ReachVectorEnv, ik_expert
 
@@ -401,9 +402,8 @@ def test_vector_render_get_attr_and_call():
 def test_episode_example_reaches_targets_in_a_row(tmp_path, monkeypatch, capsys):
     import importlib.util
     import sys
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "examples" / "episode.py"
+    path = ROOT / "examples" / "episode.py"
     spec = importlib.util.spec_from_file_location("episode", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

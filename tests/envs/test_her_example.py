@@ -11,14 +11,15 @@ from __future__ import annotations
 import subprocess
 import sys
 from importlib.util import find_spec
-from pathlib import Path
 
 import pytest
+
+from conftest import ROOT
 
 pytestmark = pytest.mark.skipif(find_spec("stable_baselines3") is None or find_spec("torch") is None,
                                 reason="stable-baselines3 or torch not installed (extra [rl])")
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "train_her.py"
+EXAMPLE = ROOT / "examples" / "train_her.py"
 
 CHECK = """
 import importlib.util, sys

@@ -1,6 +1,6 @@
 """Headless Chromium on the playground page (playwright): the browser test's driver and the README still.
 
-``python tests/browser.py OUT.png [MODEL]`` serves MODEL (default arm7) on a
+``python tests/apps/browser.py OUT.png [MODEL]`` serves MODEL (default arm7) on a
 free loopback port, opens the page in headless Chromium, drags the target and
 saves a screenshot of the page. Needs Debian's ``chromium`` (or ``$MJKIN_CHROMIUM``)
 and ``pip install 'mjkin[browser]'``; playwright's own browser download is never used.
@@ -109,10 +109,10 @@ def screenshot(path: str | Path, model: str = "arm7") -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python tests/browser.py OUT.png [MODEL]``."""
+    """``python tests/apps/browser.py OUT.png [MODEL]``."""
     args = sys.argv[1:] if argv is None else argv
     if not 1 <= len(args) <= 2:
-        print("usage: python tests/browser.py OUT.png [MODEL]", file=sys.stderr)
+        print("usage: python tests/apps/browser.py OUT.png [MODEL]", file=sys.stderr)
         return 2
     try:
         print(f"wrote {screenshot(args[0], *args[1:])}")

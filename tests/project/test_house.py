@@ -6,14 +6,13 @@ import inspect
 import subprocess
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 import pytest
 
 import mjkin
-from conftest import tree_of
+from conftest import ROOT, tree_of
 from mjkin import goals as G
 from mjkin import motion
 from mjkin.apps.play import core
@@ -22,7 +21,6 @@ from mjkin.goals.base import METRES, FrameGoal, Units
 from mjkin.goals.position import residual as position_residual
 from mjkin.ik import DLS, METHODS
 
-ROOT = Path(__file__).resolve().parents[1]
 
 # ------------------------------------------------------------------ the packages a wheel holds
 def test_every_package_folder_is_in_pyprojects_list():

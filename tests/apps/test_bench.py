@@ -14,9 +14,8 @@ from hypothesis import strategies as st
 
 import mjkin
 from mjkin.apps import cli
-from mjkin.apps.bench import peers
+from mjkin.apps.bench import peers, startup
 from mjkin.apps.bench import play as play_bench
-from mjkin.apps.bench import startup
 from mjkin.apps.bench import suite as bench
 from mjkin.apps.bench.ik import (
     TRAC_IK_ARMS,

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 
 import mjkin
+from conftest import ROOT
 from mjkin.kinematics.build import dh_fk
 from mjkin.scene import Scene
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def builder():

@@ -14,11 +14,9 @@ from __future__ import annotations
 
 import math
 import signal
-import sys
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -27,6 +25,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from test_bvh import small
+from test_retarget import crouch_bvh
 
 import mjkin
 from mjkin import goals as G
@@ -414,14 +413,7 @@ def test_bvh_parse_junk_types() -> None:
 
 
 # ------------------------------------------------------------------------------------------------------ retarget
-def crouch_text() -> str:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_retarget import crouch_bvh
-
-    return crouch_bvh(3)
-
-
-CROUCH = crouch_text()
+CROUCH = crouch_bvh(3)
 
 
 @st.composite

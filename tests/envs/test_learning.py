@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
 import mjkin.envs  # noqa: F401
+from conftest import ROOT
 
-PATH = Path(__file__).resolve().parents[1] / "examples" / "clone_reach.py"
+PATH = ROOT / "examples" / "clone_reach.py"
 spec = importlib.util.spec_from_file_location("clone_reach", PATH)
 clone_reach = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(clone_reach)
