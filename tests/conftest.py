@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import subprocess
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -166,19 +169,32 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: bool(getattr(getattr(item, "module", None), "BACKGROUND", None)))  # stable
 
 
+# `mjkin warmup` beside the tests: on an empty kernel cache it compiles the common kernels in parallel processes
+# while the first tests run; a test that needs a kernel the warmup is compiling waits for it (a lock per kernel)
+# and loads it, rather than compiling it again. On a warm cache it only loads them (a few seconds of CPU).
+# MJKIN_TEST_WARMUP=0 leaves it out.
+WARMUP = [sys.executable, "-m", "mjkin.apps.cli", "warmup"]
+
+
+def _start(name: str, command: list[str], cwd: Path) -> None:
+    """Run ``command`` in the background in its own process group (its children end with it), output kept."""
+    out = tempfile.TemporaryFile("w+")
+    path = os.pathsep.join([str(cwd), str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    proc = subprocess.Popen(command, cwd=cwd, env={**os.environ, "PYTHONPATH": path}, stdout=out,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    _BACKGROUND[name] = proc, out
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
     if session.config.option.collectonly:
         return
+    if os.environ.get("MJKIN_TEST_WARMUP", "1") != "0":
+        _start("mjkin warmup", WARMUP, ROOT)
     modules = {item.module for item in session.items if isinstance(item, pytest.Function)}
     for module in sorted(modules, key=lambda m: m.__name__):
         command = getattr(module, "BACKGROUND", None)
-        if command:
-            out = tempfile.TemporaryFile("w+")
-            here = Path(module.__file__).parent  # its own folder, and this one's for ``conftest``
-            path = os.pathsep.join([str(here), str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-            proc = subprocess.Popen(command, cwd=here, env={**os.environ, "PYTHONPATH": path}, stdout=out,
-                                    stderr=subprocess.STDOUT)
-            _BACKGROUND[module.__name__] = proc, out
+        if command:  # run in its own folder, with this one's on the path for ``conftest``
+            _start(module.__name__, command, Path(module.__file__).parent)
 
 
 def background(module: str, timeout: float) -> tuple[int, str]:
@@ -191,8 +207,8 @@ def background(module: str, timeout: float) -> tuple[int, str]:
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
     for proc, out in _BACKGROUND.values():  # a run stopped early (-x, Ctrl-C) leaves no process behind
-        if proc.poll() is None:
-            proc.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # the group: the warmup's own workers too (a cache write is atomic)
         proc.wait()
         out.close()
 
