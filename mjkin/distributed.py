@@ -58,9 +58,10 @@ from .goals.program import key_of
 from .ik import History, Problem, Result
 from .kinematics.tree import Tree, load
 from .runtime.parallel import set_threads, threads
-from .runtime.ray_session import connect, ray, unwrap
+from .runtime.ray_session import connect, module, unwrap
 from .spatial import mat_to_quat, quat_to_mat
 
+ray: Any = module()  # this module is Ray's side of mjkin: importing it imports Ray (None without the extra)
 IN_FLIGHT = 2  # tasks queued per actor: one runs while the next one's input travels
 Model: TypeAlias = str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec | Tree
 

@@ -356,7 +356,7 @@ def _on_ray(work: Work, jobs: Sequence[Job], workers: int | None, address: str |
     if not jobs:
         return
     ray_session.connect(address)  # says what to install when Ray is missing
-    ray = ray_session.ray
+    ray = ray_session.module()
     _warm_up(work, jobs)  # a local cluster's workers then load the kernels from the disk cache
     task = ray.remote(num_cpus=1)(retarget_clip)
     shared = ray.put(work)

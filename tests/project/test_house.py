@@ -35,6 +35,18 @@ def test_every_package_folder_is_in_pyprojects_list():
     assert listed == found
 
 
+# ------------------------------------------------------------------ what `import mjkin` costs
+HEAVY = ("ray", "torch", "stable_baselines3", "matplotlib", "starlette", "uvicorn", "pandas", "pyarrow")
+
+
+def test_import_mjkin_leaves_the_extras_unimported():
+    """Each of these costs a second or more; they load when their part is used (Ray's was imported by every
+    ``import mjkin`` once the extra was installed)."""
+    code = f"import sys, mjkin; print(*[m for m in {HEAVY!r} if m in sys.modules])"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    assert run.stdout.split() == []
+
+
 # ------------------------------------------------------------------ the play extra
 WITHOUT_WEB_STACK = """
 import sys
