@@ -75,7 +75,7 @@ class Settings(NamedTuple):
     patience: int  # iterations without progress before a run counts as stalled
     goal_step: float  # largest residual norm one step aims to remove
     timeout_ns: int  # per-target time limit (0 = none)
-    progress: float  # relative fall of a goal's error that counts as progress (see _progressed)
+    progress: float  # relative fall of a goal's error that counts as progress (see progressed)
 
 
 def settings(tol: float, rot_tol: float, damping: float, lm_factor: float = 0.0, alpha: float = 0.0,
@@ -97,11 +97,11 @@ def timeout_ns(timeout: float | None) -> int:
 @njit_inline
 def fk_into(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array) -> None:
     """Forward kinematics of ``q (1, nq)``: world ``rot (1, nbody, 3, 3)``, ``pos (1, nbody, 3)`` and inner frames."""
-    _fk_in(kin, q, rot, pos, irot, ipos, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
+    fk_into_scratch(kin, q, rot, pos, irot, ipos, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))
 
 
 @njit_inline
-def _fk_in(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array, A: Array, t: Array,
+def fk_into_scratch(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos: Array, A: Array, t: Array,
            R: Array) -> None:
     """:func:`fk_into` with its scratch given (:func:`mjkin.kinematics.fk.fk_kernel_in`): the IK loop's."""
     fk_kernel_in(q, kin.parent, kin.fixed_rot, kin.fixed_pos, kin.jnt_start, kin.jnt_count, kin.jnt_inner,
@@ -111,7 +111,7 @@ def _fk_in(kin: Kinematics, q: Array, rot: Array, pos: Array, irot: Array, ipos:
 
 # ------------------------------------------------------------------------ step
 @njit_inline
-def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
+def damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
     """``x = Aᵀ (AAᵀ + λ²I)⁻¹ e`` (or the equal ``(AᵀA + λ²I)⁻¹ Aᵀ e`` when A is tall), by Cholesky.
 
     ``M (k, k)`` and ``b (k,)``, ``k = min(A.shape)``, are its scratch. The factor's
@@ -172,7 +172,7 @@ def _damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array)
 
 
 def _damped_solve_numpy(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
-    """:func:`_damped_solve` interpreted (:mod:`mjkin.runtime.tier`): LAPACK's Cholesky, not a Python loop per entry."""
+    """:func:`damped_solve` interpreted (:mod:`mjkin.runtime.tier`): LAPACK's Cholesky, not a Python loop per entry."""
     from scipy.linalg import cho_factor, cho_solve
 
     tall = A.shape[0] > A.shape[1]
@@ -181,12 +181,12 @@ def _damped_solve_numpy(A: Array, e: Array, lam2: float, x: Array, M: Array, b: 
     try:
         y = cho_solve(cho_factor(G, lower=True), A.T @ e if tall else e)
     except np.linalg.LinAlgError:  # not positive definite to LAPACK (λ = 0, rank-deficient): the kernel's own clamp
-        _damped_solve.py_func(A, e, lam2, x, M, b)
+        damped_solve.py_func(A, e, lam2, x, M, b)
         return
     x[:] = y if tall else A.T @ y
 
 
-tier.python_version(_damped_solve, _damped_solve_numpy)
+tier.python_version(damped_solve, _damped_solve_numpy)
 
 
 @njit_inline
@@ -205,7 +205,7 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
         return 0
     if not need_basis and lam2 > 0.0 and (method == DLS or method == LM):
         k = min(m, n)
-        _damped_solve(A, e, lam2, x, basis[:k, :k], basis[k, :k])  # no basis needed: its rows are scratch
+        damped_solve(A, e, lam2, x, basis[:k, :k], basis[k, :k])  # no basis needed: its rows are scratch
         return 0
     if not need_basis and method == TRANSPOSE:
         Ae = A.T @ e
@@ -239,12 +239,12 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
 
 @njit
 def step_scratch(m: int, nv: int) -> tuple:
-    """Work arrays for :func:`_step`: projector, level step, row-space basis, level residual, level Jacobian."""
+    """Work arrays for :func:`priority_step`: projector, level step, row-space basis, level residual, level Jacobian."""
     return np.empty((nv, nv)), np.empty(nv), np.empty((nv + 1, nv)), np.empty(m), np.empty((m, nv))
 
 
 @njit_inline
-def _aim(g: Array, scale: float, clamp: float) -> float:
+def aim_scale(g: Array, scale: float, clamp: float) -> float:
     """The factor ``k`` of a level's residual ``g`` its step aims to remove: ``scale``, at most ``clamp`` in norm."""
     n = 0.0
     for r in range(g.shape[0]):
@@ -254,8 +254,8 @@ def _aim(g: Array, scale: float, clamp: float) -> float:
 
 
 @njit_inline
-def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array, alpha: float,
-          scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool = False) -> None:
+def priority_step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array,
+                  alpha: float, scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool = False) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
 
     Each level aims to remove ``scale`` times its residual, at most ``clamp`` of it in norm.
@@ -277,7 +277,7 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
     for lv in range(levels):
         r0, r1 = level_rows[lv], level_rows[lv + 1]
         Jl, gl = J[r0:r1], g[r0:r1]
-        k = _aim(gl, scale, clamp)
+        k = aim_scale(gl, scale, clamp)
         e = e_all[:r1 - r0]
         for r in range(r1 - r0):
             acc = -k * gl[r]
@@ -309,7 +309,8 @@ def _step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], meth
 
 # ----------------------------------------------------------------------- solve
 @njit_inline
-def _costs(g: Array, level_rows: Index, out: Array) -> None:
+def level_costs(g: Array, level_rows: Index, out: Array) -> None:
+    """``out[l]``: the squared norm of level ``l``'s weighted residual rows."""
     for lv in range(level_rows.shape[0] - 1):
         out[lv] = 0.0
         for r in range(level_rows[lv], level_rows[lv + 1]):
@@ -320,7 +321,7 @@ PRIORITY_WEIGHT = 1e4  # merit weight of a level relative to the next one down
 
 
 @njit_inline
-def _merit(cost: Array) -> float:
+def merit_of(cost: Array) -> float:
     """One number to compare configurations: level costs weighted ``PRIORITY_WEIGHT`` apart.
 
     Steps are strictly prioritised; acceptance is by merit, so a met higher
@@ -335,7 +336,7 @@ def _merit(cost: Array) -> float:
 
 
 @njit_inline
-def _max_abs(x: Array) -> float:
+def max_abs(x: Array) -> float:
     """``max |x|`` over a ``(1, n)`` row, without the temporary ``np.abs`` would allocate."""
     m = 0.0
     for j in range(x.shape[1]):
@@ -344,7 +345,7 @@ def _max_abs(x: Array) -> float:
 
 
 @njit_inline
-def _finite_row(x: Array) -> bool:
+def finite_row(x: Array) -> bool:
     """Whether every entry of a ``(1, n)`` row is finite (no NaN, no inf)."""
     for j in range(x.shape[1]):
         if not abs(x[0, j]) < np.inf:
@@ -353,7 +354,7 @@ def _finite_row(x: Array) -> bool:
 
 
 @njit_inline
-def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: Index, tol: float,
+def levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: Index, tol: float,
                 rot_tol: float) -> int:
     """How many levels, from the top, have every counted goal within tolerance."""
     met = level_rows.shape[0] - 1
@@ -367,7 +368,7 @@ def _levels_met(err: Array, counted: NDArray[np.bool_], row: Index, level_rows: 
 
 
 @njit_inline
-def _progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, ref: Array,
+def progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: float, ref: Array,
                 keep: float) -> bool:
     """Whether a counted goal outside tolerance has fallen below ``keep`` times its error in ``ref (G,)``.
 
@@ -381,18 +382,19 @@ def _progressed(err: Array, counted: NDArray[np.bool_], tol: float, rot_tol: flo
         if counted[i] and ref[i] > 1.0 and max(err[i, 0] / tol, err[i, 1] / rot_tol) < keep * ref[i]:
             hit = True
     if hit:
-        _scaled_errors(err, tol, rot_tol, ref)
+        scaled_errors(err, tol, rot_tol, ref)
     return hit
 
 
 @njit_inline
-def _scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
+def scaled_errors(err: Array, tol: float, rot_tol: float, out: Array) -> None:
+    """``out[i]``: goal ``i``'s (position, rotation) error (n, 2) in units of its tolerance, the larger."""
     for i in range(err.shape[0]):
         out[i] = max(err[i, 0] / tol, err[i, 1] / rot_tol)
 
 
 @njit_inline
-def _converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
+def is_converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], tol: float, rot_tol: float) -> bool:
     """Every counted goal within ``tol``/``rot_tol`` and every hard goal's violation within ``HARD_TOL``."""
     for i in range(err.shape[0]):
         if counted[i] and not (err[i, 0] <= tol and err[i, 1] <= rot_tol):  # NaN is never converged
@@ -403,7 +405,7 @@ def _converged(err: Array, counted: NDArray[np.bool_], hard: NDArray[np.bool_], 
 
 
 @njit_inline
-def _violation(g: Array, hard_row: NDArray[np.bool_]) -> float:
+def hard_violation(g: Array, hard_row: NDArray[np.bool_]) -> float:
     """How far the hard rows ``g[:h]`` (``hard_row (h,)`` the live ones) fall below zero (0 when all hold)."""
     v = 0.0
     for r in range(hard_row.shape[0]):

@@ -32,20 +32,20 @@ from mjkin.ik.kernel import (
     TIMEOUT,
     UNREACHABLE,
     Settings,
-    _aim,
-    _converged,
-    _costs,
-    _damped_solve,
-    _finite_row,
-    _fk_in,
-    _levels_met,
-    _max_abs,
-    _merit,
-    _progressed,
-    _scaled_errors,
-    _step,
-    _violation,
+    aim_scale,
+    damped_solve,
+    finite_row,
     fk_into,
+    fk_into_scratch,
+    hard_violation,
+    is_converged,
+    level_costs,
+    levels_met,
+    max_abs,
+    merit_of,
+    priority_step,
+    progressed,
+    scaled_errors,
     step_scratch,
     summarise,
 )
@@ -165,13 +165,13 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     mu_down, mu_up = (3.0, 10.0) if any_hard else (2.0, 4.0)
     scale, fresh, any_locked, corrected = 1.0, True, False, False
     while True:
-        _fk_in(kin, qt, rot, pos, irot, ipos, fA, ft, fR)
+        fk_into_scratch(kin, qt, rot, pos, irot, ipos, fA, ft, fR)
         evaluate_goals(kin, ga, ws, b, qt, rot, pos, irot, ipos, gt, Jt, errt)
-        _costs(gt, level_rows, costt)
-        accept = (fresh or not (method == LM or halving) or _merit(costt) <= _merit(cost)
-                  or _max_abs(dq) < 1e-15)
+        level_costs(gt, level_rows, costt)
+        accept = (fresh or not (method == LM or halving) or merit_of(costt) <= merit_of(cost)
+                  or max_abs(dq) < 1e-15)
         if any_hard:  # feasibility first: less violation wins, a new violation loses
-            violt = _violation(gt, hard_row)
+            violt = hard_violation(gt, hard_row)
             pt, pc = max(violt - HARD_TOL, 0.0), max(viol - HARD_TOL, 0.0)
             if accept and not fresh and pt > pc and not corrected:
                 # a good step bent off a curved constraint: pull the trial's violated rows back to zero
@@ -190,7 +190,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             J, Jt = Jt, J
             err, errt = errt, err
             cost[:] = costt
-            merit = _merit(cost)
+            merit = merit_of(cost)
             if any_hard:
                 viol = violt
                 infeasible = max(viol - HARD_TOL, 0.0)
@@ -201,9 +201,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             keep = 1.0 - (st.progress if used < restarts.shape[0] else 1e-9)
             if fresh:
                 since_best = 0
-                _scaled_errors(err, tol, rot_tol, run_ref)
+                scaled_errors(err, tol, rot_tol, run_ref)
                 inf_ref = infeasible
-            elif _progressed(err, counted, tol, rot_tol, run_ref, keep):  # the last run goes on while any error falls
+            elif progressed(err, counted, tol, rot_tol, run_ref, keep):  # the last run goes on while any error falls
                 since_best = 0
             elif infeasible < keep * inf_ref:  # or while the violation falls
                 since_best = 0
@@ -211,7 +211,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             else:
                 since_best += 1
             fresh, attempts, scale = False, 0, 1.0
-            met = _levels_met(err, counted, ga.row, level_rows, tol, rot_tol)
+            met = levels_met(err, counted, ga.row, level_rows, tol, rot_tol)
             if infeasible < best_inf or (infeasible == best_inf and (  # feasible first, then higher levels met,
                     met > best_met or (met == best_met and merit < best))):  # then merit
                 best, best_met, best_inf = merit, met, infeasible
@@ -225,7 +225,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                     if counted[i]:
                         hist_err[it, 0] = max(hist_err[it, 0], err[i, 0])
                         hist_err[it, 1] = max(hist_err[it, 1], err[i, 1])
-            if _converged(err, counted, hard, tol, rot_tol):
+            if is_converged(err, counted, hard, tol, rot_tol):
                 status = CONVERGED
                 break
         else:  # rejected: damp harder (LM) or halve the step
@@ -268,17 +268,17 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             if any_hard:        # push below zero, then re-solve
                 levels[0] = _stack_active(s_h, J_h, on, g, J)
                 lam2h[1:] = lam2
-                _step(J, g, levels, locked, method, lam2h, alpha, scale, goal_step, sws, dq[0], True)
+                priority_step(J, g, levels, locked, method, lam2h, alpha, scale, goal_step, sws, dq[0], True)
             else:
-                _step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
-            if not _finite_row(dq):  # beyond floating point (a target ~1e300 m away): no step, the run ends
+                priority_step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
+            if not finite_row(dq):  # beyond floating point (a target ~1e300 m away): no step, the run ends
                 dq[:] = 0.0
                 since_best = patience
                 break
             changed = False
             if one and (method == LM or method == DLS) and warm.any():  # free a warm lock whose limit's multiplier
                 # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see _inward)
-                aim = _aim(g, scale, goal_step)
+                aim = aim_scale(g, scale, goal_step)
                 for r in range(m):  # the step's residual: it solved J dq ≈ -aim g (damped)
                     res[r] = -aim * g[r]
                     for c in range(nv):
@@ -287,7 +287,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                     if warm[d] and _inward(d, q, lo, hi, dof_q, dof_j, J, res) > 0.0:
                         warm[d] = locked[d] = False
                         changed = True
-            big = _max_abs(dq)
+            big = max_abs(dq)
             if big > max_step:
                 dq[0] *= max_step / big
             for d in range(nv):
@@ -381,7 +381,7 @@ def _correct(s: Array, Js: Array, on: NDArray[np.bool_], locked: NDArray[np.bool
     x = np.zeros(A.shape[1])
     if k < s.shape[0]:
         n = min(A.shape)
-        _damped_solve(A, -s[k:], HARD_DAMPING2, x, np.empty((n, n)), np.empty(n))
+        damped_solve(A, -s[k:], HARD_DAMPING2, x, np.empty((n, n)), np.empty(n))
     integrate_kernel(q, x.reshape(1, -1), kin.jnt_type, kin.jnt_qadr, kin.jnt_dofadr)
 
 

@@ -31,10 +31,10 @@ def test_progress_is_an_unmet_counted_goal_falling_by_the_fraction():
     counted = np.array([True, True, False])
     ref = np.array([50.0, 0.5, 80.0])  # errors in tolerances at the last progress: unmet, met, not counted
     err = np.array([[0.046, 0.0], [1e-4, 1e-3], [0.01, 0.0]])  # 8 % down; the met one and the uncounted fell a lot
-    assert not kernel._progressed(err, counted, tol, rot_tol, ref, 0.9)
+    assert not kernel.progressed(err, counted, tol, rot_tol, ref, 0.9)
     assert ref.tolist() == [50.0, 0.5, 80.0]  # unchanged without progress
     err[0] = [0.0, 0.44]  # 12 % down, now on its rotation
-    assert kernel._progressed(err, counted, tol, rot_tol, ref, 0.9)
+    assert kernel.progressed(err, counted, tol, rot_tol, ref, 0.9)
     np.testing.assert_allclose(ref, [44.0, 0.1, 10.0])  # the next window starts from here
 
 

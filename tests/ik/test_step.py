@@ -1,4 +1,4 @@
-"""The task-priority step of the Jacobian methods (``mjkin.ik.kernel._step``) against its definition.
+"""The task-priority step of the Jacobian methods (``mjkin.ik.kernel.priority_step``) against its definition.
 
 The first level's projector is the diagonal of the unlocked dofs: the step takes the
 unlocked columns as they are instead of multiplying by it, so what is checked here
@@ -12,7 +12,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mjkin.ik.kernel import DLS, LM, PINV, _step, step_scratch
+from mjkin.ik.kernel import DLS, LM, PINV, priority_step, step_scratch
 
 
 def problem(seed: int, m: int, nv: int, n_locked: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -24,8 +24,8 @@ def problem(seed: int, m: int, nv: int, n_locked: int) -> tuple[np.ndarray, np.n
 
 def step(J, g, level_rows, locked, method, lam2, clamp=np.inf):  # type: ignore[no-untyped-def]
     dq = np.full(J.shape[1], np.nan)
-    _step(J, g, np.asarray(level_rows, dtype=np.int64), locked, method, np.asarray(lam2, dtype=np.float64), 0.0, 1.0,
-          clamp, step_scratch(J.shape[0], J.shape[1]), dq)
+    priority_step(J, g, np.asarray(level_rows, dtype=np.int64), locked, method, np.asarray(lam2, dtype=np.float64), 0.0,
+                  1.0, clamp, step_scratch(J.shape[0], J.shape[1]), dq)
     return dq
 
 

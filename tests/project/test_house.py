@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import inspect
 import subprocess
 import sys
@@ -158,3 +159,18 @@ def test_a_gait_sets_the_walk_and_refuses_bad_numbers():
         assert "\n" not in str(err.value)
     with pytest.raises(mjkin.InputError, match="steps"):
         motion.walk_cycle(tree, steps=0)
+
+
+def test_no_module_imports_another_modules_private_names():
+    """A name shared between modules is public in its home (issue 40: ccd, reach and the IK loop imported ``_`` names).
+
+    A compiled extension module of a package (``_posecall``) is private to its package and may be imported there.
+    """
+    found = []
+    for path in sorted((ROOT / "mjkin").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mjkin"):
+                found += [f"{path.relative_to(ROOT)}: {alias.name} from {node.module}" for alias in node.names
+                          if alias.name.startswith("_") and not (ROOT / (node.module or "").replace(".", "/")
+                                                                  / alias.name).with_suffix(".pyi").exists()]
+    assert not found, found
