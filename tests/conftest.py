@@ -7,10 +7,8 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
 
 # before mujoco is imported: it picks its GL backend then, and a later MUJOCO_GL would stop mjkin's own fallback
 # to EGL (found running the suite without MUJOCO_GL: the renderer went to GLFW, with no display)
@@ -138,12 +136,6 @@ def rotation_distance(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
     return mjkin.spatial.quat_distance(mjkin.spatial.mat_to_quat(R1), mjkin.spatial.mat_to_quat(R2))
 
 
-# Checks that run in a process of their own and compile numba kernels of their own (minutes on 2 cores): a test
-# module names the command in BACKGROUND; it starts when collection is done (if a test of that module was selected),
-# so it runs beside the other tests; the module's tests run last and wait for it with background(__name__).
-_BACKGROUND: dict[str, tuple[subprocess.Popen, IO[str]]] = {}
-
-
 # The slow tests (`pytest -m "not slow"` runs the rest, the library's own laws, in about a minute on a warm cache):
 # whole modules that start servers, subprocesses, renders, learners or benchmarks, and single tests that compile a
 # loop of their own (balance, clearance) or sweep many targets.
@@ -160,57 +152,38 @@ SLOW_TESTS = {"test_clearance_rows_are_the_closest_pairs_with_their_gradients",
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark the slow tests (:data:`SLOW_MODULES`, :data:`SLOW_TESTS`); tests that wait for a BACKGROUND command run
-    last, so the rest of the suite runs while it works."""
+    """Mark the slow tests (:data:`SLOW_MODULES`, :data:`SLOW_TESTS`); the tests of a module that sets ``FIRST``
+    (a compile of minutes in a process of its own) run first, so the other test workers go on meanwhile."""
     for item in items:
         module = getattr(getattr(item, "module", None), "__name__", "")
         if module in SLOW_MODULES or getattr(item, "originalname", item.name) in SLOW_TESTS:
             item.add_marker(pytest.mark.slow)
-    items.sort(key=lambda item: bool(getattr(getattr(item, "module", None), "BACKGROUND", None)))  # stable
+    items.sort(key=lambda item: not getattr(getattr(item, "module", None), "FIRST", False))  # stable
 
 
 # `mjkin warmup` beside the tests: on an empty kernel cache it compiles the common kernels in parallel processes
 # while the first tests run; a test that needs a kernel the warmup is compiling waits for it (a lock per kernel)
-# and loads it, rather than compiling it again. On a warm cache it only loads them (a few seconds of CPU).
-# MJKIN_TEST_WARMUP=0 leaves it out.
+# and loads it, rather than compiling it again. On a warm cache it only loads them (a few seconds of CPU). It is
+# started once per run: by pytest-xdist's controller, or by the one process without it. MJKIN_TEST_WARMUP=0 leaves
+# it out.
 WARMUP = [sys.executable, "-m", "mjkin.apps.cli", "warmup"]
+PYTHONPATH = os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)  # for subprocesses
+_WARMUP: list[subprocess.Popen] = []
 
 
-def _start(name: str, command: list[str], cwd: Path) -> None:
-    """Run ``command`` in the background in its own process group (its children end with it), output kept."""
-    out = tempfile.TemporaryFile("w+")
-    path = os.pathsep.join([str(cwd), str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    proc = subprocess.Popen(command, cwd=cwd, env={**os.environ, "PYTHONPATH": path}, stdout=out,
-                            stderr=subprocess.STDOUT, start_new_session=True)
-    _BACKGROUND[name] = proc, out
-
-
-def pytest_collection_finish(session: pytest.Session) -> None:
-    if session.config.option.collectonly:
+def pytest_sessionstart(session: pytest.Session) -> None:
+    config = session.config
+    if config.option.collectonly or hasattr(config, "workerinput") or os.environ.get("MJKIN_TEST_WARMUP") == "0":
         return
-    if os.environ.get("MJKIN_TEST_WARMUP", "1") != "0":
-        _start("mjkin warmup", WARMUP, ROOT)
-    modules = {item.module for item in session.items if isinstance(item, pytest.Function)}
-    for module in sorted(modules, key=lambda m: m.__name__):
-        command = getattr(module, "BACKGROUND", None)
-        if command:  # run in its own folder, with this one's on the path for ``conftest``
-            _start(module.__name__, command, Path(module.__file__).parent)
-
-
-def background(module: str, timeout: float) -> tuple[int, str]:
-    """Wait for the BACKGROUND command of the test module ``module``: its return code and the end of its output."""
-    proc, out = _BACKGROUND[module]
-    proc.wait(timeout)
-    out.seek(0)
-    return proc.returncode, out.read()[-3000:]
+    _WARMUP.append(subprocess.Popen(WARMUP, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                    start_new_session=True))
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
-    for proc, out in _BACKGROUND.values():  # a run stopped early (-x, Ctrl-C) leaves no process behind
+    for proc in _WARMUP:  # a run stopped early (-x, Ctrl-C) leaves no process behind
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)  # the group: the warmup's own workers too (a cache write is atomic)
         proc.wait()
-        out.close()
 
 
 def pytest_report_header(config: pytest.Config) -> str:

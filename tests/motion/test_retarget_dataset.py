@@ -215,7 +215,12 @@ def test_ray_tasks_give_the_same_bits(tmp_path: Path) -> None:
     src = crouches(tmp_path / "clips", ["a.bvh", "b.bvh", "bad.bvh"], frames=8)
     (src / "bad.bvh").write_text("HIERARCHY\n")
     one = retarget_many(src, "primate", tmp_path / "one")
-    on_ray = retarget_many(src, "primate", tmp_path / "ray", ray=True, workers=2)
+    started = not ray.is_initialized()  # a session of another test in this process (test workers mix modules)
+    try:
+        on_ray = retarget_many(src, "primate", tmp_path / "ray", ray=True, workers=2)
+    finally:
+        if started:
+            ray.shutdown()
     assert [r["status"] for r in on_ray] == [r["status"] for r in one]
     for name in ("a", "b"):
         assert np.array_equal(np.load(tmp_path / "one" / f"{name}.npz")["qpos"],

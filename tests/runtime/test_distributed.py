@@ -20,6 +20,7 @@ def cluster():
     from mjkin.apps.warmup import warmup
 
     warmup()  # workers load the kernels this compiles from the same cache
+    ray.shutdown()  # a session another test of this process left (a no-op without one)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     yield
     ray.shutdown()
