@@ -167,7 +167,6 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 # started once per run: by pytest-xdist's controller, or by the one process without it. MJKIN_TEST_WARMUP=0 leaves
 # it out.
 WARMUP = [sys.executable, "-m", "mjkin.apps.cli", "warmup"]
-PYTHONPATH = os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)  # for subprocesses
 _WARMUP: list[subprocess.Popen] = []
 
 

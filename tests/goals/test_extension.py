@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mjkin
-from conftest import PYTHONPATH, tree_of
+from conftest import TESTS, tree_of
 from mjkin import goals as G
 from mjkin.goals.base import METRES, FrameGoal, Units
 from mjkin.ik import evaluate
@@ -95,8 +95,9 @@ FIRST = True
 
 
 def test_a_kind_added_in_a_test_file_is_solved_and_its_jacobian_is_right():
+    path = os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")]))  # for ``conftest``
     run = subprocess.run([sys.executable, "-c", "import test_extension; test_extension.check_distance_kind()"],
-                         cwd=Path(__file__).parent, env={**os.environ, "PYTHONPATH": PYTHONPATH}, capture_output=True,
+                         cwd=Path(__file__).parent, env={**os.environ, "PYTHONPATH": path}, capture_output=True,
                          text=True, timeout=1800)
     assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
 
