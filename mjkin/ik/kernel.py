@@ -255,7 +255,7 @@ def aim_scale(g: Array, scale: float, clamp: float) -> float:
 
 @njit_inline
 def priority_step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int, lam2: Array,
-                  alpha: float, scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool = False) -> None:
+                  alpha: float, scale: float, clamp: float, ws: tuple, dq: Array, hard_level: bool) -> None:
     """Task-priority step ``dq`` for weighted residuals ``g``, Jacobian ``J``; locked dofs stay put.
 
     Each level aims to remove ``scale`` times its residual, at most ``clamp`` of it in norm.

@@ -268,9 +268,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             if any_hard:        # push below zero, then re-solve
                 levels[0] = _stack_active(s_h, J_h, on, g, J)
                 lam2h[1:] = lam2
-                priority_step(J, g, levels, locked, method, lam2h, alpha, scale, goal_step, sws, dq[0], True)
-            else:
-                priority_step(J, g, level_rows, locked, method, lam2, alpha, scale, goal_step, sws, dq[0])
+            # one call site: the step is inlined (and compiled on its own) once, not once per branch
+            priority_step(J, g, levels if any_hard else level_rows, locked, method, lam2h if any_hard else lam2,
+                          alpha, scale, goal_step, sws, dq[0], any_hard)
             if not finite_row(dq):  # beyond floating point (a target ~1e300 m away): no step, the run ends
                 dq[:] = 0.0
                 since_best = patience

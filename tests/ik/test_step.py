@@ -25,7 +25,7 @@ def problem(seed: int, m: int, nv: int, n_locked: int) -> tuple[np.ndarray, np.n
 def step(J, g, level_rows, locked, method, lam2, clamp=np.inf):  # type: ignore[no-untyped-def]
     dq = np.full(J.shape[1], np.nan)
     priority_step(J, g, np.asarray(level_rows, dtype=np.int64), locked, method, np.asarray(lam2, dtype=np.float64), 0.0,
-                  1.0, clamp, step_scratch(J.shape[0], J.shape[1]), dq)
+                  1.0, clamp, step_scratch(J.shape[0], J.shape[1]), dq, False)
     return dq
 
 
