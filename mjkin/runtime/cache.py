@@ -173,7 +173,7 @@ class KernelCache(caching.FunctionCache):
         them, not once each. An advisory ``flock`` on a file beside the cache: the system drops it when the
         process ends, so a killed compile never blocks the next. Without a writable cache folder, no lock.
         """
-        path = os.path.join(self._cache_path, f"{self._impl.filename_base}.lock")
+        path = self.lock_path()
         if path in _HELD:  # this process holds it already (a kernel that calls itself)
             yield
             return
@@ -190,6 +190,28 @@ class KernelCache(caching.FunctionCache):
         finally:
             _HELD.discard(path)
             os.close(fd)
+
+
+    def lock_path(self) -> str:
+        """The file whose ``flock`` is this kernel's compile lock (:meth:`compiling`)."""
+        return os.path.join(self._cache_path, f"{self._impl.filename_base}.lock")
+
+    def busy(self) -> bool:
+        """Whether another process holds this kernel's compile lock: it is compiling the kernel now."""
+        path = self.lock_path()
+        if path in _HELD:
+            return False
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CLOEXEC)  # no lock file: no one has compiled here
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # taken, it goes again with the close
+        except BlockingIOError:
+            return True
+        finally:
+            os.close(fd)
+        return False
 
 
 _HELD: set[str] = set()  # the compile locks this process holds (under numba's compiler lock: one thread at a time)

@@ -10,7 +10,8 @@ after the child is done loads it from there (0.1-0.4 s) and from then on
 every call is compiled. The child outlives this process, so a short script still
 leaves the cache warm for the next run.
 
-Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds, one a
+Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another
+process is compiling it: its small calls go on interpreted until that one is done), one a
 child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile in
 this process first, as numba does (``wait`` is what tests and benchmarks use: every call compiled, the same
 bits each run). ``MJKIN_COMPILE=interpret`` runs every such call interpreted and
@@ -274,14 +275,16 @@ def _load(kernel: Any, sig: tuple) -> bool:
     return True
 
 
-def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool) -> bool:
+def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool, patient: bool = False) -> bool:
     """Whether the caller should call ``jobs``' kernels compiled (True) or :func:`interpreted` (False).
 
     Each job is a kernel and the numba types of its arguments. True when all are in memory or on
     disk (loaded so), or else once they are compiled here, as numba would, when the call is not
     ``small`` or the mode is ``wait`` (not waited for from a child: its queue may hold minutes of
     other kernels first). False when a child is compiling them (started if need be) for a small
-    call in ``background`` mode.
+    call in ``background`` mode, and for a ``patient`` one (small arguments, past its :data:`BUDGET`)
+    while another process compiles one of them (another run's child): waiting for its lock could
+    take that process's whole compile, and the call after it ends loads what it wrote.
     """
     if mode() == "interpret":
         return False
@@ -293,6 +296,9 @@ def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool) -> bool:
             return False
         if state == "done" and all(_load(k, s) for k, s in jobs):  # else the child could not write the cache
             return True
+    if patient and mode() == "background" and any(
+            isinstance(cache := getattr(k, "_cache", None), KernelCache) and cache.busy() for k, _ in jobs):
+        return False
     for kernel, sig in jobs:
         kernel.compile(sig)
     return True
@@ -303,8 +309,9 @@ class Kernel(CPUDispatcher):
 
     def _compile_for_args(self, *args: Any, **kws: Any) -> Any:
         if getattr(_local, "depth", 0) and not kws:
-            small = _SPENT.get(id(self), 0.0) < BUDGET and all(_small(a) for a in args)
-            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], small):
+            little = all(_small(a) for a in args)
+            small = little and _SPENT.get(id(self), 0.0) < BUDGET
+            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], small, patient=little):
                 return lambda *a: self._interpreted(*a)
         return super()._compile_for_args(*args, **kws)  # type: ignore[misc]  # numba's, not in its stubs
 

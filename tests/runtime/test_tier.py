@@ -159,3 +159,33 @@ def test_a_cold_pose_in_background_mode_compiles_nothing_here(tmp_path):
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300,
                          check=True)
     assert run.stdout.split() == ["0", "True"]
+
+
+_PATIENT = textwrap.dedent("""
+    import fcntl, os, sys
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import tier
+    from tiered import triple
+    x = np.arange(3.0)
+    call = tier.first_use(triple)
+    tier._SPENT[id(triple)] = tier.BUDGET  # past its budget: a call compiles it here, unless another process is
+    holder = os.open(triple._cache.lock_path(), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(holder, fcntl.LOCK_EX)  # (another open file: to flock, another process)
+    busy = triple._cache.busy()
+    first = call(x)  # interpreted: the lock is held
+    during = len(triple.overloads)
+    os.close(holder)  # the other process is done (it wrote nothing: this one compiles)
+    second = call(x)
+    print(busy, triple._cache.busy(), first.tolist(), during, second.tolist(), len(triple.overloads))
+""")
+
+
+def test_a_small_call_past_its_budget_runs_interpreted_while_another_process_compiles_its_kernel(tmp_path):
+    """Not blocked for another run's whole compile (a second demo while the first one's children still compile)."""
+    (tmp_path / "tiered.py").write_text("from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n"
+                                        "    return 3.0 * x\n")
+    env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-c", _PATIENT, str(tmp_path)], capture_output=True, text=True, env=env,
+                         timeout=300, check=True)
+    assert run.stdout.split() == ["True", "False", "[0.0,", "3.0,", "6.0]", "0", "[0.0,", "3.0,", "6.0]", "1"]
