@@ -108,7 +108,7 @@ def stamp(path: str | os.PathLike) -> str:
             continue
         own, imports = _file_info(p)
         seen[p] = own
-        todo += [str(Path(i).resolve()) for i in imports]
+        todo += imports  # built from resolved folders (_read): already whole paths
     h = hashlib.sha256()
     for p in sorted(seen):
         h.update(f"{Path(p).name}:{seen[p]}\n".encode())
