@@ -111,6 +111,10 @@ def _measure(model: str, tree: Tree, pg: Playground, seconds: float, drags: int)
         conn = http.client.HTTPConnection(host, port, timeout=30)
         frame = next(iter(pg.state.targets))
         start_uv = pg.view.project(np.asarray(pg.state.targets[frame])[:3])
+        # warm: the first drag's solve may compile (or wait for another process's compile), which no figure times
+        _post(conn, token, "/drag", {"frame": frame, "uv": _circle(start_uv, 0, 60)})
+        conn.request("GET", "/frame.jpg", headers={"X-Mjkin-Token": token})
+        conn.getresponse().read()
         # frame rate: a viewer on the stream, a drag on every answer
         stamps: list[float] = []
         stop = threading.Event()
