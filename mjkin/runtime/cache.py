@@ -191,7 +191,6 @@ class KernelCache(caching.FunctionCache):
             _HELD.discard(path)
             os.close(fd)
 
-
     def lock_path(self) -> str:
         """The file whose ``flock`` is this kernel's compile lock (:meth:`compiling`)."""
         return os.path.join(self._cache_path, f"{self._impl.filename_base}.lock")
@@ -206,7 +205,7 @@ class KernelCache(caching.FunctionCache):
         except OSError:
             return False
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # taken, it goes again with the close
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # free: the close below gives it back
         except BlockingIOError:
             return True
         finally:
