@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -117,12 +118,18 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path):
-    source = "from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n    return 3.0 * x\n"
-    (tmp_path / "tiered.py").write_text(source)
+def _run_tiered(tmp_path: Path, script: str) -> subprocess.CompletedProcess:
+    """Run ``script`` in a ``background``-mode process with a module ``tiered`` (a kernel ``triple``) and a cache of its
+    own in ``tmp_path``."""
+    (tmp_path / "tiered.py").write_text("from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n"
+                                        "    return 3.0 * x\n")
     env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    run = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path)], capture_output=True, text=True, env=env,
-                         timeout=300, check=True)
+    return subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True, text=True, env=env,
+                          timeout=300, check=True)
+
+
+def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path):
+    run = _run_tiered(tmp_path, _CHILD)
     # the same answers; none compiled in the process before; one version after, loaded from the cache (a hit)
     assert run.stdout.strip() == "[0.0, 3.0, 6.0] [0.0, 3.0, 6.0] 0 1 1"
     notes = run.stderr.splitlines()
@@ -183,9 +190,5 @@ _PATIENT = textwrap.dedent("""
 
 def test_a_small_call_past_its_budget_runs_interpreted_while_another_process_compiles_its_kernel(tmp_path):
     """Not blocked for another run's whole compile (a second demo while the first one's children still compile)."""
-    (tmp_path / "tiered.py").write_text("from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n"
-                                        "    return 3.0 * x\n")
-    env = {**os.environ, "MJKIN_COMPILE": "background", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    run = subprocess.run([sys.executable, "-c", _PATIENT, str(tmp_path)], capture_output=True, text=True, env=env,
-                         timeout=300, check=True)
+    run = _run_tiered(tmp_path, _PATIENT)
     assert run.stdout.split() == ["True", "False", "[0.0,", "3.0,", "6.0]", "0", "[0.0,", "3.0,", "6.0]", "1"]
