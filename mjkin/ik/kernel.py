@@ -231,8 +231,9 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
             if s[i] <= cutoff:
                 continue
             k = 1.0 / s[i]
-        else:
-            k = s[i] / (s[i] * s[i] + lam2)
+        else:  # λ² can underflow to 0 (λ below ~1e-154): a zero singular value then adds nothing, as with λ > 0
+            den = s[i] * s[i] + lam2
+            k = s[i] / den if den > 0.0 else 0.0
         x += (k * (U[:, i] @ e)) * Vt[i]
     return rank
 

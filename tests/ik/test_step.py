@@ -67,3 +67,15 @@ def test_the_goal_step_clamps_a_far_levels_residual():
     near = step(J, 0.01 * far, [0, 3], locked, LM, [1e-6])
     clamped = step(J, far, [0, 3], locked, LM, [1e-6], clamp=1.0)
     np.testing.assert_allclose(clamped, near, atol=1e-12, rtol=1e-10)  # |far| = 100: aims at 1/100 of it
+
+
+def test_a_damping_whose_square_underflows_steps_nowhere_along_a_zero_singular_value():
+    """Found by hypothesis (``dls``, damping 2.2e-309): λ² = 0 made ``s / (s² + λ²)`` 0 / 0 for s = 0, a
+    ZeroDivisionError in compiled code. A Jacobian with a zero row is still solved along its other rows."""
+    J = np.zeros((2, 3))
+    J[0] = [1.0, 2.0, 0.0]
+    g = np.array([0.5, 0.7])
+    locked = np.zeros(3, dtype=np.bool_)
+    for method in (DLS, LM):
+        dq = step(J, g, [0, 2], locked, method, [2.225073858507203e-309 ** 2])
+        np.testing.assert_allclose(J @ dq, [-0.5, 0.0], atol=1e-12)  # the first row met, nothing along the zero one
