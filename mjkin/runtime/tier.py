@@ -8,7 +8,10 @@ neither compiled nor on disk runs the kernel's own Python source at once
 so), and a child process compiles the kernel into the disk cache. The first call
 after the child is done loads it from there (0.1-0.4 s) and from then on
 every call is compiled. The child outlives this process, so a short script still
-leaves the cache warm for the next run.
+leaves the cache warm for the next run. Within :func:`later` (``mjkin demo``) no
+child starts until its end. The hottest kernels whose source loops over array
+entries (the IK step, the frame rows, the Jacobian) run as numpy stand-ins
+(:func:`python_version`) when interpreted.
 
 Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another
 process is compiling it: its small calls go on interpreted until that one is done), one a
@@ -185,6 +188,8 @@ class _Compiler:
         self.running: list[tuple] = []
         self.since: float | None = None  # when the first child started
         self.took: float | None = None  # seconds from then until the last child finished
+        self.held = 0  # open :func:`later` blocks: no child starts while > 0
+        self.told = False  # whether the notice of this process's first queued kernel was given
 
     def status(self, jobs: list[tuple[Dispatcher, tuple]], submit: bool = True) -> str:
         """The least advanced state of ``jobs`` (kernel, argument types), asked for in a child if ``submit``.
@@ -200,6 +205,9 @@ class _Compiler:
                     self.state[key] = "queued" if address else "failed"
                     if address:
                         self.queue.append((key, address, sig))
+                        if not self.told:
+                            self.told = True
+                            progress.notice(LATER if self.held else BACKGROUND)
             self._advance()
             states = {self.state.get((id(k), s), "unknown") for k, s in jobs}
         return next((s for s in ("failed", "unknown", "queued", "running") if s in states), "done")
@@ -215,18 +223,29 @@ class _Compiler:
             if not self.queue and self.since is not None:
                 self.took = time.monotonic() - self.since
                 progress.notice(f"kernels compiled in the background in {self.took:.0f} s")
-        if self.queue:
+        if self.queue and not self.held:
             if self.since is None:
                 self.since = time.monotonic()
-                progress.notice(BACKGROUND)
             self.child = _spawn([(address, sig) for _, address, sig in self.queue])
             self.running = [key for key, _, _ in self.queue]
             self.queue = []
             for key in self.running:
                 self.state[key] = "running"
 
+    @contextlib.contextmanager
+    def hold(self) -> Iterator[None]:
+        """See :func:`later`."""
+        with self.lock:
+            self.held += 1
+        try:
+            yield
+        finally:
+            with self.lock:
+                self.held -= 1
+                self._advance()
+
     def settle(self) -> float | None:
-        """Wait until no child runs and none is queued; the seconds they took (None: none ran)."""
+        """Wait until no child runs and none is queued (none held back); the seconds they took (None: none ran)."""
         while True:
             with self.lock:
                 self._advance()
@@ -247,6 +266,16 @@ atexit.register(_COMPILER.flush)
 settle = _COMPILER.settle
 
 
+def later() -> contextlib.AbstractContextManager[None]:
+    """Within it, no child starts: small calls of cold kernels run interpreted, and a child compiles them at its end.
+
+    For a job that keeps every core busy (``mjkin demo`` renders with Mesa's threads), where a child compiling
+    beside it would slow it more than interpreted calls do. The child started at the end outlives the process,
+    so the next run is compiled. Large calls, and kernels past their :data:`BUDGET`, still compile here meanwhile.
+    """
+    return _COMPILER.hold()
+
+
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
     """A child process (its own session: it outlives this one) that compiles ``jobs`` into the disk cache."""
     env = {**os.environ, "MJKIN_COMPILE": "wait", "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
@@ -260,6 +289,8 @@ def _spawn(jobs: list[tuple]) -> subprocess.Popen:
 
 BACKGROUND = ("compiling kernels for their first use in a background process (cached for later runs; a minute or "
               "two); running them interpreted until then...")
+LATER = ("kernels not compiled yet run interpreted in this first run (slower); a background process compiles them "
+         "when it ends, cached for later runs...")
 
 
 def _load(kernel: Any, sig: tuple) -> bool:
