@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from ..kinematics.fk import Kinematics
 from ..kinematics.geoms import Geoms
 from ..kinematics.jacobian import jacobian_kernel
+from ..runtime import tier
 from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
@@ -196,3 +197,30 @@ def orientation_rows(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Arr
         for j in range(J.shape[1]):
             J[r0 + a, j] = w * (Li[a, 0] * J6[0, 3, j] + Li[a, 1] * J6[0, 4, j] + Li[a, 2] * J6[0, 5, j])
     err[i, 1] = theta
+
+
+def _position_rows_numpy(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Array, r0: int,
+                         err: Array) -> None:
+    """:func:`position_rows` interpreted (:mod:`mjkin.runtime.tier`): its rows at once, by numpy."""
+    J6, pt = ws[0], ws[1]
+    w, d = ga.sqrt_w[i], pt[0] - ga.data[b, i, :3]
+    g[r0:r0 + 3] = w * d
+    J[r0:r0 + 3] = w * J6[0, :3]
+    err[i, 0] = np.sqrt(d @ d)
+
+
+def _orientation_rows_numpy(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Array, r0: int,
+                            err: Array) -> None:
+    """:func:`orientation_rows` interpreted (:mod:`mjkin.runtime.tier`): its products by numpy."""
+    J6, R, E, Li, v = ws[0], ws[2], ws[3], ws[4], ws[5]
+    w = ga.sqrt_w[i]
+    E[:] = R @ ga.data[b, i, 3:12].reshape(3, 3).T  # E = R Rtᵀ: data holds the target Rt row by row
+    theta, cot_half = tier.interpreted(log_rotation)(E, v)
+    tier.interpreted(left_jacobian_inverse)(v, theta, cot_half, Li)
+    g[r0:r0 + 3] = w * v
+    J[r0:r0 + 3] = w * (Li @ J6[0, 3:6])
+    err[i, 1] = theta
+
+
+tier.python_version(position_rows, _position_rows_numpy)
+tier.python_version(orientation_rows, _orientation_rows_numpy)

@@ -308,6 +308,47 @@ def priority_step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool
             P -= np.outer(basis[r], basis[r])
 
 
+
+def _priority_step_numpy(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int,
+                         lam2: Array, alpha: float, scale: float, clamp: float, ws: tuple, dq: Array,
+                         hard_level: bool) -> None:
+    """:func:`priority_step` interpreted (:mod:`mjkin.runtime.tier`): whole rows and products by numpy.
+
+    The first run's IK spends a third of its time in the step's loops over the Jacobian's entries as
+    Python; this takes them to numpy (the same step to the last bits or so: numpy's sums).
+    """
+    P, x, basis, e_all, A_all = ws
+    free = ~locked
+    levels = level_rows.shape[0] - 1
+    solve_level = tier.interpreted(_solve_level)
+    if levels > 1:
+        P[:] = np.diag(free.astype(np.float64))
+    dq[:] = 0.0
+    for lv in range(levels):
+        r0, r1 = level_rows[lv], level_rows[lv + 1]
+        Jl, gl = J[r0:r1], g[r0:r1]
+        e = e_all[:r1 - r0]
+        e[:] = -tier.interpreted(aim_scale)(gl, scale, clamp) * gl
+        if lv > 0:
+            e -= Jl @ dq
+            A = Jl @ P
+        elif free.all():
+            A = Jl
+        else:
+            A = A_all[:r1 - r0]
+            A[:] = Jl * free
+        rank = solve_level(A, e, LM if hard_level and lv == 0 else method, lam2[lv], alpha, x, basis,
+                           lv < levels - 1)
+        if lv == 0:
+            dq[free] += x[free]
+        else:
+            dq += P @ x
+        P -= basis[:rank].T @ basis[:rank]
+
+
+tier.python_version(priority_step, _priority_step_numpy)
+
+
 # ----------------------------------------------------------------------- solve
 @njit_inline
 def level_costs(g: Array, level_rows: Index, out: Array) -> None:
