@@ -67,7 +67,13 @@ def residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err):
 
 
 def check_distance_kind() -> None:
-    """Register the kind, check its residual and Jacobian, and solve with it (in a process of its own)."""
+    """Register the kind, check its residual and Jacobian, and solve with it (in a process of its own).
+
+    The residual and Jacobian come from the generated module's compiled evaluator (the kind compiles with the
+    loop's code); the solve runs the generated loop as Python, as a user's first solve of a new kind does while a
+    child compiles it (:mod:`mjkin.runtime.tier`): the loop's own compile is a minute of CPU that the suite's
+    solves of the built-in kinds already cover.
+    """
     G.register(Distance)
     tree = tree_of("primate")
     hands = Distance("left_hand", other="right_hand", length=0.25)
@@ -83,6 +89,7 @@ def check_distance_kind() -> None:
             fd[j] = (evaluate(tree, hands, tree.integrate(q[k], e))[0][0, 0]
                      - evaluate(tree, hands, tree.integrate(q[k], -e))[0][0, 0]) / 2e-6
         np.testing.assert_allclose(J[0, 0], fd, atol=1e-6)  # the Jacobian against central differences
+    os.environ["MJKIN_COMPILE"] = "interpret"
     res = mjkin.solve(tree, [hands, G.Position("head", tree.pose(tree.qpos0, "head")[:3, 3])], root="lower_torso")
     assert res.success and res.goal_errors[1, 0] <= 1e-6  # after the root's pose goal, the distance
     T = tree.pose(res.q, "left_hand"), tree.pose(res.q, "right_hand")
@@ -90,7 +97,7 @@ def check_distance_kind() -> None:
 
 
 # its own process: the registry is global, and the suite's other tests run on the built-in kinds' loop. Compiling
-# the loop with the new kind takes a minute or more, so conftest runs this test first: the other test workers go on.
+# the evaluator with the new kind takes half a minute, so conftest runs this test first: the other test workers go on.
 FIRST = True
 
 

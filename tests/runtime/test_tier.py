@@ -12,6 +12,7 @@ import pytest
 
 import mjkin
 import mjkin.goals as G
+from conftest import GYM_ASSETS, tree_of
 from mjkin.errors import InputError
 from mjkin.runtime import tier
 
@@ -34,7 +35,7 @@ def _goals(tree):
     }
 
 
-def _same(ran, want):
+def _same(ran, want, converged_atol=1e-9):
     """The same outcome; the path may part in the last bits (numpy's sums and LAPACK, not LLVM's loops), which a
     run that stops unconverged (at max_iters, against a constraint) can carry to ~1e-6."""
     assert np.array_equal(ran.success, want.success)
@@ -42,7 +43,7 @@ def _same(ran, want):
     met = np.atleast_1d(want.success)
     assert np.array_equal(np.atleast_1d(ran.status)[met], np.atleast_1d(want.status)[met])
     assert np.all(np.abs(np.asarray(ran.iterations) - want.iterations) <= 2)
-    np.testing.assert_allclose(ran.q, want.q, rtol=0, atol=1e-9 if np.all(want.success) else 1e-5)
+    np.testing.assert_allclose(ran.q, want.q, rtol=0, atol=converged_atol if np.all(want.success) else 1e-5)
 
 
 def _both(monkeypatch, solve):
@@ -61,6 +62,21 @@ def test_the_interpreted_loop_solves_as_the_compiled_one(monkeypatch, name, meth
     goals = _goals(tree)[name]
     for q0 in (tree.qpos0, tree.qpos0 + 0.1):
         _same(*_both(monkeypatch, lambda q0=q0: mjkin.Problem(tree, goals, method=method, max_iters=30).solve(q0)))
+
+
+@pytest.mark.parametrize("model, frame, kind", [("primate", "left_hand", "site"), ("ball_chain", "tip", "site"),
+                                               (GYM_ASSETS / "humanoid.xml", "left_lower_arm", "body")])
+def test_the_interpreted_loop_solves_a_figure_as_the_compiled_one(monkeypatch, model, frame, kind):
+    """Ball and free joints, and bodies with several joints (gymnasium's humanoid): the numpy stand-ins of the step,
+    the frame rows and the Jacobian (what the first run's figures run as Python) solve as the compiled kernels do."""
+    tree = tree_of(model)
+    q = tree.random_q(np.random.default_rng(4), 1)[0]
+    T = tree.pose(q, frame, kind)
+    goals = [G.Position(frame, T[:3, 3], kind=kind), G.Orientation(frame, T[:3, :3], kind=kind, priority=1),
+             G.Rest(tree.qpos0, priority=2)]
+    # the rest level is never met: where the levels above converge it stops mid-way, and the rounding that parted
+    # the paths moves along it (1e-9 on the ball chain, plain Python or numpy alike)
+    _same(*_both(monkeypatch, lambda: mjkin.Problem(tree, goals, max_iters=30).solve(tree.qpos0)), 1e-7)
 
 
 def test_a_small_batch_runs_interpreted_as_compiled(monkeypatch):
@@ -136,6 +152,66 @@ def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(
     assert notes[0] == f"mjkin: {tier.BACKGROUND}"
     assert notes[1].startswith("mjkin: kernels compiled in the background in ")
     assert len(notes) == 2
+
+
+_LATER = textwrap.dedent("""
+    import sys
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import progress, tier
+    from tiered import triple
+    progress.enable(True)
+    x = np.arange(3.0)
+    call = tier.first_use(triple)
+    sig = (triple.typeof_pyval(x),)
+    with tier.later():
+        first = call(x)  # interpreted, and no child yet
+        held = tier._COMPILER.status([(triple, sig)], submit=False), tier._COMPILER.child is None
+    started = tier._COMPILER.child is not None
+    tier.settle()
+    second = call(x)  # compiled, loaded from the cache the child wrote
+    print(first.tolist(), held, started, second.tolist(), sum(triple._cache_hits.values()))
+""")
+
+
+def test_within_later_no_child_starts_until_its_end(tmp_path):
+    """``mjkin demo``'s first run: interpreted throughout, the child compiling only after it (for the next run)."""
+    run = _run_tiered(tmp_path, _LATER)
+    assert run.stdout.strip() == "[0.0, 3.0, 6.0] ('queued', True) True [0.0, 3.0, 6.0] 1"
+    notes = run.stderr.splitlines()
+    assert notes[0] == f"mjkin: {tier.LATER}"
+    assert notes[1].startswith("mjkin: kernels compiled in the background in ")
+    assert len(notes) == 2
+
+
+@pytest.mark.parametrize("model", ["primate", "ball_chain", "planar_prismatic", GYM_ASSETS / "humanoid.xml",
+                                   GYM_ASSETS / "ant.xml"])
+def test_the_numpy_stand_ins_of_fk_and_the_jacobian_equal_the_kernels_python(model):
+    """What interpreted IK runs for FK and each goal's Jacobian (:func:`tier.python_version`) against the kernels' own
+    source, on slide, hinge, ball and free joints and bodies with several (gymnasium's humanoid)."""
+    from mjkin.kinematics import fk, jacobian
+
+    tree = tree_of(model)
+    k, q = tree.kin, tree.random_q(np.random.default_rng(5), 3)
+    inner = int(k.jnt_inner.max()) + 1
+    out = []
+    for fn in (fk.fk_kernel_in.py_func, tier.PYTHON[id(fk.fk_kernel_in)]):
+        frames = (np.zeros((3, tree.model.nbody, 3, 3)), np.zeros((3, tree.model.nbody, 3)),
+                  np.zeros((3, inner, 3, 3)), np.zeros((3, inner, 3)))
+        fn(q, k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain, k.hinge_coord,
+           k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0, *frames, np.empty((3, 3)),
+           np.empty(3), np.empty((3, 3)))
+        out.append(frames)
+    for a, b in zip(*out, strict=True):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-15)
+    for body in range(1, tree.model.nbody):
+        dofs = k.body_dof_idx[k.body_dof_ptr[body]:k.body_dof_ptr[body + 1]]
+        point = out[0][1][:, body] + 0.1
+        J = [np.full((3, 6, tree.nv), 7.0) for _ in range(2)]  # columns of other dofs stay as they were
+        kernels = (jacobian.jacobian_kernel.py_func, tier.PYTHON[id(jacobian.jacobian_kernel)])
+        for fn, into in zip(kernels, J, strict=True):
+            fn(*out[0], dofs, k.dof_body, k.dof_inner, k.dof_axis, k.dof_world, k.dof_rot, k.dof_anchor, point, into)
+        np.testing.assert_allclose(J[1], J[0], rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("model", ["panda", "arm7", "primate", "ball_chain", "planar_prismatic"])
