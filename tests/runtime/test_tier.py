@@ -144,16 +144,6 @@ def _run_tiered(tmp_path: Path, script: str) -> subprocess.CompletedProcess:
                           timeout=300, check=True)
 
 
-def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path):
-    run = _run_tiered(tmp_path, _CHILD)
-    # the same answers; none compiled in the process before; one version after, loaded from the cache (a hit)
-    assert run.stdout.strip() == "[0.0, 3.0, 6.0] [0.0, 3.0, 6.0] 0 1 1"
-    notes = run.stderr.splitlines()
-    assert notes[0] == f"mjkin: {tier.BACKGROUND}"
-    assert notes[1].startswith("mjkin: kernels compiled in the background in ")
-    assert len(notes) == 2
-
-
 _LATER = textwrap.dedent("""
     import sys
     import numpy as np
@@ -174,12 +164,17 @@ _LATER = textwrap.dedent("""
 """)
 
 
-def test_within_later_no_child_starts_until_its_end(tmp_path):
-    """``mjkin demo``'s first run: interpreted throughout, the child compiling only after it (for the next run)."""
-    run = _run_tiered(tmp_path, _LATER)
-    assert run.stdout.strip() == "[0.0, 3.0, 6.0] ('queued', True) True [0.0, 3.0, 6.0] 1"
+@pytest.mark.parametrize("script, out, notice", [
+    # the same answers; none compiled in the process before; one version after, loaded from the cache (a hit)
+    (_CHILD, "[0.0, 3.0, 6.0] [0.0, 3.0, 6.0] 0 1 1", tier.BACKGROUND),
+    # within later() (mjkin demo's first run): interpreted, no child until its end, then compiled for what follows
+    (_LATER, "[0.0, 3.0, 6.0] ('queued', True) True [0.0, 3.0, 6.0] 1", tier.LATER),
+], ids=["beside", "later"])
+def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(tmp_path, script, out, notice):
+    run = _run_tiered(tmp_path, script)
+    assert run.stdout.strip() == out
     notes = run.stderr.splitlines()
-    assert notes[0] == f"mjkin: {tier.LATER}"
+    assert notes[0] == f"mjkin: {notice}"
     assert notes[1].startswith("mjkin: kernels compiled in the background in ")
     assert len(notes) == 2
 
