@@ -245,11 +245,14 @@ class _Compiler:
                 self._advance()
 
     def settle(self) -> float | None:
-        """Wait until no child runs and none is queued (none held back); the seconds they took (None: none ran)."""
+        """Wait until no child runs and none is queued; the seconds they took (None: none ran).
+
+        Within :func:`later` what is queued stays queued (no child can start): it waits for a running child only.
+        """
         while True:
             with self.lock:
                 self._advance()
-                if self.child is None and not self.queue:
+                if self.child is None and (not self.queue or self.held):
                     return self.took
             time.sleep(0.05)
 

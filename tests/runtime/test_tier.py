@@ -156,6 +156,7 @@ _LATER = textwrap.dedent("""
     sig = (triple.typeof_pyval(x),)
     with tier.later():
         first = call(x)  # interpreted, and no child yet
+        tier.settle()  # returns: nothing runs, and what is queued cannot start yet
         held = tier._COMPILER.status([(triple, sig)], submit=False), tier._COMPILER.child is None
     started = tier._COMPILER.child is not None
     tier.settle()
