@@ -63,7 +63,11 @@ def goal_measures(achieved: Array, desired: Array, hit: Array, tol: float, rot_t
     """Per row of goals ``(B, 3|7)``: distance, angle, success and reward (the env docstring's formulas)."""
     for b in range(achieved.shape[0]):
         dx, dy, dz = desired[b, 0] - achieved[b, 0], desired[b, 1] - achieved[b, 1], desired[b, 2] - achieved[b, 2]
-        distance[b] = np.sqrt(dx * dx + dy * dy + dz * dz)
+        d2, big = dx * dx + dy * dy + dz * dz, max(abs(dx), abs(dy), abs(dz))
+        if d2 == np.inf and big < np.inf:  # squares past 1.8e308 (a target 1e300 m away): scaled, a finite distance
+            distance[b] = big * np.sqrt((dx / big) ** 2 + (dy / big) ** 2 + (dz / big) ** 2)
+        else:
+            distance[b] = np.sqrt(d2)
         angle[b] = 0.0
         if achieved.shape[1] == 7:
             dot = abs(achieved[b, 3] * desired[b, 3] + achieved[b, 4] * desired[b, 4]
