@@ -52,7 +52,9 @@ def compiling_notice() -> bool:
 
 class _CompileListener(event.Listener):
     def on_start(self, event: event.Event) -> None:
-        compiling_notice()
+        fn = getattr(event.data.get("dispatcher"), "py_func", None)
+        if not (getattr(fn, "__module__", "") or "").startswith("numba"):  # not numba's own helpers (0.1 s, warm too)
+            compiling_notice()
 
     def on_end(self, event: event.Event) -> None:
         pass

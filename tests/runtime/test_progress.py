@@ -59,6 +59,17 @@ def test_no_notice_without_compiling(terminal, monkeypatch):
     assert progress.COMPILING not in terminal.getvalue().split(progress.COMPILING, 1)[1]
 
 
+def test_numbas_own_helpers_compiling_give_no_notice(terminal):
+    """numba compiles small helpers of its own in a warm run (an array view, 0.1 s): not "compiling kernels"."""
+    from numba.core import event as ev
+
+    terminal = terminal()
+    for module in ("numba.np.arrayobj", "mjkin.kinematics.fk"):
+        helper = type("Dispatcher", (), {"py_func": type("F", (), {"__module__": module})})()
+        progress._listener.on_start(ev.Event("numba:compile", ev.EventStatus.START, data={"dispatcher": helper}))
+        assert terminal.getvalue().count(progress.COMPILING) == (module == "mjkin.kinematics.fk")
+
+
 def test_the_notice_prints_off_a_terminal_too_but_no_bar(terminal, monkeypatch):
     """In CI or ``| tee`` the first run sat silent for a minute: the notice is for every stderr, bars are not."""
     terminal = terminal()
