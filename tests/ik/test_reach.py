@@ -82,6 +82,8 @@ def test_3d_ball_chains(src, site):
 @given(st.lists(point, min_size=2, max_size=6), point)
 @example([np.array([-0.775961106041201, 0.0, 0.0]), np.array([1.5625, 1.0, 1.625]), np.array([1.5625, 1.0, 1.625])],
          np.array([1.5625, 1.0, 1.625]))  # found by hypothesis: a zero-length link, spheres touching
+@example([np.array([0.0, 1.0, 4.069778332375565e-160]), np.zeros(3)], np.array([0.0, 1.0, 0.0]))  # found by
+# hypothesis in a README test run: the root's link turned toward a point 4e-160 away, whose norm lost its bits
 def test_a_pass_keeps_the_root_and_every_link_length(pts, goal):
     pts = np.array(pts)
     new, met = reach_points(pts, goal)
