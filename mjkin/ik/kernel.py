@@ -308,7 +308,6 @@ def priority_step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool
             P -= np.outer(basis[r], basis[r])
 
 
-
 def _priority_step_numpy(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int,
                          lam2: Array, alpha: float, scale: float, clamp: float, ws: tuple, dq: Array,
                          hard_level: bool) -> None:

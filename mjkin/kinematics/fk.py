@@ -211,7 +211,6 @@ def fk_kernel_in(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jn
                             inner_rot[b, s, i, k] = rot[b, body, i, k]
 
 
-
 def _fk_numpy(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_start: Index, jnt_count: Index,
               jnt_inner: Index, fixed_plain: NDArray[np.bool_], hinge_coord: Index, anchor_zero: NDArray[np.bool_],
               jnt_type: Index, jnt_qadr: Index, jnt_axis: Array, jnt_pos: Array, qpos0: Array, rot: Array, pos: Array,

@@ -58,7 +58,6 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
                 J[b, 3, d], J[b, 4, d], J[b, 5, d] = 0.0, 0.0, 0.0
 
 
-
 def _jacobian_numpy(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, dofs: Index, dof_body: Index,
                     dof_inner: Index, dof_axis: Array, dof_world: NDArray[np.bool_], dof_rot: NDArray[np.bool_],
                     dof_anchor: Array, point: Array, J: Array) -> None:

@@ -10,7 +10,7 @@ after the child is done loads it from there (0.1-0.4 s) and from then on
 every call is compiled. The child outlives this process, so a short script still
 leaves the cache warm for the next run. Within :func:`later` (``mjkin demo``) no
 child starts until its end. The hottest kernels whose source loops over array
-entries (the IK step, the frame rows, the Jacobian) run as numpy stand-ins
+entries (the IK step, the frame rows, FK, the Jacobian) run as numpy stand-ins
 (:func:`python_version`) when interpreted.
 
 Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another
