@@ -67,9 +67,10 @@ MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no 
 # level costs a projection per iteration: 1.7-2x the time), the feet's toe and heel points weighted FOOT_WEIGHT
 # against the body's goals (they slide a few micrometres per frame), REST_WEIGHT toward the previous frame's pose
 # (less lets a shoulder or hip swing faster than the speed limit between frames). The body's goals conflict a
-# little, so frames stop at MAX_ITERS, not at tol; more iterations change no figure of the report by much
-# (`mjkin bench retarget`: 15 iterations and two levels took 2.5-3x the time).
-MAX_ITERS = 6
+# little, so frames stop at MAX_ITERS, not at tol. At 6 the G1's crouch sat on an edge: on one CPU 2.0 cm off at
+# the median, on another (or with the clip moved by 1e-6) its rise lagged on a straight right leg, 3.0 cm off; 7 to
+# 15 iterations give 2.0 cm on both (8 costs 20-25 % of the frames/s of 6; 15 and two levels took 2.5-3x the time).
+MAX_ITERS = 8
 FOOT_WEIGHT = 1000.0
 REST_WEIGHT = 0.02
 # The body's goals against each other. The pelvis point leads (every key point follows it) and the pelvis's turn
