@@ -8,12 +8,14 @@ goals)`` only encodes new targets and runs the compiled loop.
 
 from __future__ import annotations
 
+import hashlib
 import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import scipy
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GoalError, InputError
@@ -23,6 +25,7 @@ from ..kinematics import qspace
 from ..kinematics.qspace import FREE, NQ, NV, clip_kernel
 from ..kinematics.tree import Tree
 from ..runtime import tier
+from ..runtime.cache import stamp, stored_array
 from ..runtime.checks import check_count, check_flag, check_number
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE, summarise
@@ -37,6 +40,23 @@ Runner = Callable[[Program, Array], Result]
 AVOID_MARGIN = 1e-5
 # restart starts drawn per tree, seed and count (Problem._random_starts); gone with the tree
 SEEDED_STARTS: weakref.WeakKeyDictionary[Tree, dict[tuple[int, int], Array]] = weakref.WeakKeyDictionary()
+
+
+def seeded_starts(tree: Tree, seed: int, n: int) -> Array:
+    """``qspace.random(tree, default_rng(seed), n, spread=True)`` ``(n, nq)``, read from the disk cache when kept there.
+
+    Keyed by all it depends on: the limits and ``qpos0`` it reads, the seed, ``n``, numpy's and scipy's versions and
+    the source of :mod:`mjkin.kinematics.qspace` (:func:`mjkin.runtime.cache.stamp`).
+    """
+    lay = tree.layout
+    inputs = hashlib.sha256()
+    for a in (tree.qpos0, lay.scalar_q, lay.scalar_hinge, lay.scalar_lo, lay.scalar_hi, lay.ball_q, lay.ball_max,
+              lay.free_q):
+        inputs.update(np.ascontiguousarray(a).tobytes() + b"|")
+    key = f"starts {seed} {n} {tree.nq} {inputs.hexdigest()} {np.__version__} {scipy.__version__} " \
+          f"{stamp(qspace.__file__)}"
+    return stored_array("starts", key, lambda: np.ascontiguousarray(
+        qspace.random(tree, np.random.default_rng(seed), n, spread=True)))
 
 
 def method_of(method: str | Method, options: dict) -> Method:
@@ -256,16 +276,15 @@ class Problem:
         Quasi-random (:func:`mjkin.kinematics.qspace.random` with ``spread``): on the
         TRAC-IK protocol it cut the Panda's mean iterations by about 15 %. Setting up
         scipy's Sobol sequence costs ~0.5 ms, ten easy solves, so a seed's starts are
-        drawn once per tree (:data:`SEEDED_STARTS`) and each problem gets a copy.
+        drawn once per tree (:data:`SEEDED_STARTS`) and each problem gets a copy; and
+        importing it (``scipy.stats``) ~0.4 s, most of a warm process's first solve, so
+        they are kept on disk too (:func:`seeded_starts`).
         """
-        def draw() -> Array:  # seed None: fresh entropy
-            return np.ascontiguousarray(qspace.random(self.tree, np.random.default_rng(self.seed), n, spread=True))
-
-        if self.seed is None:
-            return draw()
+        if self.seed is None:  # fresh entropy
+            return np.ascontiguousarray(qspace.random(self.tree, np.random.default_rng(), n, spread=True))
         drawn = SEEDED_STARTS.setdefault(self.tree, {})
         if (self.seed, n) not in drawn:
-            drawn[self.seed, n] = draw()
+            drawn[self.seed, n] = seeded_starts(self.tree, self.seed, n)
         return drawn[self.seed, n].copy()
 
     # ------------------------------------------------------------ once per solve

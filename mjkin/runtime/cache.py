@@ -17,6 +17,7 @@ Generated source (the IK loop of a set of goal kinds, :mod:`mjkin.ik.compiled`)
 is only ever imported from a folder that no other user can write to
 (:func:`generated_file`): written where only this user can write, or found with
 the same text where it was written ahead (a read-only install warmed by root).
+Arrays that cost more to make than to read (:func:`stored_array`) are kept the same way.
 """
 
 from __future__ import annotations
@@ -28,11 +29,12 @@ import hashlib
 import os
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from functools import cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from numba.core import caching, config
 
 PACKAGE = Path(__file__).resolve().parent.parent  # mjkin/
@@ -274,3 +276,27 @@ def generated_file(folder: str, name: str, text: str) -> Path:
     tmp.write_text(text)
     tmp.replace(path)
     return path
+
+
+def stored_array(folder: str, key: str, make: Callable[[], np.ndarray]) -> np.ndarray:
+    """``make()``, kept as ``<digest of key>.npy`` in a trusted folder of :func:`_places` for later processes.
+
+    ``key`` must name everything the array depends on (versions, inputs, the :func:`stamp` of its source). A file
+    found where no other user can write is read as it is (read-only too); else the array is made and written,
+    atomically, into :func:`private_folder` (or not at all when no folder can be written).
+    """
+    name = hashlib.sha256(key.encode()).hexdigest()[:32] + ".npy"
+    for place in _places(folder):
+        path = place / name
+        if _trusted(place) and path.is_file() and not path.is_symlink():
+            with contextlib.suppress(OSError, ValueError):
+                return np.load(path, allow_pickle=False)
+    array = make()
+    path = private_folder(folder) / name
+    tmp = path.with_name(f".{name}.{os.getpid()}.tmp.npy")
+    try:
+        np.save(tmp, array, allow_pickle=False)
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+    return array

@@ -134,6 +134,54 @@ def test_generated_code_written_ahead_is_read_where_it_cannot_be_written(tmp_pat
     assert made == ours / "loop.py" and made.read_text() == "x = 1\n" and not os.stat(ours).st_mode & 0o077
 
 
+def test_stored_arrays_are_made_once_and_never_read_from_a_folder_others_may_write(tmp_path, monkeypatch):
+    import os
+
+    from mjkin.runtime import cache
+
+    ours, open_to_all = tmp_path / "ours", tmp_path / "open"
+    open_to_all.mkdir()
+    open_to_all.chmod(0o777)  # every user may write here: never read, never written
+    made = []
+
+    def make():
+        made.append(1)
+        return np.arange(6.0).reshape(2, 3)
+
+    monkeypatch.setattr(cache, "_places", lambda name: (open_to_all, ours))
+    kept = cache.stored_array("starts", "key", make).copy()
+    saved = list(ours.glob("*.npy"))
+    assert len(saved) == 1 and not os.stat(ours).st_mode & 0o077 and not list(ours.glob(".*"))  # no temp left
+    assert not list(open_to_all.iterdir())
+    np.testing.assert_array_equal(cache.stored_array("starts", "key", make), kept)
+    assert len(made) == 1  # the second came from the file
+    np.save(open_to_all / saved[0].name, -kept)  # planted where every user may write, first in the search
+    np.testing.assert_array_equal(cache.stored_array("starts", "key", make), kept)
+    assert len(cache.stored_array("starts", "another key", make)) == 2 and len(made) == 2
+
+
+def test_a_warm_process_draws_no_restarts_its_starts_are_read_with_the_same_bits(tmp_path):
+    """A first solve used to import scipy.stats (~0.4 s) for the Sobol restarts; a later process reads them."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    script = ("import json, sys, numpy as np, mjkin; from mjkin.ik.problem import seeded_starts; "
+              "from mjkin.kinematics import qspace; tree = mjkin.load('arm7'); s = seeded_starts(tree, 3, 8); "
+              "scipy_stats = 'scipy.stats' in sys.modules; "
+              "same = np.array_equal(s, qspace.random(tree, np.random.default_rng(3), 8, spread=True)); "
+              "print(json.dumps([scipy_stats, same, s.shape]))")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+
+    def run():
+        return json.loads(subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                                         env=env, check=True).stdout)
+
+    assert run() == [True, True, [8, 7]]  # drawn: scipy's Sobol
+    assert run() == [False, True, [8, 7]]  # read: scipy.stats not imported until the check after it
+
+
 def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
     """A Pose problem's loop dispatches to Pose alone: no distance or balance code is compiled for it."""
     from mjkin.goals import Clearance, HalfSpace, Pose, registry
