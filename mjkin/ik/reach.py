@@ -122,8 +122,9 @@ def _toward(d: Array, before: Array) -> Array:
     """The unit direction of ``d``; the link's direction ``before`` when ``d`` is zero."""
     for v in (d, before):
         n = float(np.linalg.norm(v))
-        if not 1e-150 < n < 1e150 and np.abs(v).max() > 0:  # squares that lose their bits (subnormal) or overflow:
-            v = v / np.abs(v).max()                            # scaled first (the norm of (0, 0, 4e-160) was 1e-6 off)
+        # squares that lose their bits (subnormal) or overflow: scaled first (the norm of (0, 0, 4e-160) was 1e-6 off)
+        if not 1e-150 < n < 1e150 and (big := np.abs(v).max()) > 0:
+            v = v / big
             n = float(np.linalg.norm(v))
         if n > 0:
             return v / n
