@@ -69,7 +69,8 @@ MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no 
 # (less lets a shoulder or hip swing faster than the speed limit between frames). The body's goals conflict a
 # little, so frames stop at MAX_ITERS, not at tol. At 6 the G1's crouch sat on an edge: on one CPU 2.0 cm off at
 # the median, on another (or with the clip moved by 1e-6) its rise lagged on a straight right leg, 3.0 cm off; 7 to
-# 15 iterations give 2.0 cm on both (8 costs 20-25 % of the frames/s of 6; 15 and two levels took 2.5-3x the time).
+# 15 iterations give 2.0 cm there, the moved clips too (8 costs 20-25 % of the frames/s of 6; 15 and two levels
+# took 2.5-3x the time).
 MAX_ITERS = 8
 FOOT_WEIGHT = 1000.0
 REST_WEIGHT = 0.02
