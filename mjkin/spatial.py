@@ -23,8 +23,11 @@ def _f(a: ArrayLike) -> Array:
     return np.asarray(a, dtype=np.float64)
 
 
-def _norm(v: Array) -> Array:
-    """Euclidean norm over the last axis ``(...)`` without underflow: components near 1e-160 square to zero."""
+def norm(v: Array) -> Array:
+    """Euclidean norm over the last axis ``(...)``, scaled by the largest component first: no under- or overflow.
+
+    Components near 1e-160 square to zero and near 1e160 to inf in :func:`numpy.linalg.norm`.
+    """
     big = np.max(np.abs(v), axis=-1)
     safe = np.where(big > 0.0, big, 1.0)
     return big * np.linalg.norm(v / safe[..., None], axis=-1)
@@ -121,7 +124,7 @@ def quat_from_axis_angle(axis: ArrayLike, angle: ArrayLike) -> Array:
 def quat_to_axis_angle(q: ArrayLike) -> tuple[Array, Array]:
     """Unit axis ``(..., 3)`` and angle in ``[0, π]`` ``(...)``; axis ``x`` for no rotation."""
     r = quat_to_rotvec(q)
-    angle = _norm(r)
+    angle = norm(r)
     safe = np.where(angle > 0.0, angle, 1.0)[..., None]
     axis = np.where(angle[..., None] > 0.0, r / safe, np.array([1.0, 0.0, 0.0]))
     return axis, angle
@@ -140,7 +143,7 @@ def quat_to_rotvec(q: ArrayLike) -> Array:
     q = _f(q)
     q = q * np.where(q[..., :1] < 0.0, -1.0, 1.0)
     w, v = q[..., 0], q[..., 1:]
-    n = _norm(v)
+    n = norm(v)
     # atan2(n, w) / n is exact to rounding for any n > 0, however small; n = 0 means v = 0 and no rotation
     scale = np.where(n > 0.0, 2.0 * np.arctan2(n, w) / np.where(n > 0.0, n, 1.0), 2.0)
     return scale[..., None] * v

@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import spatial
 from ..errors import GoalError
 from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
@@ -122,10 +123,8 @@ def _toward(d: Array, before: Array) -> Array:
     """The unit direction of ``d``; the link's direction ``before`` when ``d`` is zero."""
     for v in (d, before):
         n = float(np.linalg.norm(v))
-        # squares that lose their bits (subnormal) or overflow: scaled first (the norm of (0, 0, 4e-160) was 1e-6 off)
-        if not 1e-150 < n < 1e150 and (big := np.abs(v).max()) > 0:
-            v = v / big
-            n = float(np.linalg.norm(v))
+        if not 1e-150 < n < 1e150:  # squares that lose their bits (subnormal) or overflow: the scaled norm
+            n = float(spatial.norm(v))  # (numpy's norm of (0, 0, 4e-160) was 1e-6 off)
         if n > 0:
             return v / n
     return np.zeros(3)
