@@ -25,7 +25,6 @@ from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import minimize
 
 from .. import spatial
 from ..goals import Coupling, Program
@@ -69,6 +68,8 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
     priority levels and re-centring passes, and whether the time ran out (then the configuration is the
     last iterate SciPy reported).
     """
+    from scipy.optimize import minimize  # loaded by solve_optimize, before any clock starts
+
     rows = prog.row
     free = np.flatnonzero(active)
     constraint_goal = (prog.kind == Coupling.code) | prog.hard
@@ -165,6 +166,8 @@ def solve_optimize(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: flo
     every start included (None: no limit); a target that runs out keeps the best
     configuration so far with status ``TIMEOUT``.
     """
+    import scipy.optimize  # noqa: F401  (~0.5 s, so imported on first use, not with mjkin; before any target's clock)
+
     B = prog.B
     out = np.empty_like(q)
     err = np.zeros((B, len(prog.goals), 2))

@@ -63,7 +63,7 @@ def _read(path: str, mtime_ns: int, size: int) -> tuple[str, tuple[str, ...]]:
     while (top.parent / "__init__.py").is_file():
         top = top.parent
     root = top if top.name == PACKAGE.name and (top / "__init__.py").is_file() else PACKAGE  # the package it is in
-    for node in ast.walk(tree):
+    for node in _statements(tree.body):
         if isinstance(node, ast.ImportFrom):
             if node.level:  # relative: from its own folder upwards
                 base = here
@@ -77,6 +77,19 @@ def _read(path: str, mtime_ns: int, size: int) -> tuple[str, tuple[str, ...]]:
                 if a.name.split(".")[0] == PACKAGE.name:
                     found += _module_files(root, a.name.split(".")[1:], [])
     return hashlib.sha256(text).hexdigest(), tuple(sorted(set(found)))
+
+
+def _statements(body: list[ast.stmt]) -> Iterator[ast.stmt]:
+    """Every statement in ``body`` and in the blocks nested in it.
+
+    Imports are statements, so no expression (most of a module's nodes) is entered.
+    """
+    for node in body:
+        yield node
+        for field in ("body", "orelse", "finalbody", "handlers", "cases"):
+            inner = getattr(node, field, None)
+            if isinstance(inner, list):
+                yield from _statements(inner)
 
 
 def _module_files(base: Path, parts: list[str], names: list[str]) -> list[str]:
@@ -213,6 +226,31 @@ class KernelCache(caching.FunctionCache):
         finally:
             os.close(fd)
         return False
+
+
+class LazyCache:
+    """Mixin of a numba dispatcher or cfunc: its ``_cache``, a :class:`KernelCache`, is made on first use.
+
+    The stamp reads the sources the kernel imports (0.3 s over the package's kernels), which a process
+    that never calls the kernel (``import mjkin``) need not pay. ``del kernel._cache`` drops the cache
+    numba's constructor set.
+    """
+
+    @property
+    def _cache(self) -> Any:
+        cache = self.__dict__.get("_disk_cache")
+        if cache is None:
+            cache = self.__dict__["_disk_cache"] = KernelCache(self.__wrapped__)  # type: ignore[attr-defined]
+        return cache
+
+    @_cache.setter
+    def _cache(self, value: Any) -> None:  # numba's constructor (a NullCache) and enable_caching()
+        self.__dict__["_disk_cache"] = value
+
+    @_cache.deleter
+    def _cache(self) -> None:
+        self.__dict__.pop("_disk_cache", None)
+        self.__dict__.pop("_cache", None)  # set by numba's constructor before the class was swapped for this one
 
 
 _HELD: set[str] = set()  # the compile locks this process holds (under numba's compiler lock: one thread at a time)

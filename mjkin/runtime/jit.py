@@ -32,7 +32,7 @@ from numba.experimental import structref
 from numba.extending import intrinsic
 
 from . import tier
-from .cache import KernelCache
+from .cache import LazyCache
 
 CLOCK_MONOTONIC = 1  # Linux
 
@@ -40,13 +40,14 @@ CLOCK_MONOTONIC = 1  # Linux
 def _jit(**options: Any) -> Callable[[Callable], Any]:
     """``numba.njit(**options)`` (nogil, no fastmath) cached on disk by :class:`mjkin.runtime.cache.KernelCache`.
 
-    The dispatcher is a :class:`mjkin.runtime.tier.Kernel`: its first small calls may run interpreted.
+    The dispatcher is a :class:`mjkin.runtime.tier.Kernel`: its first small calls may run interpreted, and
+    its cache is made when it is first used.
     """
 
     def decorate(fn: Callable) -> Any:
         dispatcher = numba.njit(**{"nogil": True, "fastmath": False, **options})(fn)
         dispatcher.__class__ = tier.Kernel
-        dispatcher._cache = KernelCache(dispatcher.py_func)
+        del dispatcher._cache  # numba's NullCache: a KernelCache is made on first use (LazyCache)
         return dispatcher
 
     return decorate
@@ -66,12 +67,16 @@ njit_ir_inline = _jit(inline="always")
 njit_gil = _jit(nogil=False)
 
 
+class _CFunc(LazyCache, CFunc):
+    """numba's cfunc, cached like a kernel."""
+
+
 def cfunc(signature: Any) -> Callable[[Callable], CFunc]:
     """``numba.cfunc(signature)`` cached like :data:`njit`; not compiled until its ``compile()`` is called."""
 
     def decorate(fn: Callable) -> CFunc:
-        c = CFunc(fn, sigutils.normalize_signature(signature), locals={}, options={})
-        c._cache = KernelCache(fn)  # type: ignore[attr-defined]
+        c = _CFunc(fn, sigutils.normalize_signature(signature), locals={}, options={})
+        del c._cache  # numba's NullCache: a KernelCache is made on first compile (LazyCache)
         return c
 
     return decorate

@@ -48,7 +48,7 @@ from numba.core.registry import CPUDispatcher
 
 from ..errors import InputError
 from . import progress
-from .cache import KernelCache
+from .cache import KernelCache, LazyCache
 
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
@@ -338,7 +338,7 @@ def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool, patient: bool = 
     return True
 
 
-class Kernel(CPUDispatcher):
+class Kernel(LazyCache, CPUDispatcher):
     """numba's dispatcher, but a small call of a version not yet compiled runs interpreted within :func:`first_use`."""
 
     def _compile_for_args(self, *args: Any, **kws: Any) -> Any:
