@@ -283,7 +283,7 @@ def test_realtime_reports_chains_and_trees_warm_and_cold(tmp_path):
 
 
 def test_render_bench_compares_the_same_frames():
-    (rows,) = bench.bench_render(frames_n=2, width=64, height=48).tables.values()
+    (rows,) = bench.bench_render(frames_n=2, width=64, height=48, repeat=1).tables.values()
     assert [r["model"] for r in rows] == ["arm7", "primate"]
     for r in rows:
         assert r["size"] == "64x48" and r["ratio"] == pytest.approx(r["mjkin_frames_per_s"] / r["mujoco_frames_per_s"])

@@ -468,7 +468,7 @@ def test_trail_keeps_a_bounded_number_of_points(t, m):
 
 def test_overlay_geoms_per_frame_do_not_grow_with_the_video(monkeypatch):
     tree = tree_of("planar_2link")
-    T = 600
+    T = 160  # 20 times the trail's points (software GL draws a frame in ~15 ms, even at 32x24)
     qs = np.stack([np.linspace(0, 6, T), np.sin(np.linspace(0, 20, T))], -1)
     added = []
     draw = render.Painter.draw
@@ -479,10 +479,10 @@ def test_overlay_geoms_per_frame_do_not_grow_with_the_video(monkeypatch):
         return image
 
     monkeypatch.setattr(render.Painter, "draw", counting)
-    overlay = render.Overlay(points=np.zeros((2, 3)), bones=np.array([[0, 1]]), trail="tip", trail_points=32)
+    overlay = render.Overlay(points=np.zeros((2, 3)), bones=np.array([[0, 1]]), trail="tip", trail_points=8)
     clip(tree, qs, 32, 24, overlay=overlay)  # every frame drawn
-    assert len(added) == T and max(added) <= 2 + 1 + 32  # 2 markers, their bone + at most 32 trail segments
-    assert added[-1] >= 2 + 1 + 16  # and the trail is still there at the end
+    assert len(added) == T and max(added) <= 2 + 1 + 8  # 2 markers, their bone + at most 8 trail segments
+    assert added[-1] >= 2 + 1 + 4  # and the trail is still there at the end
 
 
 def test_overlay_bones_must_index_its_points():
