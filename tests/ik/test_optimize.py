@@ -4,25 +4,25 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.optimize
 
 import mjkin
 from conftest import tree_of
 from mjkin.goals import Position
-from mjkin.ik import optimize
 
 
 @pytest.fixture
 def nits(monkeypatch):
-    """SciPy's iteration count of every minimize call the optimize method makes."""
+    """SciPy's iteration count of every minimize call the optimize method makes (it imports SciPy's on first use)."""
     calls: list[int] = []
-    real = optimize.minimize
+    real = scipy.optimize.minimize
 
     def counting(*args, **kwargs):
         res = real(*args, **kwargs)
         calls.append(int(res.nit))
         return res
 
-    monkeypatch.setattr(optimize, "minimize", counting)
+    monkeypatch.setattr(scipy.optimize, "minimize", counting)
     return calls
 
 
