@@ -228,7 +228,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
             run_it += 1
             for lv in range(L):
                 lam2[lv] = lam * lam + (mu * cost[lv] if method == LM else 0.0)
-        one = L == 1 and not any_hard  # one level: start from the dofs the last step locked, see _inward
+        one = L == 1 and not any_hard  # one level: start from the dofs the last step locked, see inward
         for d in range(nv):
             warm[d] = one and active[d] and held[d] and inward(d, q, lo, hi, dof_q, dof_j, J, g) > 0.0
             locked[d] = warm[d] or not active[d]
@@ -247,7 +247,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 break
             changed = False
             if one and (method == LM or method == DLS) and warm.any():  # free a warm lock whose limit's multiplier
-                # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see _inward)
+                # says "in": with λ > 0 the step is strictly convex, so the freed joint then moves in (see inward)
                 aim = aim_scale(g, scale, goal_step)
                 for r in range(m):  # the step's residual: it solved J dq ≈ -aim g (damped)
                     res[r] = -aim * g[r]
@@ -275,7 +275,7 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
                 break
         if attempts > 0:  # after a rejection, go only as far as the first limit the step crosses: clipped there,
             to_first_limit(q, dq, locked, kin, lo, hi)  # the step bent and was rejected again and again (a run
-        any_locked = False                               # stalled 4e-4 from a limit); the next step locks it
+        any_locked = False                              # stalled 4e-4 from a limit); the next step locks it
         for d in range(nv):
             held[d] = locked[d] and active[d]
             any_locked = any_locked or held[d]

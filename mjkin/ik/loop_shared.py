@@ -1,8 +1,8 @@
 """The parts of the IK loop that do not depend on a problem's goal kinds, compiled once for every loop.
 
 :mod:`mjkin.ik.loop` is copied per set of goal kinds (:mod:`mjkin.ik.compiled`); what
-it calls from here is compiled and cached once, not once in each copy (7.7 s of a
-loop's compile on the project's machine), and LLVM inlines or links it as before.
+it calls from here is compiled and cached once, not once in each copy (~7 s of CPU
+a loop copy on the project's machine), and LLVM inlines or links it as before.
 """
 
 from __future__ import annotations
