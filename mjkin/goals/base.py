@@ -12,6 +12,7 @@ and its compiled residual, registered in :mod:`mjkin.goals.registry`.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -131,8 +132,11 @@ class Goal:
     _cores: ClassVar[tuple[int, ...]] = ()  # number of non-batch axes of each target of targets()
 
     def __post_init__(self) -> None:
-        w = float(self.weight)
-        if not np.isfinite(w) or w < 0:
+        try:  # a string converts to a float but is no weight ("1" > 0 fails later)
+            ok = not isinstance(self.weight, (str, bytes)) and 0.0 <= float(self.weight) < math.inf  # NaN: False
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
             raise GoalError(f"{type(self).__name__}: weight must be a finite number >= 0, got {self.weight!r}")
         if not isinstance(self.priority, (int, np.integer)) or self.priority < 0:
             raise GoalError(f"{type(self).__name__}: priority must be an integer >= 0, got {self.priority!r}")
@@ -251,15 +255,25 @@ class FrameGoal(Goal):
         warnings.warn("goal.name is now goal.frame", DeprecationWarning, stacklevel=2)
         return self.frame
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        name = type(self).__name__
+        if self.kind is not None and not (isinstance(self.kind, str) and self.kind in ("site", "body")):
+            raise GoalError(f"{name}: kind must be 'site', 'body' or None, got {self.kind!r}")
+        if self.offset is not None:  # kept as three floats: hashable, and checked once
+            offset = array(self.offset, (3,), f"{name} offset")
+            if offset.shape != (3,):
+                raise GoalError(f"{name} offset has shape {offset.shape}; expected (3,)")
+            object.__setattr__(self, "offset", tuple(offset.tolist()))
+
     def key(self) -> tuple:  # noqa: D102
-        offset = None if self.offset is None else tuple(np.asarray(self.offset, dtype=float).ravel())
-        return super().key() + (self.frame, self.kind, offset)
+        return super().key() + (self.frame, self.kind, self.offset)
 
     def static(self, tree: Tree) -> tuple[int, Array, Array, int, Array | None]:  # noqa: D102
         body, T = tree.frame_body(self.frame, self.kind)
         point = T[:3, 3]
         if self.offset is not None:
-            point = point + T[:3, :3] @ array(self.offset, (3,), f"{type(self).__name__} offset")
+            point = point + T[:3, :3] @ np.array(self.offset)
         return body, T[:3, :3], point, 0, None
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:

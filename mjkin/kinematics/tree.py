@@ -178,7 +178,7 @@ class Tree:
 
     def _names(self, kind: str) -> tuple[str, ...]:
         count = {"body": self.model.nbody, "joint": self.model.njnt, "site": self.model.nsite}
-        if kind not in count:
+        if not isinstance(kind, str) or kind not in count:
             raise InputError(f"kind must be 'body', 'joint' or 'site', not {kind!r}")
         return tuple(self.model.names[self._name_adr(kind)[i]:].split(b"\0", 1)[0].decode()
                      for i in range(count[kind]))
@@ -198,7 +198,7 @@ class Tree:
 
     def frame(self, name: str, kind: Kind | None = None) -> tuple[Literal["body", "site"], int]:
         """Resolve a frame name to ``(kind, id)``; ``kind=None`` tries sites first, then bodies."""
-        if kind not in (None, "site", "body"):
+        if kind is not None and not (isinstance(kind, str) and kind in ("site", "body")):  # an array: no ==
             raise InputError(f"frame kind must be 'site', 'body' or None, not {kind!r}")
         if kind is None:
             for k in ("site", "body"):

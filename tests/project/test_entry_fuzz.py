@@ -225,6 +225,42 @@ def test_problem_solve_is_clean_or_raises_mjkin_error(model: str, data: st.DataO
         assert_clean_result(t, r)
 
 
+FRAME_GOALS: dict[str, Callable[..., G.Goal]] = {
+    "position": lambda **kw: G.Position("ee", (0.3, 0.2, 0.5), **kw),
+    "pose": lambda **kw: G.Pose("ee", T=np.eye(4), **kw),
+    "orientation": lambda **kw: G.Orientation("ee", np.eye(3), **kw),
+    "aim": lambda **kw: G.Aim("ee", point=(0.5, 0.5, 0.5), **kw),
+}
+FIELD_VALUES = (extreme | junk | st.sampled_from([0, 2, -1, 2**70, 1.5, "site", "body", "world", (0.0, 0.1, 0.0)])
+                | hnp.arrays(np.float64, st.sampled_from([(), (2,), (3,), (1, 3), (0,)]), elements=extreme))
+
+
+@settings(max_examples=60, deadline=None)
+@given(kind=st.sampled_from(sorted(FRAME_GOALS)), field=st.sampled_from(["weight", "priority", "kind", "offset"]),
+       value=FIELD_VALUES)
+def test_a_goal_field_of_any_value_is_clean_or_raises_mjkin_error(kind: str, field: str, value: Any) -> None:
+    """A goal's weight, priority, frame kind or offset, whatever it is, gives a clean solve or a GoalError."""
+    t = tree("arm7")
+    r = outcome(lambda: mjkin.solve(t, FRAME_GOALS[kind](**{field: value}), timeout=0.1))
+    if r is not None:
+        assert_clean_result(t, r, ())
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    pytest.param("weight", "abc", id="weight-str"),  # ValueError from float()
+    pytest.param("weight", "1", id="weight-numeric-str"),  # passed float(), then TypeError at "1" > 0
+    pytest.param("weight", None, id="weight-None"),  # TypeError from float()
+    pytest.param("kind", np.array([1.0, 2.0]), id="kind-array"),  # ValueError: an array's truth in `not in`
+    pytest.param("offset", "abc", id="offset-str"),  # ValueError from np.asarray in the goal's key
+    pytest.param("offset", [1, [2, 3]], id="offset-ragged"),
+    pytest.param("offset", 1j, id="offset-complex"),  # TypeError
+    pytest.param("offset", (0.0, 0.1), id="offset-two"),
+])
+def test_a_goal_field_pinned(field: str, value: Any) -> None:
+    with pytest.raises(mjkin.GoalError, match=field):
+        FRAME_GOALS["position"](**{field: value})
+
+
 # ------------------------------------------------------------------------------------------------------ solutions
 @settings(max_examples=30, deadline=None)
 @given(model=st.sampled_from(sorted(FRAMES)), xyz=target_arrays((3,)),
