@@ -12,9 +12,9 @@ and its compiled residual, registered in :mod:`mjkin.goals.registry`.
 
 from __future__ import annotations
 
-import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -22,8 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
-from ..errors import GoalError
+from ..errors import GoalError, InputError
 from ..kinematics.qspace import all_finite
+from ..runtime.checks import check_array, check_number
 from ..runtime.jit import njit
 
 if TYPE_CHECKING:
@@ -37,6 +38,27 @@ METRES: Units = "metres"
 RADIANS: Units = "radians"
 METRES_AND_RADIANS: Units = "metres and radians"
 JOINT_UNITS: Units = "joint units"
+
+
+@contextmanager
+def _as_goal_error() -> Iterator[None]:
+    """An option check's :class:`InputError` raised as the :class:`GoalError` of a goal's field."""
+    try:
+        yield
+    except InputError as e:
+        raise GoalError(str(e)) from None
+
+
+def number(value: Any, what: str, minimum: float | None = None) -> float:
+    """A goal field as :func:`mjkin.runtime.checks.check_number` takes it: a finite real number, not a bool or text."""
+    with _as_goal_error():
+        return check_number(value, what, minimum)
+
+
+def numbers(value: ArrayLike, what: str) -> Array:
+    """A goal field as :func:`mjkin.runtime.checks.check_array` takes it: a float64 array of numbers, any shape."""
+    with _as_goal_error():
+        return check_array(value, what)
 
 
 def array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
@@ -132,12 +154,7 @@ class Goal:
     _cores: ClassVar[tuple[int, ...]] = ()  # number of non-batch axes of each target of targets()
 
     def __post_init__(self) -> None:
-        try:  # a string converts to a float but is no weight ("1" > 0 fails later)
-            ok = not isinstance(self.weight, (str, bytes)) and 0.0 <= float(self.weight) < math.inf  # NaN: False
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise GoalError(f"{type(self).__name__}: weight must be a finite number >= 0, got {self.weight!r}")
+        number(self.weight, f"{type(self).__name__} weight", 0.0)
         if not isinstance(self.priority, (int, np.integer)) or self.priority < 0:
             raise GoalError(f"{type(self).__name__}: priority must be an integer >= 0, got {self.priority!r}")
 

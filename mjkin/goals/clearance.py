@@ -23,7 +23,7 @@ from ..kinematics.geoms import (
 )
 from ..runtime.checks import check_count
 from ..runtime.jit import njit, njit_ir_inline, on_stack, unshared
-from .base import METRES, Array, Goal, Units
+from .base import METRES, Array, Goal, Units, number
 from .compiled import owned
 
 if TYPE_CHECKING:
@@ -63,10 +63,10 @@ class Clearance(Goal):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if isinstance(self.margin, bool) or not isinstance(self.margin, (int, float, np.number)) or not np.isfinite(
-                self.margin):
-            raise GoalError(f"Clearance margin must be a finite number of metres, got {self.margin!r}")
+        number(self.margin, "Clearance margin (m)")
         check_count(self.closest, "Clearance closest", 1)
+        if self.pairs is not None and not _pairs_given(self.pairs):
+            raise GoalError("Clearance pairs must be None or (geom1, geom2) pairs of geom names or ids")
 
     def key(self) -> tuple:  # noqa: D102
         pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
@@ -85,13 +85,7 @@ class Clearance(Goal):
         if self.pairs is None:
             pairs = contact_pairs(tree)
         else:
-            try:
-                given = [tuple(p) for p in self.pairs]
-            except TypeError:
-                given = [()]
-            if any(len(p) != 2 for p in given):
-                raise GoalError("Clearance pairs must be (geom1, geom2) pairs of geom names or ids")
-            pairs = np.array([[_geom(tree, a), _geom(tree, b)] for a, b in given], dtype=np.int64).reshape(-1, 2)
+            pairs = np.array([[_geom(tree, a), _geom(tree, b)] for a, b in self.pairs], dtype=np.int64).reshape(-1, 2)
         pairs = np.ascontiguousarray(pairs, dtype=np.int64)
         object.__setattr__(self, "_pairs", (tree, pairs))
         return pairs
@@ -104,6 +98,17 @@ class Clearance(Goal):
         """The margin and the broad phase's reach into ``data``."""
         data[:, 0] = float(self.margin)
         data[:, 1] = float(self.margin) + self.REACH
+
+
+def _pairs_given(pairs: object) -> bool:
+    """Whether ``pairs`` is a sequence of two-item pairs of geom names or ids."""
+    try:
+        given = [tuple(p) for p in pairs]  # type: ignore[attr-defined]
+    except TypeError:
+        return False
+    named = (str, int, np.integer)
+    return not isinstance(pairs, (str, bytes)) and all(
+        len(p) == 2 and all(isinstance(x, named) and not isinstance(x, bool) for x in p) for p in given)
 
 
 def bounded_geoms(geoms: Geoms, pairs: Index) -> Geoms:

@@ -20,7 +20,7 @@ from ..kinematics.com import com_kernel
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE
 from ..kinematics.jacobian import jacobian_kernel
 from ..runtime.jit import njit, njit_ir_inline
-from .base import METRES, Array, Goal, Units, array
+from .base import METRES, Array, Goal, Units, array, number
 from .compiled import owned
 
 if TYPE_CHECKING:
@@ -80,9 +80,7 @@ class Balance(Goal):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if isinstance(self.margin, bool) or not isinstance(self.margin, (int, float, np.number)) or not np.isfinite(
-                self.margin):
-            raise GoalError(f"CenterOfMass margin must be a finite number of metres, got {self.margin!r}")
+        number(self.margin, "CenterOfMass margin (m)")
         self.frames()
 
     def frames(self) -> list[tuple[str, tuple[float, ...] | None]]:

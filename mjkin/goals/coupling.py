@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import GoalError
 from ..kinematics.qspace import HINGE, SLIDE
 from ..runtime.jit import njit_ir_inline
-from .base import JOINT_UNITS, Array, Goal, Units
+from .base import JOINT_UNITS, Array, Goal, Units, number
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -33,6 +33,15 @@ class Coupling(Goal):
     common: ClassVar[bool] = True  # cheap: in the shared IK loop
     units: ClassVar[Units] = JOINT_UNITS
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.coefficients, Mapping):
+            raise GoalError("Coupling coefficients must be a mapping of joint name to number, got "
+                            f"{type(self.coefficients).__name__}")
+        for name, coef in self.coefficients.items():
+            number(coef, f"Coupling coefficient of {name!r}")
+        number(self.value, "Coupling value")
+
     def key(self) -> tuple:  # noqa: D102
         return super().key() + (tuple(self.coefficients.items()),)
 
@@ -45,8 +54,6 @@ class Coupling(Goal):
             j = tree.id(name, "joint")
             if tree.jnt_type[j] not in (HINGE, SLIDE):
                 raise GoalError(f"Coupling joint {name!r} must be a hinge or slide")
-            if not np.isfinite(coef):
-                raise GoalError(f"Coupling coefficient of {name!r} is not finite")
             c[tree.jnt_dofadr[j]] = coef
         return -1, np.eye(3), np.zeros(3), 0, c
 
@@ -56,8 +63,6 @@ class Coupling(Goal):
         return 1 if any(hinges) else 0
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:  # noqa: D102
-        if not np.isfinite(self.value):
-            raise GoalError("Coupling value is not finite")
         data[:, 0] = self.value
 
 

@@ -40,7 +40,8 @@ class Orientation(FrameGoal):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not self.axes or set(self.axes) - set(AXES) or len(set(self.axes)) != len(self.axes):
+        axes = self.axes
+        if not isinstance(axes, str) or not axes or set(axes) - set(AXES) or len(set(axes)) != len(axes):
             raise GoalError(f"Orientation axes must be one or more of 'x', 'y', 'z', got {self.axes!r}")
 
     def key(self) -> tuple:  # noqa: D102

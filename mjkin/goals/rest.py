@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike
 from ..errors import GoalError, MjkinError
 from ..kinematics.qspace import BALL, FREE, difference_kernel
 from ..runtime.jit import njit_ir_inline
-from .base import JOINT_UNITS, Array, Goal, Units, array
+from .base import JOINT_UNITS, Array, Goal, Units, array, numbers
 from .compiled import left_jacobian_inverse
 
 if TYPE_CHECKING:
@@ -37,6 +37,11 @@ class Rest(Goal):
     counted: ClassVar[bool] = False
     joint_target: ClassVar[bool] = True
     _batched: ClassVar[tuple[str, ...]] = ("q_rest",)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        numbers(self.q_rest, "Rest q_rest")
+        numbers(self.stiffness, "Rest stiffness")
 
     def key(self) -> tuple:  # noqa: D102
         return super().key() + (np.asarray(self.stiffness, dtype=float).tobytes(),)

@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike
 from ..errors import GoalError, MjkinError
 from ..kinematics.qspace import BALL, FREE, HINGE, SLIDE, difference_kernel
 from ..runtime.jit import njit_inline, njit_ir_inline
-from .base import JOINT_UNITS, Array, Goal, Units
+from .base import JOINT_UNITS, Array, Goal, Units, numbers
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -39,6 +39,11 @@ class StepLimit(Goal):
     hard: ClassVar[bool] = True
     joint_target: ClassVar[bool] = True
     _batched: ClassVar[tuple[str, ...]] = ("q_prev",)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        numbers(self.q_prev, "StepLimit q_prev")
+        numbers(self.max_step, "StepLimit max_step")
 
     def key(self) -> tuple:  # noqa: D102
         return super().key() + (np.asarray(self.max_step, dtype=float).tobytes(),)

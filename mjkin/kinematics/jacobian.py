@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
 from ..runtime import tier
+from ..runtime.checks import check_array
 from ..runtime.jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
 
@@ -89,7 +90,7 @@ def _joint_frame(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, b: 
 
 def check_offset(offset: ArrayLike) -> Array:
     """A point ``(3,)`` fixed in a frame, validated."""
-    off = np.asarray(offset, dtype=np.float64)
+    off = check_array(offset, "offset")
     if off.shape != (3,) or not np.all(np.isfinite(off)):
         raise InputError(f"offset must be 3 finite numbers (a point in the frame), got shape {off.shape}")
     return off

@@ -8,6 +8,7 @@ local frame (as ``mj_integratePos``). All functions take a leading batch shape.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -131,7 +132,13 @@ def _zero_quaternion(q: Array, quats: Index) -> bool:
 
 
 def _rng(rng: np.random.Generator | int | None) -> np.random.Generator:
-    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    if isinstance(rng, np.random.Generator):
+        return rng
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError):
+        raise InputError(f"rng must be a numpy Generator, a seed (a whole number >= 0) or None, got {rng!r:.40}") \
+            from None
 
 
 def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
@@ -185,6 +192,8 @@ def _batch_shape(n: object) -> tuple[int, ...]:
     dims = n if isinstance(n, tuple) else (n,)
     if not all(isinstance(d, (int, np.integer)) and not isinstance(d, bool) and d >= 0 for d in dims):
         raise InputError(f"n must be a count >= 0 or a shape tuple of them, got {n!r}")
+    if math.prod(int(d) for d in dims) >= 2**40:  # 8 TB of configurations: NumPy could not even index them
+        raise InputError(f"n = {n!r} asks for more configurations than any memory holds")
     return tuple(int(d) for d in dims)
 
 

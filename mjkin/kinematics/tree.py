@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from ..runtime import tier
+from ..runtime.checks import check_array
 from . import chain as chains
 from . import qspace
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
@@ -241,7 +242,7 @@ class Tree:
 
     def integrate(self, q: ArrayLike, v: ArrayLike) -> Array:
         """Move ``q (..., nq)`` along a velocity ``v (..., nv)`` for unit time (as ``mj_integratePos``)."""
-        return qspace.integrate(self, self.check_q(q), np.asarray(v, dtype=np.float64))
+        return qspace.integrate(self, self.check_q(q), check_array(v, "v"))
 
     def difference(self, q1: ArrayLike, q0: ArrayLike, periodic: bool = False) -> Array:
         """Velocity ``(..., nv)`` that takes ``q0`` to ``q1`` in unit time (as ``mj_differentiatePos``).
@@ -260,13 +261,14 @@ class Tree:
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
         T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
-        if T is None and not chains.is_ready() and np.ndim(q) == 1:  # a one-q pose before the compiled call
-            q = np.require(self.check_q(q), requirements=["C", "W"])
+        if T is not None:
+            return T
+        q = self.check_q(q)
+        if not chains.is_ready() and q.ndim == 1:  # a one-q pose before the compiled call
             T = np.empty((self.model.nbody, 4, 4))
-            if chains.one_pose(chains.chain_poses, self.bodies_chain, q, T):
+            if chains.one_pose(chains.chain_poses, self.bodies_chain, np.require(q, requirements=["C", "W"]), T):
                 return T
-            T = None
-        return self.kinematics(q).poses() if T is None else T
+        return self.kinematics(q).poses()
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""

@@ -33,6 +33,16 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
     return x
 
 
+def check_array(value: Any, what: str) -> np.ndarray:
+    """``value`` as a float64 array of any shape: numbers only (text, ragged lists and objects are refused)."""
+    try:
+        if isinstance(value, (str, bytes)):  # NumPy reads "1.5" as a number
+            raise ValueError
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be numbers (an array of them), got {shown(value, 40)}") from None
+
+
 def check_count(value: Any, what: str, least: int = 1, whole_floats: bool = False, most: int | None = None) -> int:
     """``value`` as an int: a whole number ``>= least`` and, if given, ``<= most`` (not a bool; a float only if
     ``whole_floats`` and whole).
