@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError
 from ..kinematics.tree import Tree
+from ..runtime.checks import check_count, check_number
 from ..runtime.files import atomic_path
 
 Array = NDArray[np.float64]
@@ -106,16 +107,16 @@ def workspace(tree: Tree, frame: str, n: int = 100_000, seed: int = 0, dexterous
     """
     from ..render import planar_axis
 
-    if int(n) < 2:
-        raise InputError(f"a workspace needs at least 2 samples, got {n}")
-    if not 0 < dexterous_fraction <= 1:
+    n = check_count(n, "workspace samples n", 2, whole_floats=True, most=100_000_000)
+    seed = check_count(seed, "workspace seed", 0, whole_floats=True)
+    if not 0 < check_number(dexterous_fraction, "dexterous_fraction") <= 1:
         raise InputError(f"dexterous_fraction must be in (0, 1], got {dexterous_fraction!r}")
     kind_, idx = tree.frame(frame, kind)  # type: ignore[arg-type]
     body = idx if kind_ == "body" else int(tree.site_body[idx])
     chain = sorted({int(tree.plan.dof_jnt[d]) for d in tree.body_dofs[body]})
     if not chain:
         raise InputError(f"no joint moves {frame!r}: its workspace is a single point")
-    q = tree.random_q(np.random.default_rng(seed), int(n))
+    q = tree.random_q(np.random.default_rng(seed), n)
     T = tree.pose(q, frame, kind_)
     pts, R = T[:, :3, 3], T[:, :3, :3]
     first = chain[0]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -132,6 +132,8 @@ class Problem:
         self.history = check_flag(history, "history")
         self.avoid_collisions = check_flag(avoid_collisions, "avoid_collisions")
         self.seed = None if seed is None else check_count(seed, "seed", 0, whole_floats=True)
+        if joints is not None and (isinstance(joints, (str, bytes)) or not isinstance(joints, Iterable)):
+            raise InputError(f"joints must be a list of joint names or None, got {joints!r:.40}")
         self.base, self.joints, self.root = base, None if joints is None else list(joints), root
         user = as_goals(goals)
         self.user_key = key_of(user)

@@ -10,8 +10,10 @@ from numpy.typing import ArrayLike
 
 from .. import goals as G
 from ..errors import InputError
+from ..goals.program import as_goals
 from ..ik import Problem
 from ..kinematics.tree import Tree, fingerprint
+from ..runtime.checks import check_array, check_number
 from ..runtime.progress import track
 from .trajectory import Trajectory
 
@@ -37,12 +39,14 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
     no frame-to-frame change exceeds it (the first frame's is from ``q0``), and a
     target further away is followed as far as that allows.
     """
-    pts = np.asarray(targets, float)
+    pts = check_array(targets, "targets")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")
-    if not smooth >= 0:
-        raise InputError(f"smooth must be a weight >= 0, got {smooth!r}")
+    smooth, fps = check_number(smooth, "smooth (a weight)", 0.0), check_number(fps, "fps", 0.0, strict=True)
+    extra = () if isinstance(extra, (list, tuple)) and not extra else as_goals(extra)
     q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
+    if q.ndim != 1:
+        raise InputError(f"q0 must be one configuration ({tree.nq},), got shape {q.shape}")
     out, ok = np.empty((len(pts), tree.nq)), np.empty(len(pts), bool)
     step = None if max_joint_speed is None else speed_step(tree, max_joint_speed, fps)
 
@@ -70,8 +74,6 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
                       frame=frame, targets=pts[:, None, :], success=ok, meta={"follow": {"timed_out": timed_out}})
 
 
-
-
 def speed_step(tree: Tree, max_joint_speed: ArrayLike, fps: float) -> np.ndarray:
     """The largest step per frame ``(njnt,)`` of each joint at ``max_joint_speed`` (one number or ``(njnt,)``).
 
@@ -85,6 +87,4 @@ def speed_step(tree: Tree, max_joint_speed: ArrayLike, fps: float) -> np.ndarray
                          f"{max_joint_speed!r}") from None
     if not np.all(speed > 0):
         raise InputError(f"max_joint_speed must be > 0 (rad/s, m/s), got {max_joint_speed!r}")
-    if not fps > 0:
-        raise InputError(f"fps must be > 0 with max_joint_speed, got {fps!r}")
-    return speed / float(fps)
+    return speed / check_number(fps, "fps", 0.0, strict=True)

@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError
 from ..kinematics.tree import Tree
+from ..runtime.checks import check_array, check_count, check_flag, check_number
 
 Array = NDArray[np.float64]
 
@@ -24,11 +25,14 @@ def interpolate(tree: Tree, times: ArrayLike, keyframes: ArrayLike, t: ArrayLike
     C² cubic spline when ``smooth``; ball and free-joint rotations by slerp
     between neighbouring keys. Keyframes are hit exactly; times outside are clamped.
     """
-    times = np.asarray(times, dtype=np.float64)
+    times = check_array(times, "times")
     keys = tree.check_q(keyframes, "keyframes")
-    if keys.ndim != 2 or len(keys) != len(times) or len(times) < 2 or np.any(np.diff(times) <= 0):
+    if keys.ndim != 2 or times.shape != (len(keys),) or len(times) < 2 or not np.all(np.diff(times) > 0):
         raise InputError("interpolate needs >= 2 keyframes (K, nq) with strictly increasing times (K,)")
-    t = np.clip(np.asarray(t, dtype=np.float64).ravel(), times[0], times[-1])
+    t = check_array(t, "t").ravel()
+    if not np.isfinite(t).all():
+        raise InputError("interpolate's times t must be finite")
+    t = np.clip(t, times[0], times[-1])
     i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
     u = (t - times[i]) / (times[i + 1] - times[i])
     lay = tree.layout
@@ -48,26 +52,27 @@ def interpolate(tree: Tree, times: ArrayLike, keyframes: ArrayLike, t: ArrayLike
 # ----------------------------------------------------------------------- paths
 def line(start: ArrayLike, end: ArrayLike, n: int) -> Array:
     """``n`` points evenly spaced from ``start`` to ``end``, ``(n, 3)``."""
-    return np.linspace(np.asarray(start, float), np.asarray(end, float), _count(n))
+    return np.linspace(point(start, "line start"), point(end, "line end"), _count(n))
 
 
 def circle(center: ArrayLike, radius: float, n: int, normal: ArrayLike = (0, 0, 1), turns: float = 1.0) -> Array:
     """``n`` points on a circle around ``center`` in the plane normal to ``normal``, ``(n, 3)``."""
-    nrm = np.asarray(normal, float)
-    if not np.isfinite(radius) or radius <= 0 or np.linalg.norm(nrm) < 1e-12:
-        raise InputError("circle needs a positive radius and a non-zero normal")
+    c, nrm = point(center, "circle center"), point(normal, "circle normal")
+    radius, turns = check_number(radius, "circle radius", 0.0, strict=True), check_number(turns, "circle turns")
+    if np.linalg.norm(nrm) < 1e-12:
+        raise InputError("circle needs a non-zero normal")
     nrm = nrm / np.linalg.norm(nrm)
     a = np.cross(nrm, [1.0, 0, 0] if abs(nrm[0]) < 0.9 else [0, 1.0, 0])
     a /= np.linalg.norm(a)
     b = np.cross(nrm, a)
     phi = np.linspace(0, 2 * np.pi * turns, _count(n))
-    return np.asarray(center, float) + radius * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b)
+    return c + radius * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b)
 
 
 def min_jerk(u: ArrayLike) -> Array:
     """Minimum-jerk timing ``10u³ − 15u⁴ + 6u⁵`` of ``u`` in [0, 1]: no speed or acceleration at either end."""
-    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
-    return np.clip(u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 0.0, 1.0)  # rounding may pass 1 by an ulp
+    x = np.clip(check_array(u, "u"), 0.0, 1.0)
+    return np.clip(x * x * x * (10.0 + x * (-15.0 + 6.0 * x)), 0.0, 1.0)  # rounding may pass 1 by an ulp
 
 
 def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None, corner: float = 0.0,
@@ -80,18 +85,17 @@ def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None, corner:
     it as far after; ``ease`` times the whole path with :func:`min_jerk` (at rest at
     both ends, no jump in speed anywhere).
     """
-    p = np.asarray(points, float)
+    p = check_array(points, "waypoints")
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or not np.isfinite(p).all():
         raise InputError(f"waypoints need at least two finite 3-D points, got shape {p.shape}")
-    if not (np.isfinite(corner) and corner >= 0):
-        raise InputError(f"corner must be a radius >= 0, got {corner!r}")
+    corner, ease = check_number(corner, "corner", 0.0), check_flag(ease, "ease")
     if times is not None and (corner > 0 or ease):
         raise InputError("waypoints: give times, or corner/ease (timed by the path's length), not both")
     if corner > 0:
         p = _rounded(p, corner)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]) if times is None \
-        else np.asarray(times, float)
-    if len(s) != len(p) or np.any(np.diff(s) <= 0):
+        else check_array(times, "waypoint times")
+    if s.shape != (len(p),) or not np.all(np.diff(s) > 0) or not np.isfinite(s).all():
         raise InputError("waypoint times must increase strictly, one per point")
     u = np.linspace(0.0, 1.0, _count(n))
     q = s[0] + (min_jerk(u) if ease else u) * (s[-1] - s[0])
@@ -118,9 +122,16 @@ def _rounded(p: Array, corner: float, per_arc: int = 24) -> Array:
 
 
 def _count(n: int) -> int:
-    if int(n) < 2:
-        raise InputError(f"a path needs at least 2 frames, got {n}")
-    return int(n)
+    """A path's frame count: a whole number from 2 to 10 million (hours of frames at 1 kHz)."""
+    return check_count(n, "a path's frame count n", 2, whole_floats=True, most=10_000_000)
+
+
+def point(value: ArrayLike, what: str) -> Array:
+    """A finite 3-D point or direction ``(3,)``."""
+    p = check_array(value, what)
+    if p.shape != (3,) or not np.isfinite(p).all():
+        raise InputError(f"{what} must be 3 finite numbers, got shape {p.shape}")
+    return p
 
 
 # ----------------------------------------------------------------- trajectories

@@ -144,7 +144,8 @@ def walk_cycle(tree: Tree, steps: int = 4, gait: Gait = WALK, rig: Rig = PRIMATE
         InputError: ``steps`` is not a whole number >= 1.
         UnknownNameError: a name of ``rig`` is not in the model.
     """
-    steps = check_count(steps, "walk_cycle steps", 1)
+    steps = check_count(steps, "walk_cycle steps", 1, most=10_000)
+    fps = check_number(fps, "walk_cycle fps", 0.0, strict=True)
     feet, pelvis, per = rig.feet, rig.pelvis, gait.frames_per_step
     q = tree.qpos0.copy()
     foot_T = {f: tree.pose(q, f, "body") for f in feet}

@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import InputError
 
@@ -33,7 +34,7 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
     return x
 
 
-def check_array(value: Any, what: str) -> np.ndarray:
+def check_array(value: Any, what: str) -> NDArray[np.float64]:
     """``value`` as a float64 array of any shape: numbers only (text, ragged lists and objects are refused)."""
     try:
         if isinstance(value, (str, bytes)):  # NumPy reads "1.5" as a number

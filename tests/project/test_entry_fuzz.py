@@ -31,6 +31,7 @@ from test_retarget import crouch_bvh
 
 import mjkin
 from mjkin import goals as G
+from mjkin import motion
 from mjkin.goals.program import compile_goals
 from mjkin.ik.methods import METHODS
 from mjkin.motion import bvh
@@ -343,6 +344,65 @@ def test_tree_methods_are_clean_or_raise_mjkin_error(call: str, value: Any) -> N
 def test_tree_method_pinned(call: str, value: Any, text: str) -> None:
     with pytest.raises(mjkin.InputError, match=re.escape(text)):
         TREE_CALLS[call](tree("arm7"), value)
+
+
+PATH = np.array([[0.5, 0.2, 0.0], [0.4, 0.3, 0.0]])
+MOTION_CALLS: dict[str, Callable[[Any], Any]] = {
+    "interpolate times": lambda v: motion.interpolate(tree("planar_3link"), v, np.zeros((2, 3)), [0.5]),
+    "interpolate t": lambda v: motion.interpolate(tree("planar_3link"), [0.0, 1.0], np.zeros((2, 3)), v),
+    "line n": lambda v: motion.line((0, 0, 0), (1, 0, 0), v),
+    "line start": lambda v: motion.line(v, (1, 0, 0), 3),
+    "circle radius": lambda v: motion.circle((0, 0, 0), v, 4),
+    "circle normal": lambda v: motion.circle((0, 0, 0), 1.0, 4, normal=v),
+    "circle turns": lambda v: motion.circle((0, 0, 0), 1.0, 4, turns=v),
+    "min_jerk": lambda v: motion.min_jerk(v),
+    "waypoints": lambda v: motion.waypoints(v, 5),
+    "waypoints times": lambda v: motion.waypoints(PATH, 5, times=v),
+    "waypoints corner": lambda v: motion.waypoints(PATH, 5, corner=v),
+    "follow targets": lambda v: motion.follow(tree("planar_3link"), "tip", v, timeout=0.1),
+    "follow fps": lambda v: motion.follow(tree("planar_3link"), "tip", PATH, fps=v, timeout=0.1),
+    "follow smooth": lambda v: motion.follow(tree("planar_3link"), "tip", PATH, smooth=v, timeout=0.1),
+    "follow q0": lambda v: motion.follow(tree("planar_3link"), "tip", PATH, q0=v, timeout=0.1),
+    "follow extra": lambda v: motion.follow(tree("planar_3link"), "tip", PATH, extra=v, timeout=0.1),
+    "walk_cycle fps": lambda v: motion.walk_cycle(tree("primate"), steps=1, fps=v),
+    "workspace n": lambda v: mjkin.workspace(tree("planar_3link"), "tip", n=v if not isinstance(v, int) or v < 5
+                                             else 50),
+    "workspace seed": lambda v: mjkin.workspace(tree("planar_3link"), "tip", n=50, seed=v),
+    "Problem joints": lambda v: mjkin.Problem(tree("arm7"), POSITION, joints=v),
+}
+
+
+@settings(max_examples=80, deadline=None)
+@given(call=st.sampled_from(sorted(MOTION_CALLS)), value=FIELD_VALUES)
+def test_motion_and_workspace_helpers_are_clean_or_raise_mjkin_error(call: str, value: Any) -> None:
+    """The paths, keyframes, follow, walk and workspace helpers given any one argument: an answer or a MjkinError."""
+    outcome(lambda: MOTION_CALLS[call](value))
+
+
+@pytest.mark.parametrize(("call", "value", "text"), [
+    pytest.param("interpolate times", None, "times", id="interpolate-None"),  # TypeError from np.diff
+    pytest.param("line n", "abc", "frame count", id="line-n-str"),  # ValueError from int()
+    pytest.param("line n", 2**70, "frame count", id="line-n-2**70"),  # OverflowError in linspace
+    pytest.param("circle normal", 1.0, "normal", id="circle-normal-scalar"),  # IndexError: nrm[0]
+    pytest.param("circle radius", "abc", "radius", id="circle-radius-str"),  # TypeError from np.isfinite
+    pytest.param("waypoints corner", None, "corner", id="corner-None"),  # TypeError from np.isfinite
+    pytest.param("follow fps", None, "fps", id="follow-fps-None"),  # TypeError: int / None
+    pytest.param("follow smooth", np.zeros(3), "smooth", id="follow-smooth-array"),  # an array's truth
+    pytest.param("follow q0", np.zeros((2, 3)), "q0", id="follow-q0-batch"),  # a batch of starts: an array's truth
+    pytest.param("follow extra", None, "goal", id="follow-extra-None"),  # TypeError: *None
+    pytest.param("workspace n", "abc", "n", id="workspace-n-str"),  # ValueError from int()
+    pytest.param("workspace seed", -1, "seed", id="workspace-seed-negative"),  # ValueError from SeedSequence
+    pytest.param("Problem joints", 1j, "joints", id="problem-joints-complex"),  # TypeError: not iterable
+])
+def test_motion_helper_pinned(call: str, value: Any, text: str) -> None:
+    with pytest.raises(mjkin.MjkinError, match=re.escape(text)):
+        MOTION_CALLS[call](value)
+
+
+def test_walk_cycle_refuses_steps_no_memory_holds() -> None:
+    """2**70 steps ran (a loop that would not end): now an InputError at once."""
+    with pytest.raises(mjkin.InputError, match="steps"):
+        motion.walk_cycle(tree("primate"), steps=2**70)
 
 
 # ------------------------------------------------------------------------------------------------------ solutions
