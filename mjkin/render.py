@@ -38,7 +38,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -48,7 +48,8 @@ from . import spatial
 from .errors import InputError, MjkinIOError
 from .kinematics.qspace import BALL, FREE, HINGE
 from .kinematics.tree import Tree
-from .runtime.files import atomic_path
+from .runtime.checks import check_count, check_number
+from .runtime.files import as_path, atomic_path
 from .runtime.progress import track
 from .scene import Scene
 
@@ -655,11 +656,21 @@ def _planes_cast_no_shadow(scene: mujoco.MjvScene) -> None:
             g.category = mujoco.mjtCatBit.mjCAT_DECOR
 
 
-def _check_size(width: int, height: int) -> None:
-    """Raise :class:`InputError` unless both sides are positive."""
-    if width <= 0 or height <= 0:
-        raise InputError(f"frame size must be positive, got {width}x{height}")
+MAX_SIDE = 16_384  # pixels: GL's largest offscreen framebuffer side on common drivers
 
+
+def _check_size(width: int, height: int) -> None:
+    """Raise :class:`InputError` unless both sides are whole numbers > 0."""
+    check_count(width, "frame width", 1, most=MAX_SIDE)
+    check_count(height, "frame height", 1, most=MAX_SIDE)
+
+
+def _pixels(value: Any) -> NDArray:
+    """``value`` as an array for the image checks (a ragged list as an empty one, which they refuse)."""
+    try:
+        return np.asarray(value)
+    except ValueError:
+        return np.zeros(0)
 
 
 def headless_gl() -> None:
@@ -800,6 +811,10 @@ def cameras(tree: Tree, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.fl
             names = [model.camera(i).name for i in range(model.ncam)]
             raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
         return [cam_id] * len(qs)
+    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool) and 0 <= camera < tree.model.ncam:
+        return [int(camera)] * len(qs)
+    if camera is not None and not isinstance(camera, mujoco.MjvCamera):
+        raise InputError(f"camera must be a mujoco.MjvCamera, a camera's name or id, or None, got {camera!r:.40}")
     if camera is not None:
         return [camera] * len(qs)
     return list(camera_path(tree, qs, points, aspect=aspect, view=view, follow=follow))
@@ -879,15 +894,19 @@ def write_video(images: Iterable[ArrayLike], path: str | os.PathLike[str], fps: 
             size, or odd sides in an ``.mp4`` (:func:`check_video_size`, checked on the first frame).
         MjkinIOError: the file cannot be written.
     """
-    target = Path(path)
+    target = as_path(path, "video path")
     gif = target.suffix.lower() == ".gif"
     if target.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"video file must end in {' or '.join(VIDEO_SUFFIXES)}, got {str(target)!r}")
-    it = iter(images)
+    fps = check_number(fps, "fps", 0.0, strict=True)
+    try:
+        it = iter(images)
+    except TypeError:
+        raise InputError(f"images must be an iterable of frames, got {type(images).__name__}") from None
     first = next(it, None)
     if first is None:
         raise InputError("no frames to write")
-    first = np.asarray(first)
+    first = _pixels(first)
     shape = first.shape
     if len(shape) != 3 or shape[2] != 3 or first.dtype != np.uint8:
         raise InputError(f"video frames must be RGB images (height, width, 3) of uint8, got {shape} of {first.dtype}")
@@ -896,7 +915,7 @@ def write_video(images: Iterable[ArrayLike], path: str | os.PathLike[str], fps: 
 
     with atomic_path(target) as tmp:
         writer = imageio_ffmpeg.write_frames(
-            str(tmp), (int(shape[1]), int(shape[0])), fps=float(fps), macro_block_size=1, ffmpeg_log_level="error",
+            str(tmp), (int(shape[1]), int(shape[0])), fps=fps, macro_block_size=1, ffmpeg_log_level="error",
             **({"codec": "gif", "pix_fmt_out": "pal8", "quality": None,
                 "output_params": ["-filter_complex", GIF_FILTER, "-loop", "0"]} if gif else
                {"codec": "libx264", "pix_fmt_out": "yuv420p", "quality": 7}))
@@ -919,7 +938,10 @@ def write_image(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
     """Write one frame as PNG (or any format imageio knows by the suffix), atomically."""
     import imageio.v2 as imageio
 
-    target = Path(path)
+    a = _pixels(image)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.dtype != np.uint8:
+        raise InputError(f"an image must be RGB or RGBA (height, width, 3 or 4) of uint8, got {a.shape} of {a.dtype}")
+    target = as_path(path, "image path")
     with atomic_path(target) as tmp:
-        imageio.imwrite(tmp, image)
+        imageio.imwrite(tmp, a)
     return target

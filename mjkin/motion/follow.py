@@ -42,7 +42,7 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
     pts = check_array(targets, "targets")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")
-    smooth, fps = check_number(smooth, "smooth (a weight)", 0.0), check_number(fps, "fps", 0.0, strict=True)
+    smooth, fps = check_number(smooth, "smooth", 0.0), check_number(fps, "fps", 0.0, strict=True)
     extra = () if isinstance(extra, (list, tuple)) and not extra else as_goals(extra)
     q = tree.qpos0.copy() if q0 is None else tree.check_q(q0, "q0").copy()
     if q.ndim != 1:

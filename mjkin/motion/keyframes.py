@@ -58,9 +58,9 @@ def line(start: ArrayLike, end: ArrayLike, n: int) -> Array:
 def circle(center: ArrayLike, radius: float, n: int, normal: ArrayLike = (0, 0, 1), turns: float = 1.0) -> Array:
     """``n`` points on a circle around ``center`` in the plane normal to ``normal``, ``(n, 3)``."""
     c, nrm = point(center, "circle center"), point(normal, "circle normal")
-    radius, turns = check_number(radius, "circle radius", 0.0, strict=True), check_number(turns, "circle turns")
-    if np.linalg.norm(nrm) < 1e-12:
-        raise InputError("circle needs a non-zero normal")
+    radius, turns = check_number(radius, "circle radius"), check_number(turns, "circle turns")
+    if radius <= 0 or np.linalg.norm(nrm) < 1e-12:
+        raise InputError("circle needs a positive radius and a non-zero normal")
     nrm = nrm / np.linalg.norm(nrm)
     a = np.cross(nrm, [1.0, 0, 0] if abs(nrm[0]) < 0.9 else [0, 1.0, 0])
     a /= np.linalg.norm(a)
@@ -123,7 +123,10 @@ def _rounded(p: Array, corner: float, per_arc: int = 24) -> Array:
 
 def _count(n: int) -> int:
     """A path's frame count: a whole number from 2 to 10 million (hours of frames at 1 kHz)."""
-    return check_count(n, "a path's frame count n", 2, whole_floats=True, most=10_000_000)
+    count = check_count(n, "a path's frame count", 0, whole_floats=True, most=10_000_000)
+    if count < 2:
+        raise InputError(f"a path needs at least 2 frames, got {count}")
+    return count
 
 
 def point(value: ArrayLike, what: str) -> Array:

@@ -14,7 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError, MjkinIOError
 from ..kinematics.qspace import BALL, HINGE, SLIDE
 from ..kinematics.tree import Tree, fingerprint
-from ..runtime.files import write_text
+from ..runtime.checks import check_array
+from ..runtime.files import as_path, write_text
 from . import journal
 
 Array = NDArray[np.float64]
@@ -98,6 +99,12 @@ class Trajectory:
     meta: dict = field(default_factory=dict)
     source: str = ""
 
+    def __post_init__(self) -> None:
+        self.times, self.q = check_array(self.times, "trajectory times"), check_array(self.q, "trajectory q")
+        if self.times.ndim != 1 or self.q.ndim != 2 or len(self.q) != len(self.times):
+            raise InputError(f"a trajectory needs times (T,) and q (T, nq) of the same T, got {self.times.shape} "
+                             f"and {self.q.shape}")
+
     @property
     def site(self) -> str | None:
         """The followed frame (deprecated: use ``frame``)."""
@@ -144,6 +151,7 @@ class Trajectory:
             MjkinIOError: the file is missing, unreadable, not JSON, or nested too deeply.
             InputError: a key is missing, or a value has the wrong type, shape or order (the message names it).
         """
+        path = as_path(path, "trajectory path")
         name = repr(str(path))
         try:
             doc = journal.script(path) if Path(path).suffix == ".jsonl" else json.loads(Path(path).read_text())

@@ -105,6 +105,13 @@ def check_writable(path: str | os.PathLike[str], suffixes: Sequence[str] = (), w
     return target
 
 
+def as_path(path: Any, what: str = "path") -> Path:
+    """``path`` (text or an ``os.PathLike`` of text) as a :class:`Path`; :class:`InputError` for anything else."""
+    if isinstance(path, str) or (isinstance(path, os.PathLike) and isinstance(os.fspath(path), str)):
+        return Path(path)
+    raise InputError(f"{what} must be a file path (str or pathlib.Path), got {type(path).__name__}")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it over ``path``, else delete it.
@@ -114,7 +121,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     first (:func:`remove_stale_temps`). Raises :class:`MjkinIOError` when the
     folder cannot be written.
     """
-    target = Path(path)
+    target = as_path(path)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise MjkinIOError(f"cannot write {str(target)!r}: folder {str(folder)!r} does not exist")

@@ -301,7 +301,7 @@ def test_follow_smoothing_keeps_a_comfort_pose_from_swinging_the_arm():
     assert smooth.jumps(tree).max() < 0.5 * rough.jumps(tree).max()
     np.testing.assert_allclose(smooth.targets[-1, 0], stops[-1])  # back home, and in a posture near home
     assert np.abs(smooth.q[-1] - tree.model.key_qpos[0]).max() < 0.05
-    with pytest.raises(mjkin.InputError, match="smooth must be a weight"):
+    with pytest.raises(mjkin.InputError, match="smooth must be a finite number >= 0"):
         motion.follow(tree, "ee", stops, smooth=-1.0)
 
 

@@ -19,6 +19,7 @@ import signal
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -31,7 +32,7 @@ from test_retarget import crouch_bvh
 
 import mjkin
 from mjkin import goals as G
-from mjkin import motion
+from mjkin import motion, render
 from mjkin.goals.program import compile_goals
 from mjkin.ik.methods import METHODS
 from mjkin.motion import bvh
@@ -403,6 +404,50 @@ def test_walk_cycle_refuses_steps_no_memory_holds() -> None:
     """2**70 steps ran (a loop that would not end): now an InputError at once."""
     with pytest.raises(mjkin.InputError, match="steps"):
         motion.walk_cycle(tree("primate"), steps=2**70)
+
+
+QS = np.zeros((2, 3))
+IMAGE = np.zeros((16, 16, 3), np.uint8)
+FILE_CALLS: dict[str, Callable[[Any, Path], Any]] = {
+    "frames qs": lambda v, d: list(render.frames(tree("planar_3link"), v, 32, 24)),
+    "frames width": lambda v, d: list(render.frames(tree("planar_3link"), QS, v if not isinstance(v, int) else 24, 24)),
+    "frames camera": lambda v, d: list(render.frames(tree("planar_3link"), QS, 32, 24, camera=v)),
+    "write_video fps": lambda v, d: render.write_video([IMAGE, IMAGE], d / "a.mp4", fps=v),
+    "write_video images": lambda v, d: render.write_video(v, d / "b.mp4"),
+    "write_video path": lambda v, d: render.write_video([IMAGE], v),
+    "write_image": lambda v, d: render.write_image(v, d / "c.png"),
+    "trajectory times": lambda v, d: motion.Trajectory(v, QS, "x").save(d / "t.json"),
+    "trajectory q": lambda v, d: motion.Trajectory(np.arange(2.0), v, "x").save(d / "t.json"),
+    "trajectory save": lambda v, d: motion.Trajectory(np.arange(2.0), QS, "x").save(v),
+    "trajectory load": lambda v, d: motion.Trajectory.load(v),
+}
+
+
+@settings(max_examples=60, deadline=None)
+@given(call=st.sampled_from(sorted(FILE_CALLS)), value=FIELD_VALUES)
+def test_render_and_file_helpers_are_clean_or_raise_mjkin_error(call: str, value: Any, tmp_path_factory:
+                                                                 pytest.TempPathFactory) -> None:
+    """Frames, videos, images and trajectory files given any one argument: an answer or a MjkinError."""
+    folder = tmp_path_factory.mktemp("files")
+    outcome(lambda: FILE_CALLS[call](value, folder))
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary file left behind
+
+
+@pytest.mark.parametrize(("call", "value", "text"), [
+    pytest.param("frames width", None, "width", id="width-None"),  # TypeError: None <= 0
+    pytest.param("frames camera", b"xy", "camera", id="camera-bytes"),  # TypeError inside MuJoCo
+    pytest.param("frames camera", 1.5, "camera", id="camera-float"),  # ValueError: camera id out of range
+    pytest.param("write_video fps", None, "fps", id="fps-None"),  # TypeError from float()
+    pytest.param("write_video fps", float("inf"), "fps", id="fps-inf"),  # OverflowError in imageio
+    pytest.param("write_video images", None, "images", id="images-None"),  # TypeError: not iterable
+    pytest.param("write_video path", None, "path", id="video-path-None"),  # TypeError from Path()
+    pytest.param("write_image", "abc", "image", id="image-str"),  # imageio's ValueError
+    pytest.param("trajectory times", None, "times", id="trajectory-times-None"),  # AttributeError at save
+    pytest.param("trajectory load", b"xy", "path", id="trajectory-load-bytes"),  # TypeError from Path()
+])
+def test_render_and_file_helper_pinned(call: str, value: Any, text: str, tmp_path: Path) -> None:
+    with pytest.raises(mjkin.MjkinError, match=re.escape(text)):
+        FILE_CALLS[call](value, tmp_path)
 
 
 # ------------------------------------------------------------------------------------------------------ solutions
