@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError
+from ..runtime.checks import check_array, check_choice, check_number
 
 Array = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
@@ -57,6 +58,16 @@ class Link:
     range: tuple[float, float] | None = None
     radius: float | None = None
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise InputError(f"a link's name must be a non-empty string, got {self.name!r:.40}")
+        if self.parent is not None and not isinstance(self.parent, str):
+            raise InputError(f"link {self.name!r}: parent must be a link's name or None, got {self.parent!r:.40}")
+        check_choice(self.joint, f"link {self.name!r} joint", JOINT_KINDS)
+        check_number(self.length, f"link {self.name!r} length")
+        if self.radius is not None:
+            check_number(self.radius, f"link {self.name!r} radius", 0.0, strict=True)
+
 
 def _num(x: ArrayLike) -> str:
     return " ".join(repr(float(v)) for v in np.ravel(x))
@@ -81,7 +92,7 @@ def _to_string(root: ET.Element) -> str:
 
 
 def _unit(v: ArrayLike, what: str) -> Array:
-    a = np.asarray(v, dtype=np.float64)
+    a = check_array(v, what)
     n = float(np.linalg.norm(a)) if a.shape == (3,) and np.all(np.isfinite(a)) else 0.0
     if n < 1e-12:
         raise InputError(f"{what} must be a non-zero finite 3-vector, got {v!r}")
@@ -93,6 +104,8 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
 
     The end-effector site ``ee`` is at the tip of link ``ee`` (default: the last link).
     """
+    if not isinstance(links, list | tuple) or not all(isinstance(lk, Link) for lk in links):
+        raise InputError(f"links must be a list of mjkin.build.Link records, got {type(links).__name__}")
     if not links:
         raise InputError("links_mjcf needs at least one link")
     by_name: dict[str, tuple[Link, ET.Element, Array]] = {}
@@ -101,8 +114,6 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
     for i, lk in enumerate(links):
         if lk.name in by_name:
             raise InputError(f"link name {lk.name!r} is used twice")
-        if lk.joint not in JOINT_KINDS:
-            raise InputError(f"link {lk.name!r}: joint must be one of {', '.join(JOINT_KINDS)}, not {lk.joint!r}")
         if lk.parent is not None and lk.parent not in by_name:
             known = ", ".join(repr(n) for n in by_name) or "none yet"
             raise InputError(f"link {lk.name!r}: parent {lk.parent!r} is not listed before it (links so far: {known})")
@@ -110,7 +121,7 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
             parent_el, at_default = world, np.zeros(3)
         else:
             _, parent_el, at_default = by_name[lk.parent]
-        at = at_default if lk.at is None else np.asarray(lk.at, dtype=np.float64)
+        at = at_default if lk.at is None else _point(lk.at, f"link {lk.name!r} at", (3,))
         tip = _unit(lk.direction, f"link {lk.name!r} direction") * float(lk.length)
         body = ET.SubElement(parent_el, "body", name=lk.name, pos=_num(at))
         if lk.joint != "fixed":
@@ -118,10 +129,10 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
             if lk.joint != "ball":
                 attrs["axis"] = _num(_unit(lk.axis, f"link {lk.name!r} axis"))
             if lk.range is not None:
-                attrs["range"] = _num(lk.range)
+                attrs["range"] = _num(_point(lk.range, f"link {lk.name!r} range", (2,)))
                 attrs["limited"] = "true"
             ET.SubElement(body, "joint", attrs)
-        radius = lk.radius if lk.radius is not None else 0.04 * max(abs(lk.length), 0.25)
+        radius = float(lk.radius) if lk.radius is not None else 0.04 * max(abs(lk.length), 0.25)
         geom = {"name": lk.name, "size": _num(radius), "rgba": _COLOURS[i % len(_COLOURS)]}
         if np.linalg.norm(tip) > 1e-9:
             ET.SubElement(body, "geom", geom, type="capsule", fromto=_num(np.concatenate([np.zeros(3), tip])))
@@ -140,17 +151,28 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
 def planar_chain(lengths: Sequence[float], ranges: Sequence[tuple[float, float] | None] | None = None,
                  name: str = "planar_chain") -> str:
     """MJCF of an n-link planar arm in the x–y plane: hinge ``j<i>`` about z, link ``link<i>`` along x."""
-    if len(lengths) == 0:
-        raise InputError("planar_chain needs at least one link length")
-    if ranges is not None and len(ranges) != len(lengths):
-        raise InputError(f"planar_chain: {len(ranges)} ranges for {len(lengths)} links")
+    sizes = check_array(lengths, "planar_chain lengths")
+    if sizes.ndim != 1 or len(sizes) == 0:
+        raise InputError(f"planar_chain needs at least one link length (a list of them), got shape {sizes.shape}")
+    if ranges is not None and not isinstance(ranges, list | tuple):
+        raise InputError(f"planar_chain ranges must be a list of (lo, hi) or None, got {type(ranges).__name__}")
+    if ranges is not None and len(ranges) != len(sizes):
+        raise InputError(f"planar_chain: {len(ranges)} ranges for {len(sizes)} links")
     links = [Link(name=f"link{i + 1}", parent=None if i == 0 else f"link{i}", length=float(L),
-                  range=None if ranges is None else ranges[i]) for i, L in enumerate(lengths)]
+                  range=None if ranges is None else ranges[i]) for i, L in enumerate(sizes)]
     return links_mjcf(links, name=name)
 
 
+def _point(value: ArrayLike, what: str, shape: tuple[int, ...]) -> Array:
+    """``value`` as finite numbers of ``shape``."""
+    a = check_array(value, what)
+    if a.shape != shape or not np.isfinite(a).all():
+        raise InputError(f"{what} must be {shape[0]} finite numbers, got shape {a.shape}")
+    return a
+
+
 def _dh_rows(rows: ArrayLike) -> Array:
-    a = np.asarray(rows, dtype=np.float64)
+    a = check_array(rows, "a DH table")
     if a.ndim != 2 or a.shape[1] != 4 or len(a) == 0 or not np.all(np.isfinite(a)):
         raise InputError(f"a DH table is an (n, 4) array of finite (a, alpha, d, theta) rows, got shape {a.shape}")
     return a
@@ -171,9 +193,8 @@ def _dh_fixed(row: Array, convention: str) -> tuple[Array, Array]:
 
 
 def _check_dh(rows: Array, joints: str, convention: str) -> None:
-    if convention not in ("standard", "modified"):
-        raise InputError(f"DH convention must be 'standard' or 'modified', not {convention!r}")
-    if len(joints) != len(rows) or set(joints) - {"R", "P"}:
+    check_choice(convention, "DH convention", ("standard", "modified"))
+    if not isinstance(joints, str) or len(joints) != len(rows) or set(joints) - {"R", "P"}:
         raise InputError(f"joints must be one letter R (revolute) or P (prismatic) per row, got {joints!r}")
 
 
@@ -194,7 +215,7 @@ def dh_chain(rows: ArrayLike, joints: str | None = None, convention: str = "stan
     The site ``ee`` is frame n of the table, so ``pose(q, "ee") == dh_fk(rows, q)``.
     """
     table = _dh_rows(rows)
-    kinds = joints or "R" * len(table)
+    kinds = "R" * len(table) if joints is None else joints
     _check_dh(table, kinds, convention)
     extent = float(np.sum(np.abs(table[:, [0, 2]]))) or 1.0
     root, parent = _document(name, extent)
@@ -231,9 +252,11 @@ def dh_chain(rows: ArrayLike, joints: str | None = None, convention: str = "stan
 def dh_fk(rows: ArrayLike, q: ArrayLike, joints: str | None = None, convention: str = "standard") -> Array:
     """Pose ``(..., 4, 4)`` of frame n of a DH table for joint values ``q (..., n)`` (plain numpy)."""
     table = _dh_rows(rows)
-    kinds = joints or "R" * len(table)
+    kinds = "R" * len(table) if joints is None else joints
     _check_dh(table, kinds, convention)
-    q = np.asarray(q, dtype=np.float64)
+    q = check_array(q, "q")
+    if q.ndim == 0 or q.shape[-1] != len(table):
+        raise InputError(f"q must hold one value per DH row (..., {len(table)}), got shape {q.shape}")
     T = np.broadcast_to(np.eye(4), q.shape[:-1] + (4, 4)).copy()
     for i, (row, kind) in enumerate(zip(table, kinds, strict=True)):
         a, alpha, d, theta = row

@@ -50,7 +50,7 @@ from ..kinematics.qspace import BALL, FREE
 from ..kinematics.tree import Tree, load, source_of
 from ..runtime import ray_session, tier
 from ..runtime.checks import check_choice, check_count
-from ..runtime.files import remove_stale_temps, write_text, write_with
+from ..runtime.files import as_path, remove_stale_temps, write_text, write_with
 from ..runtime.parallel import set_threads
 from ..runtime.progress import track
 from . import bvh
@@ -428,10 +428,14 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     if isinstance(options.get("scene"), str | os.PathLike):
         Terrain.load(options["scene"])  # a bad scene before any work (then cached by file, for forked workers too)
     _check_options(tree, options)
-    folder = Path(out)
+    folder = as_path(out, "out")
     if folder.exists() and not folder.is_dir():
         raise InputError(f"output {str(folder)!r} is a file; several clips need a folder (made if missing)")
-    jobs = find_clips([sources] if isinstance(sources, str | os.PathLike) else sources, folder)
+    if isinstance(sources, str | os.PathLike):
+        sources = [sources]
+    if not isinstance(sources, list | tuple):
+        raise InputError(f"sources must be a clip file or folder, or a list of them, got {type(sources).__name__}")
+    jobs = find_clips([as_path(s, "a source") for s in sources], folder)
     _check_outputs(jobs, folder, fmt)
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -37,7 +37,7 @@ def check_number(value: Any, what: str, minimum: float | None = None, strict: bo
 def check_array(value: Any, what: str) -> NDArray[np.float64]:
     """``value`` as a float64 array of any shape: numbers only (text, ragged lists and objects are refused)."""
     try:
-        if isinstance(value, (str, bytes)):  # NumPy reads "1.5" as a number
+        if value is None or isinstance(value, (str, bytes)):  # NumPy reads None as NaN and "1.5" as a number
             raise ValueError
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):

@@ -450,6 +450,54 @@ def test_render_and_file_helper_pinned(call: str, value: Any, text: str, tmp_pat
         FILE_CALLS[call](value, tmp_path)
 
 
+DH = np.array([[0.0, 0.3, 0.0, 0.0], [0.0, 0.2, 0.0, 0.0]])
+BUILD_CALLS: dict[str, Callable[[Any], Any]] = {
+    "planar_chain lengths": lambda v: mjkin.build.planar_chain(v),
+    "planar_chain ranges": lambda v: mjkin.build.planar_chain([0.5, 0.4], ranges=v),
+    "dh_chain rows": lambda v: mjkin.build.dh_chain(v),
+    "dh_chain joints": lambda v: mjkin.build.dh_chain(DH, joints=v),
+    "dh_chain convention": lambda v: mjkin.build.dh_chain(DH, convention=v),
+    "dh_fk q": lambda v: mjkin.build.dh_fk(DH, v),
+    "links_mjcf": lambda v: mjkin.build.links_mjcf(v),
+    **{f"Link {name}": (lambda v, name=name: mjkin.load(mjkin.build.links_mjcf(
+        [mjkin.build.Link("a"), mjkin.build.Link(**{"name": "b", "parent": "a", name: v})])))
+       for name in ("name", "parent", "joint", "axis", "length", "direction", "at", "range", "radius")},
+}
+
+
+@settings(max_examples=80, deadline=None)
+@given(call=st.sampled_from(sorted(BUILD_CALLS)), value=FIELD_VALUES)
+def test_model_builders_are_clean_or_raise_mjkin_error(call: str, value: Any) -> None:
+    """The chain builders (planar, DH, links) given any one argument or link field: MJCF text or a MjkinError."""
+    outcome(lambda: BUILD_CALLS[call](value))
+
+
+@pytest.mark.parametrize(("call", "value", "text"), [
+    pytest.param("planar_chain lengths", None, "lengths", id="planar-None"),  # TypeError: len(None)
+    pytest.param("planar_chain ranges", 1j, "ranges", id="planar-ranges-complex"),  # TypeError: len(1j)
+    pytest.param("dh_chain joints", np.zeros(2), "joints", id="dh-joints-array"),  # an array's truth
+    pytest.param("dh_chain convention", np.zeros(2), "convention", id="dh-convention-array"),
+    pytest.param("dh_fk q", None, "q", id="dh-fk-None"),  # IndexError: 0-d q
+    pytest.param("links_mjcf", "abc", "links", id="links-str"),  # AttributeError: str.length
+    pytest.param("Link name", None, "name", id="link-name-None"),  # TypeError from ElementTree
+    pytest.param("Link length", None, "length", id="link-length-None"),  # TypeError: abs(None)
+])
+def test_model_builder_pinned(call: str, value: Any, text: str) -> None:
+    with pytest.raises(mjkin.MjkinError, match=re.escape(text)):
+        BUILD_CALLS[call](value)
+
+
+@pytest.mark.parametrize(("kwargs", "text"), [
+    pytest.param({"sources": None}, "sources", id="sources-None"),  # TypeError: not iterable
+    pytest.param({"sources": [b"xy"]}, "source", id="sources-bytes"),  # TypeError from Path()
+    pytest.param({"out": None}, "out", id="out-None"),  # TypeError from Path()
+])
+def test_retarget_many_arguments_pinned(kwargs: dict[str, Any], text: str, tmp_path: Path) -> None:
+    args = {"sources": [], "out": tmp_path / "out", **kwargs}
+    with pytest.raises(mjkin.InputError, match=re.escape(text)):
+        mjkin.retarget_many(args["sources"], "primate", args["out"])
+
+
 # ------------------------------------------------------------------------------------------------------ solutions
 @settings(max_examples=30, deadline=None)
 @given(model=st.sampled_from(sorted(FRAMES)), xyz=target_arrays((3,)),
