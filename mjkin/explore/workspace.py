@@ -107,7 +107,9 @@ def workspace(tree: Tree, frame: str, n: int = 100_000, seed: int = 0, dexterous
     """
     from ..render import planar_axis
 
-    n = check_count(n, "workspace samples n", 2, whole_floats=True, most=100_000_000)
+    n = check_count(n, "workspace samples n", 0, whole_floats=True, most=100_000_000)
+    if n < 2:
+        raise InputError(f"a workspace needs at least 2 samples, got {n}")
     seed = check_count(seed, "workspace seed", 0, whole_floats=True)
     if not 0 < check_number(dexterous_fraction, "dexterous_fraction") <= 1:
         raise InputError(f"dexterous_fraction must be in (0, 1], got {dexterous_fraction!r}")

@@ -12,11 +12,11 @@ and its compiled residual, registered in :mod:`mjkin.goals.registry`.
 
 from __future__ import annotations
 
+import math
 import warnings
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from ..kinematics.tree import Kind, Tree
 
 Array = NDArray[np.float64]
+T = TypeVar("T")
 DATA = 12  # per-goal target numbers: [0:3] a point, [3:12] a rotation (row-major) or [3:6] a direction
 # what a kind's error is measured in, and so which tolerance judges it (Result.error's two columns)
 Units = Literal["metres", "radians", "metres and radians", "joint units"]
@@ -40,25 +41,22 @@ METRES_AND_RADIANS: Units = "metres and radians"
 JOINT_UNITS: Units = "joint units"
 
 
-@contextmanager
-def _as_goal_error() -> Iterator[None]:
-    """An option check's :class:`InputError` raised as the :class:`GoalError` of a goal's field."""
-    try:
-        yield
-    except InputError as e:
-        raise GoalError(str(e)) from None
-
-
 def number(value: Any, what: str, minimum: float | None = None) -> float:
     """A goal field as :func:`mjkin.runtime.checks.check_number` takes it: a finite real number, not a bool or text."""
-    with _as_goal_error():
-        return check_number(value, what, minimum)
+    return _as_goal_error(check_number, value, what, minimum)
 
 
 def numbers(value: ArrayLike, what: str) -> Array:
     """A goal field as :func:`mjkin.runtime.checks.check_array` takes it: a float64 array of numbers, any shape."""
-    with _as_goal_error():
-        return check_array(value, what)
+    return _as_goal_error(check_array, value, what)
+
+
+def _as_goal_error(check: Callable[..., T], *args: Any) -> T:
+    """``check(*args)``, its :class:`InputError` raised as the :class:`GoalError` of a goal's field."""
+    try:
+        return check(*args)
+    except InputError as e:
+        raise GoalError(str(e)) from None
 
 
 def array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
@@ -154,7 +152,9 @@ class Goal:
     _cores: ClassVar[tuple[int, ...]] = ()  # number of non-batch axes of each target of targets()
 
     def __post_init__(self) -> None:
-        number(self.weight, f"{type(self).__name__} weight", 0.0)
+        w = self.weight
+        if not (type(w) is float and 0.0 <= w < math.inf):  # the usual weight passes without a call
+            number(w, f"{type(self).__name__} weight", 0.0)
         if not isinstance(self.priority, (int, np.integer)) or self.priority < 0:
             raise GoalError(f"{type(self).__name__}: priority must be an integer >= 0, got {self.priority!r}")
 
