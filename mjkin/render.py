@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import spatial
 from .errors import InputError, MjkinIOError
 from .kinematics.qspace import BALL, FREE, HINGE
-from .kinematics.tree import Tree
+from .kinematics.tree import Tree, check_tree
 from .runtime.checks import check_count, check_number
 from .runtime.files import as_path, atomic_path
 from .runtime.progress import track
@@ -839,7 +839,7 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     staged (:class:`Stage`), its floor under it in every frame, or stands on ``terrain`` (the scene it was
     retargeted onto).
     """
-    qs = tree.check_q(qs)
+    qs = check_tree(tree).check_q(qs)
     if qs.ndim == 1:
         qs = qs[None]
     _check_size(width, height)

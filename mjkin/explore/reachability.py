@@ -33,7 +33,7 @@ from ..ik.evaluate import singular_values
 from ..ik.method import MAX_RESTARTS
 from ..ik.reasons import reach_bound
 from ..ik.solve import solve
-from ..kinematics.tree import FAR, Tree, fingerprint
+from ..kinematics.tree import FAR, Tree, check_tree, fingerprint
 from ..runtime.checks import check_count, check_number, shown
 from ..runtime.files import atomic_path
 
@@ -162,7 +162,7 @@ def reachability(tree: Tree, frame: str, *, resolution: float = 0.1, orientation
         MjkinIOError: the cache folder cannot be read or written.
     """
     res = check_number(resolution, "resolution (m)", 0, strict=True)
-    if res > FAR * (float(tree.model.stat.extent) or 1.0):
+    if res > FAR * (float(check_tree(tree).model.stat.extent) or 1.0):
         raise InputError(f"resolution (m) must be at most {FAR:g} model extents, got {res:g}")
     rots, axes = _orientations(orientations)
     n = check_count(samples, "samples", 2)

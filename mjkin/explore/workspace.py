@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from .. import spatial
 from ..errors import InputError, MjkinIOError
-from ..kinematics.tree import Tree
+from ..kinematics.tree import Tree, check_tree
 from ..runtime.checks import check_count, check_number
 from ..runtime.files import atomic_path
 
@@ -107,6 +107,7 @@ def workspace(tree: Tree, frame: str, n: int = 100_000, seed: int = 0, dexterous
     """
     from ..render import planar_axis
 
+    check_tree(tree)
     n = check_count(n, "workspace samples n", 0, whole_floats=True, most=100_000_000)
     if n < 2:
         raise InputError(f"a workspace needs at least 2 samples, got {n}")

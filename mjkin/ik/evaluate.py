@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..goals import Goal, Program, compile_goals
-from ..kinematics.tree import Tree
+from ..kinematics.tree import Tree, check_tree
 from .compiled import kernels
 
 Array = NDArray[np.float64]
@@ -37,7 +37,7 @@ def singular_values(tree: Tree, goals: Goal | Sequence[Goal], q: ArrayLike) -> N
     The smallest tends to zero at a singularity (a stretched arm);
     ``prod(s)`` is Yoshikawa's manipulability.
     """
-    prog = compile_goals(tree, goals)
+    prog = compile_goals(check_tree(tree), goals)
     q = tree.check_q(q)
     qs = np.ascontiguousarray(np.broadcast_to(q, (prog.B, tree.nq)) if q.ndim == 1 else q.reshape(-1, tree.nq))
     _, J, _ = evaluate_program(tree, prog, qs)

@@ -23,7 +23,7 @@ from ..goals import Clearance, Coupling, Goal, Pose, Program
 from ..goals.program import as_goals, encode, key_of, structure
 from ..kinematics import qspace
 from ..kinematics.qspace import FREE, NQ, NV, clip_kernel
-from ..kinematics.tree import Tree
+from ..kinematics.tree import Tree, check_tree
 from ..runtime import tier
 from ..runtime.cache import stamp, stored_array
 from ..runtime.checks import check_count, check_flag, check_number
@@ -117,7 +117,7 @@ class Problem:
                  tol: float = 1e-6, rot_tol: float = 1e-5, timeout: float | None = None, base: str | None = None,
                  joints: Sequence[str] | None = None, root: str | None = None, history: bool = False,
                  seed: int | None = 0, avoid_collisions: bool = False, **options: Any) -> None:
-        self.tree = tree
+        self.tree = check_tree(tree)
         self.method = method_of(method, options)
         self.method_name = self.method.name
         self.tol = check_number(tol, "tol", 0, strict=True)

@@ -376,6 +376,13 @@ def check_finite(model: mujoco.MjModel) -> None:
                              "every number of a body, joint, site and geom must be finite")
 
 
+def check_tree(tree: object) -> Tree:
+    """``tree`` if it is a :class:`Tree`, else :class:`InputError` saying what was given (an entry's first check)."""
+    if not isinstance(tree, Tree):
+        raise InputError(f"tree must be a mjkin.Tree (mjkin.load(name or path)), got {type(tree).__name__}")
+    return tree
+
+
 def fingerprint(tree: Tree) -> str:
     """A short hash of the kinematic structure (bodies, joints, limits, sites): same model, same print."""
     h = hashlib.sha256()

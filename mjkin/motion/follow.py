@@ -12,7 +12,7 @@ from .. import goals as G
 from ..errors import InputError
 from ..goals.program import as_goals
 from ..ik import Problem
-from ..kinematics.tree import Tree, fingerprint
+from ..kinematics.tree import Tree, check_tree, fingerprint
 from ..runtime.checks import check_array, check_number
 from ..runtime.progress import track
 from .trajectory import Trajectory
@@ -39,6 +39,7 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
     no frame-to-frame change exceeds it (the first frame's is from ``q0``), and a
     target further away is followed as far as that allows.
     """
+    check_tree(tree)
     pts = check_array(targets, "targets")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise InputError(f"targets must be (T, 3) points, got shape {pts.shape}")

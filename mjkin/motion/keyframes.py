@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError
-from ..kinematics.tree import Tree
+from ..kinematics.tree import Tree, check_tree
 from ..runtime.checks import check_array, check_count, check_flag, check_number
 
 Array = NDArray[np.float64]
@@ -26,7 +26,7 @@ def interpolate(tree: Tree, times: ArrayLike, keyframes: ArrayLike, t: ArrayLike
     between neighbouring keys. Keyframes are hit exactly; times outside are clamped.
     """
     times = check_array(times, "times")
-    keys = tree.check_q(keyframes, "keyframes")
+    keys = check_tree(tree).check_q(keyframes, "keyframes")
     if keys.ndim != 2 or times.shape != (len(keys),) or len(times) < 2 or not np.all(np.diff(times) > 0):
         raise InputError("interpolate needs >= 2 keyframes (K, nq) with strictly increasing times (K,)")
     t = check_array(t, "t").ravel()

@@ -10,7 +10,7 @@ from .. import goals as G
 from .. import spatial
 from ..errors import InputError
 from ..ik import Problem
-from ..kinematics.tree import Tree, fingerprint
+from ..kinematics.tree import Tree, check_tree, fingerprint
 from ..runtime.checks import check_count, check_number
 from .keyframes import Array, min_jerk
 from .trajectory import Trajectory
@@ -144,6 +144,7 @@ def walk_cycle(tree: Tree, steps: int = 4, gait: Gait = WALK, rig: Rig = PRIMATE
         InputError: ``steps`` is not a whole number >= 1.
         UnknownNameError: a name of ``rig`` is not in the model.
     """
+    check_tree(tree)
     steps = check_count(steps, "walk_cycle steps", 1, most=10_000)
     fps = check_number(fps, "walk_cycle fps", 0.0, strict=True)
     feet, pelvis, per = rig.feet, rig.pelvis, gait.frames_per_step

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
+import mujoco
 import numpy as np
 import pytest
 from hypothesis import assume, example, given, settings
@@ -496,6 +497,28 @@ def test_retarget_many_arguments_pinned(kwargs: dict[str, Any], text: str, tmp_p
     args = {"sources": [], "out": tmp_path / "out", **kwargs}
     with pytest.raises(mjkin.InputError, match=re.escape(text)):
         mjkin.retarget_many(args["sources"], "primate", args["out"])
+
+
+TREE_ENTRIES: dict[str, Callable[[Any], Any]] = {
+    "Problem": lambda t: mjkin.Problem(t, G.Position("tip", (0.5, 0.2, 0.0))),
+    "solve": lambda t: mjkin.solve(t, G.Position("tip", (0.5, 0.2, 0.0))),
+    "reachability": lambda t: mjkin.reachability(t, "tip"),
+    "workspace": lambda t: mjkin.workspace(t, "tip", n=10),
+    "follow": lambda t: motion.follow(t, "tip", PATH),
+    "walk_cycle": lambda t: motion.walk_cycle(t),
+    "interpolate": lambda t: motion.interpolate(t, [0.0, 1.0], np.zeros((2, 3)), [0.5]),
+    "frames": lambda t: list(render.frames(t, np.zeros((1, 3)))),
+    "singular_values": lambda t: mjkin.singular_values(t, G.Position("tip", (0.5, 0.2, 0.0)), np.zeros(3)),
+}
+
+
+@pytest.mark.parametrize("entry", sorted(TREE_ENTRIES))
+@pytest.mark.parametrize("given", [None, "planar_3link", mujoco.MjModel.from_xml_string("<mujoco/>")],
+                         ids=["None", "a-name", "an-MjModel"])
+def test_an_entry_given_something_else_than_a_tree_says_so(entry: str, given: Any) -> None:
+    """Each raised AttributeError ('NoneType' object has no attribute 'nv', 'str' ... 'check_q')."""
+    with pytest.raises(mjkin.InputError, match=r"^tree must be a mjkin\.Tree \(mjkin\.load\(name or path\)\), got "):
+        TREE_ENTRIES[entry](given)
 
 
 # ------------------------------------------------------------------------------------------------------ solutions
