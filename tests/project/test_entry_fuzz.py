@@ -409,18 +409,19 @@ def test_walk_cycle_refuses_steps_no_memory_holds() -> None:
 
 QS = np.zeros((2, 3))
 IMAGE = np.zeros((16, 16, 3), np.uint8)
+# text given as a path is taken inside the test's folder: the fuzz writes nothing where the suite runs
 FILE_CALLS: dict[str, Callable[[Any, Path], Any]] = {
     "frames qs": lambda v, d: list(render.frames(tree("planar_3link"), v, 32, 24)),
     "frames width": lambda v, d: list(render.frames(tree("planar_3link"), QS, v if not isinstance(v, int) else 24, 24)),
     "frames camera": lambda v, d: list(render.frames(tree("planar_3link"), QS, 32, 24, camera=v)),
     "write_video fps": lambda v, d: render.write_video([IMAGE, IMAGE], d / "a.mp4", fps=v),
     "write_video images": lambda v, d: render.write_video(v, d / "b.mp4"),
-    "write_video path": lambda v, d: render.write_video([IMAGE], v),
+    "write_video path": lambda v, d: render.write_video([IMAGE], d / v if isinstance(v, str) else v),
     "write_image": lambda v, d: render.write_image(v, d / "c.png"),
     "trajectory times": lambda v, d: motion.Trajectory(v, QS, "x").save(d / "t.json"),
     "trajectory q": lambda v, d: motion.Trajectory(np.arange(2.0), v, "x").save(d / "t.json"),
-    "trajectory save": lambda v, d: motion.Trajectory(np.arange(2.0), QS, "x").save(v),
-    "trajectory load": lambda v, d: motion.Trajectory.load(v),
+    "trajectory save": lambda v, d: motion.Trajectory(np.arange(2.0), QS, "x").save(d / v if isinstance(v, str) else v),
+    "trajectory load": lambda v, d: motion.Trajectory.load(d / v if isinstance(v, str) else v),
 }
 
 
