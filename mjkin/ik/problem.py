@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import weakref
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -132,9 +132,7 @@ class Problem:
         self.history = check_flag(history, "history")
         self.avoid_collisions = check_flag(avoid_collisions, "avoid_collisions")
         self.seed = None if seed is None else check_count(seed, "seed", 0, whole_floats=True)
-        if joints is not None and (isinstance(joints, (str, bytes)) or not isinstance(joints, Iterable)):
-            raise InputError(f"joints must be a list of joint names or None, got {joints!r:.40}")
-        self.base, self.joints, self.root = base, None if joints is None else list(joints), root
+        self.base, self.joints, self.root = base, None if joints is None else _names(joints, "joints"), root
         user = as_goals(goals)
         self.user_key = key_of(user)
         if root is not None:  # a planted body: a top-priority pose goal, its target set from each q0
@@ -313,3 +311,13 @@ class Problem:
         history = History(q[:, None].copy(), worst[:, None].copy()) if self.history else None
         return package(prog, q, err, zeros, status, zeros, self.tol, self.rot_tol, self.method_name, history,
                        self.tree)
+
+
+def _names(value: Any, what: str) -> list:
+    """``value`` as a list of names; :class:`InputError` for text (one name is ``[name]``) or what does not iterate."""
+    try:
+        if isinstance(value, (str, bytes)):
+            raise TypeError
+        return list(value)
+    except TypeError:  # a number, an object, a 0-d array
+        raise InputError(f"{what} must be a list of names or None, got {value!r:.40}") from None

@@ -376,6 +376,7 @@ MOTION_CALLS: dict[str, Callable[[Any], Any]] = {
 
 @settings(max_examples=80, deadline=None)
 @given(call=st.sampled_from(sorted(MOTION_CALLS)), value=FIELD_VALUES)
+@example(call="Problem joints", value=np.array(0.0))  # iterable to isinstance, TypeError to list()
 def test_motion_and_workspace_helpers_are_clean_or_raise_mjkin_error(call: str, value: Any) -> None:
     """The paths, keyframes, follow, walk and workspace helpers given any one argument: an answer or a MjkinError."""
     outcome(lambda: MOTION_CALLS[call](value))
