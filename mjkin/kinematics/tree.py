@@ -261,14 +261,14 @@ class Tree:
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
         T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
-        if T is not None:
-            return T
-        q = self.check_q(q)
-        if not chains.is_ready() and q.ndim == 1:  # a one-q pose before the compiled call
+        if T is None and not chains.is_ready():  # a one-q pose before the compiled call
+            q = self.check_q(q)
             T = np.empty((self.model.nbody, 4, 4))
-            if chains.one_pose(chains.chain_poses, self.bodies_chain, np.require(q, requirements=["C", "W"]), T):
+            if q.ndim == 1 and chains.one_pose(chains.chain_poses, self.bodies_chain,
+                                               np.require(q, requirements=["C", "W"]), T):
                 return T
-        return self.kinematics(q).poses()
+            T = None
+        return self.kinematics(q).poses() if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
