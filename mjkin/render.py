@@ -811,7 +811,9 @@ def cameras(tree: Tree, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.fl
             names = [model.camera(i).name for i in range(model.ncam)]
             raise InputError(f"unknown camera {camera!r}; the model's cameras: {', '.join(names) or 'none'}")
         return [cam_id] * len(qs)
-    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool) and 0 <= camera < tree.model.ncam:
+    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool):
+        if not 0 <= camera < tree.model.ncam:
+            raise InputError(f"camera id {camera} is not one of the model's {tree.model.ncam} cameras")
         return [int(camera)] * len(qs)
     if camera is not None and not isinstance(camera, mujoco.MjvCamera):
         raise InputError(f"camera must be a mujoco.MjvCamera, a camera's name or id, or None, got {camera!r:.40}")

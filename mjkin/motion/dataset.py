@@ -431,11 +431,12 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     folder = as_path(out, "out")
     if folder.exists() and not folder.is_dir():
         raise InputError(f"output {str(folder)!r} is a file; several clips need a folder (made if missing)")
-    if isinstance(sources, str | os.PathLike):
-        sources = [sources]
-    if not isinstance(sources, list | tuple):
-        raise InputError(f"sources must be a clip file or folder, or a list of them, got {type(sources).__name__}")
-    jobs = find_clips([as_path(s, "a source") for s in sources], folder)
+    try:
+        given = [sources] if isinstance(sources, str | os.PathLike) else list(sources)
+    except TypeError:
+        raise InputError(f"sources must be a clip file or folder, or a list of them, got {type(sources).__name__}") \
+            from None
+    jobs = find_clips([as_path(s, "a source") for s in given], folder)
     _check_outputs(jobs, folder, fmt)
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -440,6 +440,7 @@ def test_render_and_file_helpers_are_clean_or_raise_mjkin_error(call: str, value
     pytest.param("frames width", None, "width", id="width-None"),  # TypeError: None <= 0
     pytest.param("frames camera", b"xy", "camera", id="camera-bytes"),  # TypeError inside MuJoCo
     pytest.param("frames camera", 1.5, "camera", id="camera-float"),  # ValueError: camera id out of range
+    pytest.param("frames camera", 5, "camera id 5", id="camera-id-out-of-range"),  # MuJoCo's ValueError
     pytest.param("write_video fps", None, "fps", id="fps-None"),  # TypeError from float()
     pytest.param("write_video fps", float("inf"), "fps", id="fps-inf"),  # OverflowError in imageio
     pytest.param("write_video images", None, "images", id="images-None"),  # TypeError: not iterable
