@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import GoalError, InputError
 from ..kinematics.qspace import all_finite
-from ..runtime.checks import check_array, check_number
+from ..runtime.checks import check_array, check_number, check_vector
 from ..runtime.jit import njit
 
 if TYPE_CHECKING:
@@ -278,9 +278,7 @@ class FrameGoal(Goal):
         if self.kind is not None and not (isinstance(self.kind, str) and self.kind in ("site", "body")):
             raise GoalError(f"{name}: kind must be 'site', 'body' or None, got {self.kind!r}")
         if self.offset is not None:  # kept as three floats: hashable, and checked once
-            offset = array(self.offset, (3,), f"{name} offset")
-            if offset.shape != (3,):
-                raise GoalError(f"{name} offset has shape {offset.shape}; expected (3,)")
+            offset = _as_goal_error(check_vector, self.offset, f"{name} offset")
             object.__setattr__(self, "offset", tuple(offset.tolist()))
 
     def key(self) -> tuple:  # noqa: D102

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError
-from ..runtime.checks import check_array, check_choice, check_number
+from ..runtime.checks import check_array, check_choice, check_number, check_vector
 
 Array = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
@@ -121,7 +121,7 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
             parent_el, at_default = world, np.zeros(3)
         else:
             _, parent_el, at_default = by_name[lk.parent]
-        at = at_default if lk.at is None else _point(lk.at, f"link {lk.name!r} at", (3,))
+        at = at_default if lk.at is None else check_vector(lk.at, f"link {lk.name!r} at")
         tip = _unit(lk.direction, f"link {lk.name!r} direction") * float(lk.length)
         body = ET.SubElement(parent_el, "body", name=lk.name, pos=_num(at))
         if lk.joint != "fixed":
@@ -129,7 +129,7 @@ def links_mjcf(links: Sequence[Link], name: str = "chain", ee: str | None = None
             if lk.joint != "ball":
                 attrs["axis"] = _num(_unit(lk.axis, f"link {lk.name!r} axis"))
             if lk.range is not None:
-                attrs["range"] = _num(_point(lk.range, f"link {lk.name!r} range", (2,)))
+                attrs["range"] = _num(check_vector(lk.range, f"link {lk.name!r} range", 2))
                 attrs["limited"] = "true"
             ET.SubElement(body, "joint", attrs)
         radius = float(lk.radius) if lk.radius is not None else 0.04 * max(abs(lk.length), 0.25)
@@ -161,14 +161,6 @@ def planar_chain(lengths: Sequence[float], ranges: Sequence[tuple[float, float] 
     links = [Link(name=f"link{i + 1}", parent=None if i == 0 else f"link{i}", length=float(L),
                   range=None if ranges is None else ranges[i]) for i, L in enumerate(sizes)]
     return links_mjcf(links, name=name)
-
-
-def _point(value: ArrayLike, what: str, shape: tuple[int, ...]) -> Array:
-    """``value`` as finite numbers of ``shape``."""
-    a = check_array(value, what)
-    if a.shape != shape or not np.isfinite(a).all():
-        raise InputError(f"{what} must be {shape[0]} finite numbers, got shape {a.shape}")
-    return a
 
 
 def _dh_rows(rows: ArrayLike) -> Array:

@@ -8,8 +8,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
+from ..runtime.checks import check_vector
 from .fk import Bodies, fk_kernel, frames_world, moved, to_poses
-from .jacobian import check_offset, jacobian_kernel
+from .jacobian import jacobian_kernel
 
 Array = NDArray[np.float64]
 
@@ -94,5 +95,5 @@ def point_jacobian(frames: Frames, body: int, point: Array) -> Array:
 def frame_jacobian(frames: Frames, kind: str, i: int, offset: ArrayLike | None = None) -> Array:
     """Jacobian ``(B, 6, nv)`` at a site/body origin, or at ``offset (3,)`` in its local frame."""
     body, _, _ = frames.local_frame(kind, i)
-    _, x = frames.frame(kind, i, None if offset is None else check_offset(offset))
+    _, x = frames.frame(kind, i, None if offset is None else check_vector(offset, "offset"))
     return point_jacobian(frames, body, x)

@@ -12,11 +12,9 @@ equals ``mj_jac`` stacked ``[jacp; jacr]``.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from ..errors import InputError
 from ..runtime import tier
-from ..runtime.checks import check_array
 from ..runtime.jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
 
@@ -86,14 +84,6 @@ def _joint_frame(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, b: 
     R, X, k = (inner_rot, inner_pos, s) if s >= 0 else (rot, pos, body)
     return (R[b, k, 0, 0], R[b, k, 0, 1], R[b, k, 0, 2], R[b, k, 1, 0], R[b, k, 1, 1], R[b, k, 1, 2],
             R[b, k, 2, 0], R[b, k, 2, 1], R[b, k, 2, 2], X[b, k, 0], X[b, k, 1], X[b, k, 2])
-
-
-def check_offset(offset: ArrayLike) -> Array:
-    """A point ``(3,)`` fixed in a frame, validated."""
-    off = check_array(offset, "offset")
-    if off.shape != (3,) or not np.all(np.isfinite(off)):
-        raise InputError(f"offset must be 3 finite numbers (a point in the frame), got shape {off.shape}")
-    return off
 
 
 @njit

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
 from ..runtime import tier
-from ..runtime.checks import check_array
+from ..runtime.checks import check_array, check_vector
 from . import chain as chains
 from . import qspace
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
@@ -27,7 +27,7 @@ from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
 from .frames import Frames, forward
 from .geoms import Geoms, geom_arrays
-from .jacobian import check_offset, frame_jacobian_one
+from .jacobian import frame_jacobian_one
 
 Array = NDArray[np.float64]
 Kind = Literal["body", "joint", "site"]
@@ -306,7 +306,7 @@ class Tree:
         body, local = self.frame_body(name, kind)
         J = np.empty((6, self.nv))
         frame_jacobian_one(self.kin, np.ascontiguousarray(q).reshape(1, -1), body,
-                           local if offset is None else moved(local, check_offset(offset)), J)
+                           local if offset is None else moved(local, check_vector(offset, "offset")), J)
         return J
 
     def com(self, q: ArrayLike) -> Array:

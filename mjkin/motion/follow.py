@@ -78,8 +78,10 @@ def follow(tree: Tree, frame: str, targets: ArrayLike, q0: ArrayLike | None = No
 def speed_step(tree: Tree, max_joint_speed: ArrayLike, fps: float) -> np.ndarray:
     """The largest step per frame ``(njnt,)`` of each joint at ``max_joint_speed`` (one number or ``(njnt,)``).
 
+    ``fps`` is :func:`follow`'s, checked there (> 0).
+
     Raises:
-        InputError: a speed that is not one number or one per joint, or not > 0; an fps not > 0.
+        InputError: a speed that is not one number or one per joint, or not > 0.
     """
     try:
         speed = np.broadcast_to(np.asarray(max_joint_speed, dtype=np.float64), (tree.njnt,))
@@ -88,4 +90,4 @@ def speed_step(tree: Tree, max_joint_speed: ArrayLike, fps: float) -> np.ndarray
                          f"{max_joint_speed!r}") from None
     if not np.all(speed > 0):
         raise InputError(f"max_joint_speed must be > 0 (rad/s, m/s), got {max_joint_speed!r}")
-    return speed / check_number(fps, "fps", 0.0, strict=True)
+    return speed / fps

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import spatial
 from ..errors import InputError
 from ..kinematics.tree import Tree, check_tree
-from ..runtime.checks import check_array, check_count, check_flag, check_number
+from ..runtime.checks import check_array, check_count, check_flag, check_number, check_vector
 
 Array = NDArray[np.float64]
 
@@ -52,12 +52,12 @@ def interpolate(tree: Tree, times: ArrayLike, keyframes: ArrayLike, t: ArrayLike
 # ----------------------------------------------------------------------- paths
 def line(start: ArrayLike, end: ArrayLike, n: int) -> Array:
     """``n`` points evenly spaced from ``start`` to ``end``, ``(n, 3)``."""
-    return np.linspace(point(start, "line start"), point(end, "line end"), _count(n))
+    return np.linspace(check_vector(start, "line start"), check_vector(end, "line end"), _count(n))
 
 
 def circle(center: ArrayLike, radius: float, n: int, normal: ArrayLike = (0, 0, 1), turns: float = 1.0) -> Array:
     """``n`` points on a circle around ``center`` in the plane normal to ``normal``, ``(n, 3)``."""
-    c, nrm = point(center, "circle center"), point(normal, "circle normal")
+    c, nrm = check_vector(center, "circle center"), check_vector(normal, "circle normal")
     radius, turns = check_number(radius, "circle radius"), check_number(turns, "circle turns")
     if radius <= 0 or np.linalg.norm(nrm) < 1e-12:
         raise InputError("circle needs a positive radius and a non-zero normal")
@@ -127,14 +127,6 @@ def _count(n: int) -> int:
     if count < 2:
         raise InputError(f"a path needs at least 2 frames, got {count}")
     return count
-
-
-def point(value: ArrayLike, what: str) -> Array:
-    """A finite 3-D point or direction ``(3,)``."""
-    p = check_array(value, what)
-    if p.shape != (3,) or not np.isfinite(p).all():
-        raise InputError(f"{what} must be 3 finite numbers, got shape {p.shape}")
-    return p
 
 
 # ----------------------------------------------------------------- trajectories

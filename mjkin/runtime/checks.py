@@ -44,6 +44,14 @@ def check_array(value: Any, what: str) -> NDArray[np.float64]:
         raise InputError(f"{what} must be numbers (an array of them), got {shown(value, 40)}") from None
 
 
+def check_vector(value: Any, what: str, n: int = 3) -> NDArray[np.float64]:
+    """``value`` as ``n`` finite numbers ``(n,)``: a point, a direction, a range."""
+    a = check_array(value, what)
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise InputError(f"{what} must be {n} finite numbers, got shape {a.shape}")
+    return a
+
+
 def check_count(value: Any, what: str, least: int = 1, whole_floats: bool = False, most: int | None = None) -> int:
     """``value`` as an int: a whole number ``>= least`` and, if given, ``<= most`` (not a bool; a float only if
     ``whole_floats`` and whole).
