@@ -261,6 +261,8 @@ class Tree:
     def fk(self, q: ArrayLike) -> Array:
         """World pose of every body, ``(..., nbody, 4, 4)``; index = MuJoCo body id, 0 = world."""
         T = poses_of(self.bodies_chain, q)  # one compiled call for a plain 1-D q, which checks it too
+        if T is None:  # a few rows: the same call for each
+            T = chains.rows_of(poses_of, self.bodies_chain, q)
         if T is None and not chains.is_ready():  # a one-q pose before the compiled call
             q = self.check_q(q)
             T = np.empty((self.model.nbody, 4, 4))
@@ -276,13 +278,16 @@ class Tree:
             chain = self.chains.get((name, kind))  # a frame seen before
         except TypeError:  # an unhashable name or kind is no frame: the checked path below says so
             chain = None
-        if chain is not None and (T := pose_of(chain, q)) is not None:
-            return T  # one compiled call for a plain 1-D q, which checks it too (else the path below says why)
+        if chain is not None:  # one compiled call for a plain 1-D q (or one a row of a few), which checks it too
+            if (T := pose_of(chain, q)) is not None or (T := chains.rows_of(pose_of, chain, q)) is not None:
+                return T  # (else the path below says why)
         q = self.check_q(q)
         if q.ndim == 1:  # the one-q entry, compiled (or loaded) on the first one-q pose, or meanwhile interpreted
             T = np.empty((4, 4))
             if chains.one_pose(chain_pose, self._chain(name, kind), np.require(q, requirements=["C", "W"]), T):
                 return T
+        elif (T := chains.rows_of(pose_of, self._chain(name, kind), q)) is not None:  # a few rows: the same call each
+            return T
         return self.kinematics(q).pose(*self.frame(name, kind))  # a batch (or a chain too long for chain_pose)
 
     def _chain(self, name: str, kind: Kind | None) -> Array:

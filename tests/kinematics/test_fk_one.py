@@ -87,6 +87,26 @@ def one_q_equals_the_batch_and_mujoco(tree: mjkin.Tree, seed: int, data: st.Data
     np.testing.assert_array_equal(T[3], [0.0, 0.0, 0.0, 1.0])
 
 
+@given(model=st.sampled_from(MODELS), seed=st.integers(0, 2**32 - 1), path=PATHS, data=st.data())
+def test_a_few_rows_are_the_batch_bit_for_bit_and_a_bad_row_its_error(model, seed, path, data):
+    """Up to ``chain.SMALL_ROWS`` rows take the short path row by row (one more: the batched path)."""
+    tree = tree_of(model)
+    name, kind = data.draw(st.sampled_from(frames_of(tree)), label="frame")
+    n = data.draw(st.integers(1, chain.SMALL_ROWS + 1), label="rows")
+    Q = tree.random_q(np.random.default_rng(seed), n)
+    with short_path(path):
+        tree.pose(Q[0], name, kind)  # the frame's chain is made (else its first small batch makes it)
+        batch = tree.kinematics(Q)
+        np.testing.assert_array_equal(tree.fk(Q), batch.poses())
+        np.testing.assert_array_equal(tree.pose(Q, name, kind), batch.pose(*tree.frame(name, kind)))
+        # the short path answers those (not the batched one behind it)
+        assert (chain.rows_of(tree_module.poses_of, tree.bodies_chain, Q) is not None) == (n <= chain.SMALL_ROWS)
+        row, at = data.draw(st.integers(0, n - 1), label="bad row"), data.draw(st.integers(0, tree.nq - 1), label="at")
+        Q[row, at] = np.nan
+        expected = _error(lambda: tree.check_q(Q))
+        assert _error(lambda: tree.fk(Q)) == expected and _error(lambda: tree.pose(Q, name, kind)) == expected
+
+
 def _error(call):  # type: ignore[no-untyped-def]
     with pytest.raises(mjkin.MjkinError) as info:
         call()
