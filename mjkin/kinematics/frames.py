@@ -18,7 +18,8 @@ Array = NDArray[np.float64]
 def forward(tree: Bodies, q: Array) -> Frames:
     """World frames of all bodies for ``q (..., nq)`` (already validated)."""
     batch = q.shape[:-1]
-    qf = np.ascontiguousarray(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]))  # also for nq = 0
+    # writable (a read-only q, rare, is copied): one compiled version of the kernel, not one per flag
+    qf = np.require(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]), requirements=["C", "W"])
     B = qf.shape[0]
     arrays = tree.fk_args
     nbody, n_inner = len(arrays[0]), tree.n_inner

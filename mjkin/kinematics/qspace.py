@@ -303,8 +303,14 @@ def difference_kernel(q1: Array, q0: Array, jnt_type: Index, jnt_qadr: Index, jn
 
 
 def _rows(a: Array, n: int, shape: tuple[int, ...]) -> Array:
+    """``a`` broadcast to ``shape + (n,)`` as C-contiguous rows ``(prod(shape), n)``, read-only.
+
+    A view, or a copy where the broadcast repeats rows: read-only too, so the kernels reading it compile one version.
+    """
     rows = int(np.prod(shape, dtype=np.int64))  # not -1: a model without joints has n = 0
-    return np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(rows, n), dtype=np.float64)
+    out = np.ascontiguousarray(np.broadcast_to(a, shape + (n,)).reshape(rows, n), dtype=np.float64)
+    out.setflags(write=False)
+    return out
 
 
 def wrap(tree: Joints, q: Array, index: Index | None = None) -> None:

@@ -308,10 +308,12 @@ class Tree:
         q = self.check_q(q)
         if q.ndim > 1:
             return self.kinematics(q).jacobian(*self.frame(name, kind), offset=offset)
-        body, local = self.frame_body(name, kind)
+        body, local = self.frame_body(name, kind)  # local: read-only, and so is a moved one: one compiled version
+        if offset is not None:
+            local = moved(local, check_vector(offset, "offset"))
+            local.setflags(write=False)
         J = np.empty((6, self.nv))
-        frame_jacobian_one(self.kin, np.ascontiguousarray(q).reshape(1, -1), body,
-                           local if offset is None else moved(local, check_vector(offset, "offset")), J)
+        frame_jacobian_one(self.kin, np.require(q, requirements=["C", "W"]).reshape(1, -1), body, local, J)
         return J
 
     def com(self, q: ArrayLike) -> Array:

@@ -289,3 +289,24 @@ def test_a_reversed_joint_range_warns_once_naming_the_joint():
 def test_no_bundled_model_has_a_reversed_range():
     for name in mjkin.bundled_models():
         mjkin.load(name)
+
+
+def test_read_only_or_broadcast_arrays_compile_no_second_version_of_a_kernel():
+    """A read-only ``q``, a broadcast one, an offset: the same compiled version of each kernel (~1 s of compile
+    each otherwise: the cold suite compiled the one-frame Jacobian four times)."""
+    from mjkin.kinematics.fk import fk_kernel
+    from mjkin.kinematics.jacobian import frame_jacobian_one
+    from mjkin.kinematics.qspace import difference_kernel, integrate_kernel
+
+    tree = tree_of("primate")  # hinges, balls and a free joint
+    q = tree.random_q(np.random.default_rng(0), 3)
+    ro = q.copy()
+    ro.setflags(write=False)
+    v = np.zeros(tree.nv)
+    for a in (q, ro):
+        tree.jacobian(a[0], "head"), tree.jacobian(a[0], "head", offset=[0.0, 0.1, 0.0]), tree.fk(a)
+        tree.kinematics(a[:2]), tree.difference(a, a[0]), tree.difference(a[0], a), tree.difference(a, a)
+        tree.integrate(a, v), tree.integrate(a[0], np.zeros((3, tree.nv)))
+    for kernel in (frame_jacobian_one, fk_kernel, difference_kernel, integrate_kernel):
+        assert len(kernel.signatures) == 1, (kernel.__name__, kernel.signatures)
+    np.testing.assert_array_equal(tree.jacobian(ro[1], "head"), tree.jacobian(q[1], "head"))
