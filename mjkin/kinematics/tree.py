@@ -278,7 +278,7 @@ class Tree:
             chain = self.chains.get((name, kind))  # a frame seen before
         except TypeError:  # an unhashable name or kind is no frame: the checked path below says so
             chain = None
-        if chain is not None:  # one compiled call for a plain 1-D q (or one a row of a few), which checks it too
+        if chain is not None:  # one compiled call for a plain 1-D q (or one per row of a few), which checks it too
             if (T := pose_of(chain, q)) is not None or (T := chains.rows_of(pose_of, chain, q)) is not None:
                 return T  # (else the path below says why)
         q = self.check_q(q)
