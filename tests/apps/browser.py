@@ -46,10 +46,11 @@ def launch(playwright: Any) -> Any:
 
 
 def open_page(browser: Any, url: str) -> Any:
-    """The playground page, loaded: the panel built and the first frame shown."""
+    """The playground page, loaded: the panel built, the first state read and the first frame shown."""
     page = browser.new_page(viewport={"width": 1040, "height": 700})
     page.goto(url, wait_until="domcontentloaded")
-    page.wait_for_function("document.querySelectorAll('#method option').length > 0 && "
+    # ``state``: the page's first /state answer, before which it ignores the mouse (a busy machine answers late)
+    page.wait_for_function("document.querySelectorAll('#method option').length > 0 && state !== null && "
                            "document.getElementById('view').naturalWidth > 0", timeout=30_000)
     return page
 
