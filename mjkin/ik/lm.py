@@ -166,6 +166,9 @@ class Auto(LM):
         return TIMED_RESTARTS if timed else AUTO_RESTARTS
 
 
+_LOADED: set[Callable] = set()  # the loops' solve_packed kernels loaded in this process (Loop.compiled)
+
+
 class Loop:
     """The compiled loop run for one problem: every target of a program from the starts ``q (B, nq)`` (overwritten).
 
@@ -182,7 +185,6 @@ class Loop:
         self.one: tuple | None = None  # (packed, its arrays) of single targets
         self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
         self.solve_packed: Callable[[Packed, int, int], None] | None = None
-        self.warm = False  # the compiled loop is loaded (mjkin.runtime.tier)
         self.lock = threading.Lock()
 
     def arrays(self, prog: Program, q: Array) -> tuple:
@@ -221,11 +223,19 @@ class Loop:
         return pack(*self.fields(arrays))
 
     def compiled(self, prog: Program, arrays: tuple) -> bool:
-        """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`)."""
-        if not self.warm:  # every call packs the same types: once compiled, always
-            self.warm = tier.compiled(packed_kernels(kernels(prog.structure.kinds).solve_packed, self.fields(arrays)),
-                                      small=prog.B <= tier.SMALL_BATCH)
-        return self.warm
+        """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`).
+
+        Every problem packs the same types, so a loop loaded once in this process is loaded for every later
+        problem of its kinds: the check (numba typing the 18 packed fields, ~1 ms) runs once per loop, not per
+        :func:`mjkin.solve` call.
+        """
+        solve_packed = kernels(prog.structure.kinds).solve_packed
+        if solve_packed in _LOADED and tier.mode() != "interpret":
+            return True
+        if tier.compiled(packed_kernels(solve_packed, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
+            _LOADED.add(solve_packed)
+            return True
+        return False
 
     def single(self, prog: Program, q: Array) -> Result:
         """One target through the arrays packed once (:meth:`__call__` holds the lock)."""

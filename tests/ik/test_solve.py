@@ -411,6 +411,110 @@ def test_one_thread_runs_the_batch_in_the_caller(monkeypatch):
     assert seen == {threading.get_ident()}
 
 
+def test_threads_are_kept_between_calls_and_renewed_when_the_count_changes():
+    import threading
+    import time
+
+    from mjkin.runtime import parallel
+
+    def idents(n_threads):
+        seen = set()
+        with parallel.threads_set(n_threads):
+            for _ in range(3):
+                parallel.parallel_chunks(lambda lo, hi: (seen.add(threading.current_thread()), time.sleep(0.01)), 256)
+        return seen
+
+    two = idents(2)
+    assert len(two) == 2 and threading.current_thread() not in two
+    assert idents(2) == two  # the same two threads, not two new ones per call
+    three = idents(3)
+    assert len(three) == 3 and not three & two  # (thread objects: an ended thread's ident may be reused)
+
+
+def test_a_chunk_that_splits_again_runs_in_its_thread_and_covers_its_range():
+    import threading
+
+    from mjkin.runtime import parallel
+
+    hits = np.zeros(4096, int)
+    where: dict[int, set] = {}
+
+    def inner(lo, hi):
+        hits[lo:hi] += 1
+        where.setdefault(lo // 1024, set()).add(threading.get_ident())
+
+    def outer(lo, hi):
+        for a in range(lo, hi):
+            parallel.parallel_chunks(lambda x, y, a=a: inner(a * 1024 + x, a * 1024 + y), 1024)
+
+    with parallel.threads_set(2):
+        parallel.parallel_chunks(outer, 4, min_chunk=1)  # four outer chunks on two kept threads: no deadlock
+    assert (hits == 1).all()
+    assert all(len(threads) == 1 for threads in where.values())  # each outer chunk's inner calls in its own thread
+
+
+def test_an_error_in_one_chunk_is_raised_after_every_chunk_is_done():
+    import time
+
+    from mjkin.runtime import parallel
+
+    done = []
+
+    def run(lo, hi):
+        if lo == 0:
+            raise ValueError("first chunk")
+        time.sleep(0.05)
+        done.append(lo)
+
+    with parallel.threads_set(2), pytest.raises(ValueError, match="first chunk"):
+        parallel.parallel_chunks(run, 1000)
+    assert sorted(done) == parallel.chunk_edges(1000, 2, 32)[1:-1]  # nothing still running when it was raised
+
+
+def test_a_forked_child_starts_threads_of_its_own():
+    from mjkin.runtime import parallel
+
+    with parallel.threads_set(2):
+        parallel.parallel_chunks(lambda lo, hi: None, 256)  # the parent's pool exists
+        pid = os.fork()
+        if pid == 0:  # the child: the parent's threads are not here; a call must still finish
+            hits = np.zeros(256, int)
+            parallel.parallel_chunks(lambda lo, hi: hits.__setitem__(slice(lo, hi), hits[lo:hi] + 1), 256)
+            os._exit(0 if (hits == 1).all() else 1)
+    import time
+
+    deadline = time.monotonic() + 60
+    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    if done[0] == 0:  # waiting on the parent's threads, which the child does not have
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child's call never finished")
+    assert os.waitstatus_to_exitcode(done[1]) == 0
+
+
+def test_a_loop_is_checked_for_compiled_once_per_process_not_per_solve(rng, monkeypatch):
+    """The check types the 18 packed fields (~1 ms): a new problem of the same kinds does not repeat it."""
+    from mjkin.ik import lm
+
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 80)
+    mjkin.solve(tree, G.Pose("ee", T=T))
+    calls, checked = [], lm.packed_kernels
+    monkeypatch.setattr(lm, "packed_kernels", lambda *a: calls.append(a) or checked(*a))
+    for goal in (G.Pose("ee", T=T), G.Pose("ee", T=T[:70]), G.Pose("ee", T=T[0])):
+        assert mjkin.solve(tree, goal).success.all()
+    assert calls == []
+    monkeypatch.setenv("MJKIN_COMPILE", "interpret")  # the mode still decides: interpreted, as asked
+    from mjkin.runtime import tier
+
+    interpreted = []
+    real = tier.interpreted_call
+    monkeypatch.setattr(tier, "interpreted_call", lambda *a: interpreted.append(a[0]) or real(*a))
+    assert mjkin.solve(tree, G.Pose("ee", T=T[:3]), restarts=0).success.all()
+    assert interpreted
+
+
 @given(st.integers(0, 100_000), st.integers(1, 64), st.integers(1, 256))
 def test_chunks_cover_the_batch_once_and_shrink(n, workers, min_chunk):
     from mjkin.runtime.parallel import chunk_edges
