@@ -5,7 +5,7 @@ The count is, in order: :func:`set_threads`, ``MJKIN_NUM_THREADS``,
 first level when it lists several, ignored when it is not a count), else the
 cores this process may run on. A batch of targets is cut into chunks, large
 first and small last, that threads take as they go; the compiled code releases the GIL.
-The threads are kept between calls (starting two costs ~0.5 ms, a solve of 64 easy targets less).
+The threads are kept between calls (starting and joining two cost ~0.5 ms a call).
 """
 
 from __future__ import annotations
