@@ -244,8 +244,9 @@ def poses_numba(chain: Array, q: object) -> Array | None:
     return None
 
 
-SMALL_ROWS = 8  # a plain (B, nq) q of up to this many rows takes the one-q entry row by row (~0.7 µs a row on the
-# Panda, and ~1.5 µs to stack them), not the batched path (~11 µs to set up, then ~0.3 µs a row)
+SMALL_ROWS = 24  # a plain (B, nq) q of up to this many rows takes the one-q entry row by row (Panda: ~0.6 µs a
+# pose row, ~0.75 µs an FK row), not the batched path (~19 µs of Python to set up a pose, ~13 µs FK, then ~0.3 µs a
+# row): row by row is the quicker up to ~48 rows of a pose and ~28 of FK
 
 
 def rows_of(one: Callable[[Array, object], Array | None], chain: Array, q: object) -> Array | None:
