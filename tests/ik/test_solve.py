@@ -478,9 +478,13 @@ def test_a_forked_child_starts_threads_of_its_own():
         parallel.parallel_chunks(lambda lo, hi: None, 256)  # the parent's pool exists
         pid = os.fork()
         if pid == 0:  # the child: the parent's threads are not here; a call must still finish
-            hits = np.zeros(256, int)
-            parallel.parallel_chunks(lambda lo, hi: hits.__setitem__(slice(lo, hi), hits[lo:hi] + 1), 256)
-            os._exit(0 if (hits == 1).all() else 1)
+            code = 1
+            try:  # whatever happens, the child ends here and never goes back into pytest
+                hits = np.zeros(256, int)
+                parallel.parallel_chunks(lambda lo, hi: hits.__setitem__(slice(lo, hi), hits[lo:hi] + 1), 256)
+                code = 0 if (hits == 1).all() else 1
+            finally:
+                os._exit(code)
     import time
 
     deadline = time.monotonic() + 60
