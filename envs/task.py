@@ -454,8 +454,13 @@ def check_action(action: Any, space: spaces.Space[Any], what: str) -> Array:
     return a
 
 
+# m: MuJoCo's mjMAXVAL, the bound of an obstacle's centre coordinates and radius (MuJoCo's collision of a sphere
+# 1e300 m across, 1e300 m away, fails: "mju_makeFrame: xaxis of contact frame undefined")
+OBSTACLE_REACH = 1e10
+
+
 def check_obstacles(obstacles: Any) -> list[tuple[Array, float]]:
-    """``obstacles``: None or a list of ``(center [x, y, z], radius > 0)`` pairs."""
+    """``obstacles``: None or a list of ``(center [x, y, z], radius > 0)`` pairs, within :data:`OBSTACLE_REACH`."""
     if obstacles is None:
         return []
     if isinstance(obstacles, (str, bytes, Mapping)) or not isinstance(obstacles, (Sequence, np.ndarray)):
@@ -467,8 +472,13 @@ def check_obstacles(obstacles: Any) -> list[tuple[Array, float]]:
         except (TypeError, ValueError):
             raise mjkin.InputError(f"obstacles[{i}] must be a (center [x, y, z], radius) pair, got {shown(item)} "
                                    "(obstacles is a list of such pairs)") from None
-        out.append((_vector(center, 3, f"obstacles[{i}] center"),
-                    check_number(radius, f"obstacles[{i}] radius", 0.0, strict=True)))
+        c, r = _vector(center, 3, f"obstacles[{i}] center"), check_number(radius, f"obstacles[{i}] radius", 0.0,
+                                                                          strict=True)
+        if np.abs(c).max() > OBSTACLE_REACH or r > OBSTACLE_REACH:
+            raise mjkin.InputError(f"obstacles[{i}] must have its center's coordinates and its radius within "
+                                   f"{OBSTACLE_REACH:g} m (MuJoCo's largest value), got center {c.tolist()}, "
+                                   f"radius {r:g}")
+        out.append((c, r))
     return out
 
 

@@ -270,6 +270,10 @@ def test_bad_options():
         gym.make("mjkin/Reach-v0", site="hand")  # the name before 0.2
     with pytest.raises(mjkin.InputError, match="radius"):
         gym.make("mjkin/Reach-v0", obstacles=[([0, 0, 1], -0.1)])
+    for far in ([([1e300, 0, 0], 1e300)], [([0, 0, 1], 2e10)], [([0, -1.1e10, 0], 0.1)]):  # MuJoCo's collision
+        with pytest.raises(mjkin.InputError, match=r"obstacles\[0\] must have .* within 1e\+10 m"):  # fails past it
+            gym.make("mjkin/Reach-v0", obstacles=far)
+    gym.make("mjkin/Reach-v0", obstacles=[([1e10, 0, 0], 1e10)])  # at the bound: made (its reset says no target fits)
     with pytest.raises(mjkin.InputError, match="num_envs"):
         gym.make_vec("mjkin/Reach-v0", num_envs=0, vectorization_mode="vector_entry_point")
 

@@ -833,6 +833,8 @@ actions = (hnp.arrays(st.sampled_from([np.float32, np.float64, np.int64, np.int8
 @settings(max_examples=40, deadline=None)
 # found in a README test run: the distance's squares overflowed, the reward was -inf
 @example(env_id="mjkin/Reach-v0", kwargs={}, target=np.full(3, 1e300), q=None, acts=[np.zeros(7, np.float32)])
+# found in a README test run: MuJoCo's collision of a 1e300 m obstacle 1e300 m away raised its FatalError
+@example(env_id="mjkin/Reach-v0", kwargs={"obstacles": [((1e300, 0, 0), 1e300)]}, target=None, q=None, acts=[None])
 @given(env_id=st.sampled_from(["mjkin/Reach-v0", "mjkin/PlanarReach-v0"]), kwargs=env_kwargs(),
        target=st.none() | hnp.arrays(np.float64, st.sampled_from([(3,), (7,), (2,)]), elements=extreme) | junk,
        q=st.none() | hnp.arrays(np.float64, st.sampled_from([(7,), (3,), (1, 7)]), elements=extreme) | junk,
