@@ -30,8 +30,7 @@ from ..goals import registry
 from ..runtime.cache import PACKAGE, generated_file
 
 PREFIX = "mjkin_loop_"  # the generated modules' names
-_LOADED: dict[tuple, ModuleType] = {}  # by the kinds a loop is compiled with (loop_kinds)
-_ASKED: dict[tuple, ModuleType] = {}  # by the kinds a problem holds and the registry's size
+_LOADED: dict[tuple, ModuleType] = {}
 _BRANCH = ("        {kw} ga.kind[i] == {code}:\n"
            "            _k{code}(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, ga.row[i], err)\n")
 
@@ -72,18 +71,15 @@ def loop_kinds(codes: Sequence[int]) -> tuple[int, ...]:
     return tuple(sorted(kinds | grouped if kinds & grouped else kinds))
 
 
-def kernels(codes: tuple[int, ...]) -> ModuleType:
+def kernels(codes: Sequence[int]) -> ModuleType:
     """The compiled loop for problems with the goal kinds ``codes`` (registry codes; see :func:`loop_kinds`)."""
-    asked = (codes, len(registry.KINDS))  # a kind registered later may be common: then ask loop_kinds again
-    if asked in _ASKED:  # (loop_kinds takes ~6 µs, a batched solve asks twice)
-        return _ASKED[asked]
     key = loop_kinds(codes)
-    if key not in _LOADED:
-        text = source(key)
-        name = f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py"
-        _LOADED[key] = _import(generated_file("generated", name, text))
-    _ASKED[asked] = _LOADED[key]
-    return _LOADED[key]
+    if key in _LOADED:
+        return _LOADED[key]
+    text = source(key)
+    module = _import(generated_file("generated", f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py", text))
+    _LOADED[key] = module
+    return module
 
 
 def _import(path: Path) -> ModuleType:

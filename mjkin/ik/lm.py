@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING, ClassVar
 
 import numba
@@ -202,7 +203,7 @@ class Loop:
             finally:
                 self.lock.release()
         arrays = self.arrays(prog, q)
-        solve_packed = kernels(prog.structure.kinds).solve_packed
+        solve_packed = self.loop
         if self.compiled(prog, arrays):
             packed = self.pack(arrays)
             # the compiled code releases the GIL
@@ -222,6 +223,11 @@ class Loop:
         """:func:`mjkin.ik.packed.pack` of ``arrays`` (:meth:`arrays`) with the problem's constants."""
         return pack(*self.fields(arrays))
 
+    @cached_property
+    def loop(self) -> Callable:
+        """``solve_packed`` of the loop compiled for the problem's goal kinds (:func:`mjkin.ik.compiled.kernels`)."""
+        return kernels(self.problem.structure.kinds).solve_packed
+
     def compiled(self, prog: Program, arrays: tuple) -> bool:
         """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`).
 
@@ -229,11 +235,10 @@ class Loop:
         problem of its kinds: the check (numba typing the 18 packed fields, ~1 ms) runs once per loop, not per
         :func:`mjkin.solve` call.
         """
-        solve_packed = kernels(prog.structure.kinds).solve_packed
-        if solve_packed in _LOADED and tier.mode() != "interpret":
+        if self.loop in _LOADED and tier.mode() != "interpret":
             return True
-        if tier.compiled(packed_kernels(solve_packed, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
-            _LOADED.add(solve_packed)
+        if tier.compiled(packed_kernels(self.loop, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
+            _LOADED.add(self.loop)
             return True
         return False
 
@@ -247,8 +252,7 @@ class Loop:
             packed = self.pack(arrays)
             self.one = (packed, arrays)
             # the packed arrays are always these types: the call skips numba's dispatch (mjkin.runtime.jit.entry)
-            self.solve_packed = entry(kernels(prog.structure.kinds).solve_packed, numba.typeof(packed), numba.int64,
-                                      numba.int64)
+            self.solve_packed = entry(self.loop, numba.typeof(packed), numba.int64, numba.int64)
         ga, q_in, starts = arrays[:3]
         ga.data[...] = prog.data
         if prog.structure.joint_targets:
@@ -262,7 +266,7 @@ class Loop:
         if self.solve_packed is not None:
             self.solve_packed(packed, 0, 1)
         else:
-            tier.interpreted_call(kernels(prog.structure.kinds).solve_packed, self.fields(arrays), 0, 1)
+            tier.interpreted_call(self.loop, self.fields(arrays), 0, 1)
         q[...] = q_in
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))
