@@ -9,13 +9,20 @@ IK loop running the old FK. :class:`KernelCache` stamps each kernel instead with
 within the package. An edit recompiles the kernels that depend on it and no
 others, wherever the cache lives.
 
+A kernel is saved only if the files of its stamp are still those this process
+loaded (:func:`unchanged`): an edit or an upgrade while a kernel compiles must not
+store the old code under the new source's stamp.
+
 A cache folder that cannot be written (a read-only install or a Docker layer
 warmed with ``mjkin warmup``) is still read: new versions go to the next
-writable place, as numba chooses it.
+writable place, as numba chooses it, or nowhere when no place can be written
+(computed in memory each run).
 
-Generated source (the IK loop of a set of goal kinds, :mod:`mjkin.ik.compiled`)
-is only ever imported from a folder that no other user can write to
-(:func:`generated_file`): written where only this user can write, or found with
+Nothing is loaded from a folder or file that another user can write
+(:func:`secure`): numba's index and data files are pickles, and a planted one
+would run as code. Generated source (the IK loop of a set of goal kinds,
+:mod:`mjkin.ik.compiled`) is imported only from such a folder
+(:func:`generated_file`): written where no other user can write, or found with
 the same text where it was written ahead (a read-only install warmed by root).
 Arrays that cost more to make than to read (:func:`stored_array`) are kept the same way.
 """
@@ -23,10 +30,13 @@ Arrays that cost more to make than to read (:func:`stored_array`) are kept the s
 from __future__ import annotations
 
 import ast
+import atexit
 import contextlib
 import fcntl
+import grp
 import hashlib
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Callable, Iterator
@@ -40,13 +50,63 @@ from numba.core import caching, config
 PACKAGE = Path(__file__).resolve().parent.parent  # mjkin/
 
 
-def _locator(*names: str) -> Any:  # numba 0.61 dropped the leading underscore of these names
-    return next(getattr(caching, n) for n in names if hasattr(caching, n))
+def _locator(*names: str) -> Any:
+    """The locator class of numba's named one of ``names`` (0.61 dropped their leading underscore), or None."""
+    return next((getattr(caching, n) for n in names if hasattr(caching, n)), None)
 
 
 _PROVIDED = _locator("UserProvidedCacheLocator", "_UserProvidedCacheLocator")
 _IN_TREE = _locator("InTreeCacheLocator", "_InTreeCacheLocator")
 _USER_WIDE = _locator("UserWideCacheLocator", "_UserWideCacheLocator")
+
+# ---- whom to trust: a file or folder no other user can write
+
+
+def _owners() -> tuple[int, ...]:
+    """The users whose files we may load: ourselves, root, and mjkin's owner (who could change our code anyway)."""
+    return (os.getuid(), 0, os.stat(__file__).st_uid)
+
+
+def _group_private(gid: int) -> bool:
+    """Whether group ``gid`` is our own primary group with no other members (a user private group)."""
+    if gid != os.getgid():
+        return False
+    try:
+        return not set(grp.getgrgid(gid).gr_mem) - {os.environ.get("USER", "")}
+    except KeyError:
+        return True  # a group with no entry has no named members
+
+
+def _writable_by_others(st: os.stat_result) -> bool:
+    return bool(st.st_mode & 0o002 or st.st_mode & 0o020 and not _group_private(st.st_gid))
+
+
+def secure(path: str | os.PathLike[str]) -> bool:
+    """Whether no other user can change what ``path`` holds.
+
+    It and every folder above it are owned by :func:`_owners` and writable by no one else, but for sticky
+    folders such as ``/tmp`` above it.
+    """
+    try:
+        real = Path(os.path.realpath(path))
+        owners = _owners()
+        for i, part in enumerate((real, *real.parents)):
+            st = os.lstat(part)
+            if st.st_uid not in owners or _writable_by_others(st) and not (i and st.st_mode & stat.S_ISVTX):
+                return False
+    except OSError:
+        return False
+    return True
+
+
+def trusted_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a regular file (not a link) in a :func:`secure` folder that only its owners can write."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    return (stat.S_ISREG(st.st_mode) and st.st_uid in _owners() and not _writable_by_others(st)
+            and secure(os.path.dirname(os.path.abspath(path))))
 
 
 @cache
@@ -109,12 +169,8 @@ def _file_info(path: str) -> tuple[str, tuple[str, ...]]:
     return _read(path, st.st_mtime_ns, st.st_size)
 
 
-def stamp(path: str | os.PathLike) -> str:
-    """Digest of the source file ``path`` and of every package file it imports, transitively.
-
-    Imports are read from the source (``from ..kinematics.fk import ...``, ``import mjkin.runtime.jit``),
-    ``TYPE_CHECKING`` ones included: a superset of what a kernel compiles in, never less.
-    """
+def _closure(path: str | os.PathLike) -> dict[str, str]:
+    """The digest of the source file ``path`` and of every package file it imports, transitively, by file."""
     seen: dict[str, str] = {}
     todo = [str(Path(path).resolve())]
     while todo:
@@ -124,27 +180,110 @@ def stamp(path: str | os.PathLike) -> str:
         own, imports = _file_info(p)
         seen[p] = own
         todo += imports  # built from resolved folders (_read): already whole paths
+    return seen
+
+
+def stamp(path: str | os.PathLike) -> str:
+    """Digest of the source file ``path`` and of every package file it imports, transitively.
+
+    Imports are read from the source (``from ..kinematics.fk import ...``, ``import mjkin.runtime.jit``),
+    ``TYPE_CHECKING`` ones included: a superset of what a kernel compiles in, never less.
+    """
+    seen = _closure(path)
     h = hashlib.sha256()
     for p in sorted(seen):
         h.update(f"{Path(p).name}:{seen[p]}\n".encode())
     return h.hexdigest()
 
 
+_AS_LOADED: dict[str, tuple[int, int]] = {}  # source file -> (mtime, size) when this process loaded it
+
+
+def _signature(path: str) -> tuple[int, int]:
+    st = os.stat(path)
+    return st.st_mtime_ns, st.st_size
+
+
+def loaded(path: str | os.PathLike) -> None:
+    """Note ``path`` as this process has it now: a kernel's file when the kernel is defined (its module imported)."""
+    with contextlib.suppress(OSError):
+        _AS_LOADED.setdefault(os.path.realpath(path), _signature(os.path.realpath(path)))
+
+
+def unchanged(path: str | os.PathLike) -> bool:
+    """Whether every file of ``path``'s :func:`stamp` is as this process loaded it, so what it compiled is that.
+
+    A file first seen after it was loaded counts as loaded then.
+    """
+    try:
+        return all(_AS_LOADED.setdefault(p, sig) == sig for p in _closure(path) if (sig := _signature(p)))
+    except OSError:
+        return False
+
+
+for _folder, _subfolders, _files in os.walk(PACKAGE):  # the package as imported (~1 ms)
+    _subfolders[:] = [d for d in _subfolders if d != "__pycache__"]
+    for _name in _files:
+        if _name.endswith(".py"):
+            loaded(os.path.join(_folder, _name))
+
+
 class _Stamped:
-    """A numba locator whose freshness stamp is :func:`stamp` (its file and what it imports)."""
+    """A numba locator stamped by :func:`stamp` (its file and what it imports), in a :func:`secure` folder."""
 
     _py_file: str
 
     def get_source_stamp(self) -> str:
         return stamp(self._py_file)
 
+    def ensure_cache_path(self) -> None:
+        super().ensure_cache_path()  # type: ignore[misc]  # numba's: made, and writable
+        if not secure(self.get_cache_path()):  # type: ignore[attr-defined]
+            raise PermissionError(f"{self.get_cache_path()} can be written by another user")  # type: ignore
+
+
+class _Nowhere(_Stamped):
+    """The last resort, where no folder can be written: kernels compile in memory, saved nowhere."""
+
+    def __init__(self, py_func: Any, py_file: str) -> None:
+        self._py_file = py_file
+        self._lineno = py_func.__code__.co_firstlineno
+
+    @classmethod
+    def from_function(cls, py_func: Any, py_file: str) -> _Nowhere | None:
+        return cls(py_func, py_file) if os.path.exists(py_file) else None
+
+    def ensure_cache_path(self) -> None:
+        raise PermissionError("no folder to write compiled kernels to")
+
+    def get_cache_path(self) -> str:
+        return os.path.join(os.path.dirname(self._py_file), "__pycache__")
+
+    def get_disambiguator(self) -> str:
+        return str(self._lineno)
+
 
 # stamped where a kernel has a source file; numba's own for a notebook cell or a zipped module (a goal kind
 # written in a notebook is cached as numba caches it)
 _LOCATORS: list[Any] = [*(type(f"Stamped{base.__name__.lstrip('_')}", (_Stamped, base), {})
-                          for base in (_PROVIDED, _IN_TREE, _USER_WIDE)),
-                        _locator("IPythonCacheLocator", "_IPythonCacheLocator"),
-                        _locator("ZipCacheLocator", "_ZipCacheLocator")]
+                          for base in (_PROVIDED, _IN_TREE, _USER_WIDE) if base is not None),
+                        *(b for b in (_locator("IPythonCacheLocator", "_IPythonCacheLocator"),
+                                      _locator("ZipCacheLocator", "_ZipCacheLocator")) if b is not None),
+                        _Nowhere]
+
+
+class _TrustedFile(caching.IndexDataCacheFile):
+    """numba's index and data files, read only where :func:`trusted_file` (they are pickles: they run as code)."""
+
+    def _load_index(self) -> dict:
+        if os.path.lexists(self._index_path) and not trusted_file(self._index_path):
+            return {}
+        return super()._load_index()
+
+    def _load_data(self, name: str) -> Any:
+        if not trusted_file(self._data_path(name)):
+            raise PermissionError(f"{self._data_path(name)} is not a file of ours")  # load() takes it as absent
+        return super()._load_data(name)
 
 
 class _Impl(caching.CompileResultCacheImpl):
@@ -162,14 +301,21 @@ class KernelCache(caching.FunctionCache):
 
     def __init__(self, py_func: Any) -> None:
         super().__init__(py_func)
-        source = self._impl.locator._py_file
-        folders = [os.path.join(os.path.dirname(source), "__pycache__")]
+        locator = self._impl.locator
+        source = locator._py_file
         root = getattr(config, "CACHE_DIR", "")  # numba's reading of $NUMBA_CACHE_DIR
-        if root:
-            folders.insert(0, os.path.join(root, _PROVIDED.get_suitable_cache_subpath(source)))
-        fresh = self._impl.locator.get_source_stamp()
-        self._read_only = [caching.IndexDataCacheFile(f, self._impl.filename_base, fresh)
-                           for f in folders if f != self._cache_path and os.path.isdir(f)]
+        folders = [*([os.path.join(root, _PROVIDED.get_suitable_cache_subpath(source))] if root else []),
+                   os.path.join(os.path.dirname(source), "__pycache__")]
+        fresh = locator.get_source_stamp()
+        base = self._impl.filename_base
+        self._cache_file = _TrustedFile(self._cache_path, base, fresh)
+        self._read_only = [_TrustedFile(f, base, fresh) for f in folders
+                           if f != self._cache_path and os.path.isdir(f) and secure(f)]
+
+    def _save_overload(self, sig: Any, data: Any) -> None:
+        """Save as numba does, unless there is nowhere to write or the sources changed since they were loaded."""
+        if not isinstance(self._impl.locator, _Nowhere) and unchanged(self._impl.locator._py_file):
+            super()._save_overload(sig, data)
 
     def _load_overload(self, sig: Any, target_context: Any) -> Any:
         data = super()._load_overload(sig, target_context)
@@ -256,22 +402,13 @@ class LazyCache:
 _HELD: set[str] = set()  # the compile locks this process holds (under numba's compiler lock: one thread at a time)
 
 
-def _trusted(folder: Path) -> bool:
-    """Whether ``folder`` is a real folder of ours (or root's) that no other user may write to."""
+def _ours(folder: Path) -> bool:
+    """Whether ``folder`` exists (made if need be, readable by all as warmed installs are), secure, ours to write."""
     try:
-        st = os.lstat(folder)
+        folder.mkdir(mode=0o755, parents=True, exist_ok=True)
+        return os.lstat(folder).st_uid == os.getuid() and secure(folder) and os.access(folder, os.W_OK)
     except OSError:
         return False
-    return stat.S_ISDIR(st.st_mode) and st.st_uid in (os.getuid(), 0) and not st.st_mode & 0o022
-
-
-def _private(folder: Path) -> bool:
-    """Whether ``folder`` exists (made 0700 if it did not), is ours, and only we may write to it, and we can."""
-    try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    except OSError:
-        return False
-    return _trusted(folder) and os.lstat(folder).st_uid == os.getuid() and os.access(folder, os.W_OK)
 
 
 _TEMPORARY: list[Path] = []
@@ -288,14 +425,25 @@ def _places(name: str) -> tuple[Path, ...]:
     return (*([Path(root) / "mjkin" / name] if root else []), PACKAGE / "__pycache__" / name, xdg / "mjkin" / name)
 
 
+def _writable(name: str) -> Path | None:
+    """The first of :func:`_places` that is ours to write and no other user's (None: none is)."""
+    return next((folder for folder in _places(name) if _ours(folder)), None)
+
+
 def private_folder(name: str) -> Path:
     """The first of :func:`_places` that only this user can write, else a new temporary one for this process."""
-    for folder in _places(name):
-        if _private(folder):
-            return folder
-    if not _TEMPORARY:  # a fresh folder of our own (mkdtemp makes it 0700): generated anew in each process
+    found = _writable(name)
+    if found is not None:
+        return found
+    if not _TEMPORARY:  # a fresh folder of our own (mkdtemp makes it 0700), removed at exit
         _TEMPORARY.append(Path(tempfile.mkdtemp(prefix="mjkin-")))
+        atexit.register(shutil.rmtree, _TEMPORARY[0], True)
     return _TEMPORARY[0]
+
+
+def _kept(folder: str, name: str) -> Iterator[Path]:
+    """The files ``name`` in the folders ``folder`` of :func:`_places` that we may read (:func:`trusted_file`)."""
+    return (path for place in _places(folder) if trusted_file(path := place / name))
 
 
 def generated_file(folder: str, name: str, text: str) -> Path:
@@ -305,10 +453,10 @@ def generated_file(folder: str, name: str, text: str) -> Path:
     ``mjkin warmup`` in a Docker image, run as another user or on a read-only file system); else the text is
     written, atomically, into :func:`private_folder`.
     """
-    for place in _places(folder):
-        path = place / name
-        if _trusted(place) and path.is_file() and not path.is_symlink() and path.read_text() == text:
-            return path
+    for path in _kept(folder, name):
+        with contextlib.suppress(OSError, UnicodeDecodeError):
+            if path.read_text() == text:
+                return path
     path = private_folder(folder) / name
     tmp = path.with_name(f".{name}.{os.getpid()}.tmp")
     tmp.write_text(text)
@@ -324,13 +472,14 @@ def stored_array(folder: str, key: str, make: Callable[[], np.ndarray]) -> np.nd
     atomically, into :func:`private_folder` (or not at all when no folder can be written).
     """
     name = hashlib.sha256(key.encode()).hexdigest()[:32] + ".npy"
-    for place in _places(folder):
-        path = place / name
-        if _trusted(place) and path.is_file() and not path.is_symlink():
-            with contextlib.suppress(OSError, ValueError):
-                return np.load(path, allow_pickle=False)
+    for path in _kept(folder, name):
+        with contextlib.suppress(OSError, ValueError):
+            return np.load(path, allow_pickle=False)
     array = make()
-    path = private_folder(folder) / name
+    place = _writable(folder)
+    if place is None:
+        return array
+    path = place / name
     tmp = path.with_name(f".{name}.{os.getpid()}.tmp.npy")
     try:
         np.save(tmp, array, allow_pickle=False)

@@ -32,7 +32,7 @@ from numba.experimental import structref
 from numba.extending import intrinsic
 
 from . import tier
-from .cache import LazyCache
+from .cache import LazyCache, loaded
 
 CLOCK_MONOTONIC = 1  # Linux
 
@@ -45,6 +45,7 @@ def _jit(**options: Any) -> Callable[[Callable], Any]:
     """
 
     def decorate(fn: Callable) -> Any:
+        loaded(fn.__code__.co_filename)  # its source as imported: what it compiles, whatever the disk holds later
         dispatcher = numba.njit(**{"nogil": True, "fastmath": False, **options})(fn)
         dispatcher.__class__ = tier.Kernel
         del dispatcher._cache  # numba's NullCache: a KernelCache is made on first use (LazyCache)
@@ -75,6 +76,7 @@ def cfunc(signature: Any) -> Callable[[Callable], CFunc]:
     """``numba.cfunc(signature)`` cached like :data:`njit`; not compiled until its ``compile()`` is called."""
 
     def decorate(fn: Callable) -> CFunc:
+        loaded(fn.__code__.co_filename)
         c = _CFunc(fn, sigutils.normalize_signature(signature), locals={}, options={})
         del c._cache  # numba's NullCache: a KernelCache is made on first compile (LazyCache)
         return c

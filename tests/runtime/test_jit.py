@@ -159,7 +159,7 @@ def test_generated_code_is_never_taken_from_a_folder_another_user_can_write(tmp_
         planted.chmod(0o777)  # one that every user may write to
     chosen = cache.private_folder("generated")
     assert chosen != planted and chosen.is_dir() and not (chosen / "mjkin_loop_0.py").exists()
-    assert os.stat(chosen).st_uid == os.getuid() and not os.stat(chosen).st_mode & 0o077
+    assert os.stat(chosen).st_uid == os.getuid() and not os.stat(chosen).st_mode & 0o022
     planted.chmod(0o700)
     if os.getuid() == 0:
         os.chown(planted, 0, 0)
@@ -183,7 +183,7 @@ def test_generated_code_written_ahead_is_read_where_it_cannot_be_written(tmp_pat
     assert cache.generated_file("generated", "loop.py", "x = 1\n") == warmed / "loop.py"
     monkeypatch.setattr(cache, "_places", lambda name: (open_to_all, ours))
     made = cache.generated_file("generated", "loop.py", "x = 1\n")  # not the open folder's copy: a new one
-    assert made == ours / "loop.py" and made.read_text() == "x = 1\n" and not os.stat(ours).st_mode & 0o077
+    assert made == ours / "loop.py" and made.read_text() == "x = 1\n" and not os.stat(ours).st_mode & 0o022
 
 
 def test_stored_arrays_are_made_once_and_never_read_from_a_folder_others_may_write(tmp_path, monkeypatch):
@@ -203,7 +203,7 @@ def test_stored_arrays_are_made_once_and_never_read_from_a_folder_others_may_wri
     monkeypatch.setattr(cache, "_places", lambda name: (open_to_all, ours))
     kept = cache.stored_array("starts", "key", make).copy()
     saved = list(ours.glob("*.npy"))
-    assert len(saved) == 1 and not os.stat(ours).st_mode & 0o077 and not list(ours.glob(".*"))  # no temp left
+    assert len(saved) == 1 and not os.stat(ours).st_mode & 0o022 and not list(ours.glob(".*"))  # no temp left
     assert not list(open_to_all.iterdir())
     np.testing.assert_array_equal(cache.stored_array("starts", "key", make), kept)
     assert len(made) == 1  # the second came from the file
