@@ -48,7 +48,7 @@ from numba.core.registry import CPUDispatcher
 
 from ..errors import InputError
 from . import progress
-from .cache import KernelCache, LazyCache
+from .cache import PACKAGE, KernelCache, LazyCache
 
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
@@ -279,13 +279,52 @@ def later() -> contextlib.AbstractContextManager[None]:
     return _COMPILER.hold()
 
 
+def _implicit_path() -> str | None:
+    """The entry Python put first on ``sys.path`` by itself: the script's folder, or the working folder."""
+    argv = getattr(sys, "orig_argv", [])
+    if sys.flags.safe_path:
+        return None
+    if "-c" in argv or len(sys.argv) < 1 or not sys.argv[0]:
+        return ""
+    if "-m" in argv:
+        return os.getcwd()
+    return os.path.dirname(os.path.realpath(sys.argv[0]))
+
+
+def _child_path() -> list[str]:
+    """This process's ``sys.path`` (absolute) but for the entry Python added by itself, unless mjkin comes from it."""
+    implicit, out = _implicit_path(), []
+    for entry in sys.path:
+        if implicit is not None and entry == implicit and os.path.realpath(entry or ".") != str(PACKAGE.parent):
+            implicit = None  # its first occurrence only: the same folder added on purpose later stays
+            continue
+        if entry:
+            out.append(os.path.abspath(entry))
+    return out
+
+
+# The child runs isolated (``-I``: no working folder on its path, no PYTHON* variables, no user site) in "/",
+# with this process's path given explicitly; the site folders it lacks (a user site) are added with their .pth files
+_BOOT = ("import pickle, site, sys\n"
+         "paths, jobs = pickle.loads(sys.stdin.buffer.read())\n"
+         "for p in paths:\n"
+         "    if p not in sys.path and p.endswith('-packages'):\n"
+         "        site.addsitedir(p)\n"
+         "sys.path[:] = paths + [p for p in sys.path if p not in paths]\n"
+         "from mjkin.runtime.tier import _main\n"
+         "_main(jobs)\n")
+
+
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
     """A child process (its own session: it outlives this one) that compiles ``jobs`` into the disk cache."""
-    env = {**os.environ, "MJKIN_COMPILE": "wait", "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    child = subprocess.Popen([sys.executable, "-m", "mjkin.runtime.tier"], stdin=subprocess.PIPE,
+    env = {**os.environ, "MJKIN_COMPILE": "wait"}
+    for name in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "HOME"):  # relative to this process's folder, not "/"
+        if env.get(name):
+            env[name] = os.path.abspath(env[name])
+    child = subprocess.Popen([sys.executable, "-I", "-c", _BOOT], stdin=subprocess.PIPE, cwd="/",
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
     assert child.stdin is not None
-    child.stdin.write(pickle.dumps(jobs))
+    child.stdin.write(pickle.dumps((_child_path(), jobs)))
     child.stdin.close()
     return child
 
@@ -371,9 +410,8 @@ class Kernel(LazyCache, CPUDispatcher):
             _SPENT[id(self)] = _SPENT.get(id(self), 0.0) + time.perf_counter() - start
 
 
-def _main() -> None:
-    """The child: compile each (address, signature) read from stdin into the disk cache."""
-    jobs = pickle.loads(sys.stdin.buffer.read())
+def _main(jobs: list[tuple]) -> None:
+    """The child: compile each (address, signature) of ``jobs`` into the disk cache."""
     os.nice(10)  # in the background: the process that runs interpreted meanwhile comes first
     for (name, path, qualname), sig in jobs:
         try:
@@ -389,6 +427,3 @@ def _main() -> None:
             kernel = getattr(kernel, part)
         kernel.compile(sig)
 
-
-if __name__ == "__main__":
-    _main()
