@@ -19,7 +19,6 @@ those of its kinds' residuals among them.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import inspect
 import sys
 from collections.abc import Sequence
@@ -77,15 +76,16 @@ def kernels(codes: Sequence[int]) -> ModuleType:
     if key in _LOADED:
         return _LOADED[key]
     text = source(key)
-    module = _import(generated_file("generated", f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py", text))
+    name = f"{PREFIX}{hashlib.sha256(text.encode()).hexdigest()[:16]}.py"
+    module = _import(generated_file("generated", name, text), text)
     _LOADED[key] = module
     return module
 
 
-def _import(path: Path) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
+def _import(path: Path, text: str) -> ModuleType:
+    """The module of ``text``, written at ``path``: compiled from the text itself, never from a ``.pyc`` beside it."""
+    module = ModuleType(path.stem)
+    module.__file__ = str(path)
     sys.modules[path.stem] = module
-    spec.loader.exec_module(module)
+    exec(compile(text, str(path), "exec"), module.__dict__)
     return module
