@@ -39,6 +39,7 @@ import os
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from functools import cache
 from pathlib import Path
@@ -46,6 +47,8 @@ from typing import Any
 
 import numpy as np
 from numba.core import caching, config
+
+from . import progress
 
 PACKAGE = Path(__file__).resolve().parent.parent  # mjkin/
 
@@ -327,27 +330,31 @@ class KernelCache(caching.FunctionCache):
         return data
 
     @contextlib.contextmanager
-    def compiling(self) -> Iterator[None]:
+    def compiling(self, wait: bool = True) -> Iterator[bool]:
         """Hold this kernel's compile lock: a second process that needs it waits, then loads what this one wrote.
 
         Test workers, ``mjkin warmup``'s processes and a dataset's workers each compile a kernel once between
         them, not once each. An advisory ``flock`` on a file beside the cache: the system drops it when the
         process ends, so a killed compile never blocks the next. Without a writable cache folder, no lock.
+        A wait longer than :data:`LOCK_WAIT` seconds (a process that hangs) ends with the compile done here
+        all the same, and says so. Yields whether the lock is held (or there is none); False at once with
+        ``wait=False`` when another process holds it.
         """
         path = self.lock_path()
         if path in _HELD:  # this process holds it already (a kernel that calls itself)
-            yield
+            yield True
             return
         try:
             self._impl.locator.ensure_cache_path()
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         except OSError:
-            yield
+            yield True
             return
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-            _HELD.add(path)
-            yield
+            held = _flock(fd, LOCK_WAIT if wait else 0.0, os.path.basename(path)[:-5])
+            if held:
+                _HELD.add(path)
+            yield held or wait
         finally:
             _HELD.discard(path)
             os.close(fd)
@@ -400,6 +407,27 @@ class LazyCache:
 
 
 _HELD: set[str] = set()  # the compile locks this process holds (under numba's compiler lock: one thread at a time)
+LOCK_WAIT = 600.0  # seconds to wait for another process's compile of a kernel (the IK loop: 1-3 min) before our own
+
+
+def _flock(fd: int, seconds: float, name: str) -> bool:
+    """Whether ``fd``'s exclusive lock was taken within ``seconds``; a wait over 2 s is said on stderr (the CLI)."""
+    start = time.monotonic()
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            waited = time.monotonic() - start
+            if waited >= seconds:
+                if seconds:
+                    progress.notice(f"{name}: another process held its compile lock for {seconds:.0f} s; "
+                                    "compiling it here")
+                return False
+            if waited > 2.0:
+                progress.notice(f"waiting for another mjkin process that is compiling {name} (at most "
+                                f"{seconds:.0f} s)...")
+            time.sleep(0.05)
 
 
 def _ours(folder: Path) -> bool:

@@ -178,14 +178,21 @@ def _address(kernel: Dispatcher) -> tuple[str, str, str] | None:
 
 
 class _Compiler:
-    """Compiles kernels in one child process at a time, in the order asked, and tracks what each child did."""
+    """Compiles kernels in one child process at a time, in the order asked, and tracks what each child did.
+
+    A kernel another process is compiling already (its compile lock is held: another run's child) is not
+    asked for again: its small calls run interpreted until that process is done, then it is loaded. A child
+    that dies (killed) is started once more for its kernels; a finished child is reaped at once.
+    """
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, done, failed
+        self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, elsewhere, done, failed
         self.queue: list[tuple] = []  # (key, address, signature)
         self.child: subprocess.Popen | None = None
-        self.running: list[tuple] = []
+        self.running: list[tuple] = []  # the child's (key, address, signature)
+        self.elsewhere: dict[tuple, tuple] = {}  # key -> (kernel, signature) another process compiles
+        self.retried = False  # whether a child that died was started again
         self.since: float | None = None  # when the first child started
         self.took: float | None = None  # seconds from then until the last child finished
         self.held = 0  # open :func:`later` blocks: no child starts while > 0
@@ -200,25 +207,43 @@ class _Compiler:
         with self.lock:
             for kernel, sig in jobs if submit else ():
                 key = (id(kernel), sig)
-                if key not in self.state:
-                    address = _address(kernel)
-                    self.state[key] = "queued" if address else "failed"
-                    if address:
-                        self.queue.append((key, address, sig))
-                        if not self.told:
-                            self.told = True
-                            progress.notice(LATER if self.held else BACKGROUND)
+                if key in self.state:
+                    continue
+                address = _address(kernel)
+                if address is None:
+                    self.state[key] = "failed"
+                elif isinstance(cache := getattr(kernel, "_cache", None), KernelCache) and cache.busy():
+                    self.state[key], self.elsewhere[key] = "elsewhere", (kernel, sig)
+                    progress.notice(ELSEWHERE)
+                else:
+                    self.state[key] = "queued"
+                    self.queue.append((key, address, sig))
+                    if not self.told:
+                        self.told = True
+                        progress.notice(LATER if self.held else BACKGROUND)
             self._advance()
             states = {self.state.get((id(k), s), "unknown") for k, s in jobs}
-        return next((s for s in ("failed", "unknown", "queued", "running") if s in states), "done")
+        return next((s for s in ("failed", "unknown", "queued", "elsewhere", "running") if s in states), "done")
 
     def _advance(self) -> None:
-        """Note what a finished child did, and start one for the queue if none runs."""
+        """Note what a finished child, or another process, did, and start a child for the queue if none runs."""
+        for key, (kernel, sig) in list(self.elsewhere.items()):
+            if not kernel._cache.busy():
+                del self.elsewhere[key]
+                if _load(kernel, sig):
+                    self.state[key] = "done"
+                else:  # that process stopped before it wrote this version: ours to ask for
+                    self.state[key] = "queued"
+                    self.queue.append((key, _address(kernel), sig))
         if self.child is not None:
             if self.child.poll() is None:
                 return
-            for key in self.running:
-                self.state[key] = "done" if self.child.returncode == 0 else "failed"
+            if self.child.returncode != 0 and not self.retried:  # killed: once more, rather than compile here
+                self.retried = True
+                self.queue[:0] = self.running
+            else:
+                for key, _, _ in self.running:
+                    self.state[key] = "done" if self.child.returncode == 0 else "failed"
             self.child, self.running = None, []
             if not self.queue and self.since is not None:
                 self.took = time.monotonic() - self.since
@@ -227,10 +252,16 @@ class _Compiler:
             if self.since is None:
                 self.since = time.monotonic()
             self.child = _spawn([(address, sig) for _, address, sig in self.queue])
-            self.running = [key for key, _, _ in self.queue]
-            self.queue = []
-            for key in self.running:
+            self.running, self.queue = self.queue, []
+            for key, _, _ in self.running:
                 self.state[key] = "running"
+            threading.Thread(target=self._reap, args=(self.child,), daemon=True).start()
+
+    def _reap(self, child: subprocess.Popen) -> None:
+        """Wait for ``child`` to end, then note it (no zombie is left under a long-lived process)."""
+        child.wait()
+        with self.lock:
+            self._advance()
 
     @contextlib.contextmanager
     def hold(self) -> Iterator[None]:
@@ -257,11 +288,14 @@ class _Compiler:
             time.sleep(0.05)
 
     def flush(self) -> None:
-        """Start a child for what is still queued (at exit: the cache is warm for the next run)."""
+        """At exit: start a child for what is still queued (the cache is warm for the next run); say if one goes on."""
         with self.lock:
             if self.queue:
-                _spawn([(address, sig) for _, address, sig in self.queue])
+                self.child = _spawn([(address, sig) for _, address, sig in self.queue])
                 self.queue = []
+            if self.child is not None and self.child.poll() is None:
+                progress.notice(f"a background process (pid {self.child.pid}, low priority) goes on compiling "
+                                "kernels for later runs")
 
 
 _COMPILER = _Compiler()
@@ -331,8 +365,9 @@ def _spawn(jobs: list[tuple]) -> subprocess.Popen:
 
 BACKGROUND = ("compiling kernels for their first use in a background process (cached for later runs; a minute or "
               "two); running them interpreted until then...")
-LATER = ("kernels not compiled yet run interpreted in this first run (slower); a background process compiles them "
-         "when it ends, cached for later runs...")
+LATER = ("this first run runs kernels interpreted where it can (slower); a background process compiles them when it "
+         "ends, for later runs...")
+ELSEWHERE = "another mjkin process is compiling kernels this run needs; running them interpreted until it is done..."
 
 
 def _load(kernel: Any, sig: tuple) -> bool:
@@ -365,7 +400,7 @@ def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool, patient: bool = 
         return True
     if small and mode() == "background":
         state = _COMPILER.status(jobs)
-        if state in ("queued", "running"):
+        if state in ("queued", "elsewhere", "running"):
             return False
         if state == "done" and all(_load(k, s) for k, s in jobs):  # else the child could not write the cache
             return True
@@ -411,8 +446,13 @@ class Kernel(LazyCache, CPUDispatcher):
 
 
 def _main(jobs: list[tuple]) -> None:
-    """The child: compile each (address, signature) of ``jobs`` into the disk cache."""
+    """The child: compile each (address, signature) of ``jobs`` into the disk cache.
+
+    It claims every kernel's compile lock first, so that another run finds them at work and waits for this
+    child rather than start its own; a kernel another process holds already is left to that process.
+    """
     os.nice(10)  # in the background: the process that runs interpreted meanwhile comes first
+    kernels = []
     for (name, path, qualname), sig in jobs:
         try:
             module = importlib.import_module(name)
@@ -425,5 +465,16 @@ def _main(jobs: list[tuple]) -> None:
         kernel: Any = module
         for part in qualname.split("."):
             kernel = getattr(kernel, part)
-        kernel.compile(sig)
+        kernels.append((kernel, sig))
+    claimed = []
+    for kernel, sig in kernels:
+        claim = contextlib.ExitStack()
+        cache = getattr(kernel, "_cache", None)
+        if not isinstance(cache, KernelCache) or claim.enter_context(cache.compiling(wait=False)):
+            claimed.append((kernel, sig, claim))
+        else:  # another process compiles it
+            claim.close()
+    for kernel, sig, claim in claimed:
+        with claim:  # given back as soon as it is compiled: a process waiting for it loads it then
+            kernel.compile(sig)
 

@@ -264,3 +264,115 @@ def test_a_small_call_past_its_budget_runs_interpreted_while_another_process_com
     """Not blocked for another run's whole compile (a second demo while the first one's children still compile)."""
     run = _run_tiered(tmp_path, _PATIENT)
     assert run.stdout.split() == ["True", "False", "[0.0,", "3.0,", "6.0]", "0", "[0.0,", "3.0,", "6.0]", "1"]
+
+
+_ELSEWHERE = textwrap.dedent("""
+    import fcntl, os, subprocess, sys, time
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import tier
+    from tiered import triple
+    x = np.arange(3.0)
+    sig = (triple.typeof_pyval(x),)
+    # another run's child at work on this kernel: it holds the kernel's compile lock
+    other = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDWR "
+                              "| os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX); print(1, flush=True); time.sleep(60)",
+                              triple._cache.lock_path()], stdout=subprocess.PIPE, text=True)
+    other.stdout.readline()
+    state = tier._COMPILER.status([(triple, sig)])
+    no_child = tier._COMPILER.child is None
+    first = tier.first_use(triple)(x)  # interpreted meanwhile
+    other.kill(); other.wait()  # it stopped before writing this version: ours to ask for now
+    deadline = time.monotonic() + 240
+    while tier._COMPILER.status([(triple, sig)], submit=False) != "done" and time.monotonic() < deadline:
+        time.sleep(0.1)
+    print(state, no_child, first.tolist(), tier._COMPILER.status([(triple, sig)], submit=False))
+""")
+
+
+def test_a_kernel_another_process_compiles_starts_no_second_child(tmp_path):
+    """Ten cold runs in a row no longer leave ten children: a run that finds a kernel at work waits for that one."""
+    run = _run_tiered(tmp_path, _ELSEWHERE)
+    assert run.stdout.strip() == "elsewhere True [0.0, 3.0, 6.0] done"
+
+
+_KILLED = textwrap.dedent("""
+    import os, signal, sys, time
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from numba.core.event import install_recorder
+    from mjkin.runtime import tier
+    from tiered import triple
+    x = np.arange(3.0)
+    sig = (triple.typeof_pyval(x),)
+    call = tier.first_use(triple)
+    call(x)
+    first = tier._COMPILER.child
+    os.kill(first.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 240
+    while tier._COMPILER.status([(triple, sig)], submit=False) != "done" and time.monotonic() < deadline:
+        time.sleep(0.1)
+    with install_recorder("numba:compile") as rec:
+        out = call(x)
+    # reaped without another call: no zombie under this process
+    while os.path.exists(f"/proc/{first.pid}") and time.monotonic() < deadline:
+        time.sleep(0.1)
+    print(tier._COMPILER.retried, len(rec.buffer), out.tolist(), os.path.exists(f"/proc/{first.pid}"))
+""")
+
+
+def test_a_killed_child_is_started_again_not_compiled_here_and_children_are_reaped(tmp_path):
+    run = _run_tiered(tmp_path, _KILLED)
+    assert run.stdout.strip() == "True 0 [0.0, 3.0, 6.0] False"
+
+
+_REAPED = textwrap.dedent("""
+    import os, sys, time
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import tier
+    from tiered import triple
+    tier.first_use(triple)(np.arange(3.0))
+    pid = tier._COMPILER.child.pid
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:  # no call of ours: only a reaper can collect it
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().split()[2] == "Z":  # ended, not collected
+                    time.sleep(1.0)
+                    break
+        except FileNotFoundError:  # collected
+            break
+        time.sleep(0.1)
+    print(os.path.exists(f"/proc/{pid}"))
+""")
+
+
+def test_a_finished_child_leaves_no_zombie_under_a_long_lived_parent(tmp_path):
+    run = _run_tiered(tmp_path, _REAPED)
+    assert run.stdout.strip() == "False"
+
+
+_STUCK = textwrap.dedent("""
+    import fcntl, os, sys
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import cache, progress
+    from tiered import triple
+    progress.enable(True)
+    cache.LOCK_WAIT = 1.0
+    holder = os.open(triple._cache.lock_path(), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(holder, fcntl.LOCK_EX)  # a process that hangs holding it (another open file: to flock, another one)
+    print(triple(np.arange(3.0)).tolist())
+""")
+
+
+def test_a_compile_lock_held_too_long_is_waited_for_a_bounded_time_and_said(tmp_path):
+    """MJKIN_COMPILE=wait behind a lock that is never given back: the kernel is compiled here after the bound."""
+    (tmp_path / "tiered.py").write_text("from mjkin.runtime.jit import njit\n\n\n@njit\ndef triple(x):\n"
+                                        "    return 3.0 * x\n")
+    env = {**os.environ, "MJKIN_COMPILE": "wait", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.run([sys.executable, "-c", _STUCK, str(tmp_path)], capture_output=True, text=True, env=env,
+                         timeout=120, check=True)
+    assert run.stdout.strip() == "[0.0, 3.0, 6.0]"
+    assert "another process held its compile lock for 1 s; compiling it here" in run.stderr
