@@ -67,7 +67,7 @@ def test_a_folder_gives_a_file_per_clip_and_a_report(tmp_path: Path, primate: mj
     expected = list(report(primate, mjkin.retarget(src / "crouch.bvh", primate)))
     cols = list(written[0])
     assert cols[:4] == ["clip", "frames", "fps", "frames_per_second"] and cols[-1] == "status"
-    assert cols[1:-1] == ["frames", "fps", *[k for k in expected if k != "frames"]]
+    assert cols[1:-1] == ["frames", "fps", *[k for k in expected if k != "frames"], *dataset.RECORD]
     assert [r["clip"] for r in written] == names and written[0]["limits"] == ""  # None: no joint outside
     for row, name in zip(written, names, strict=True):
         clip = bvh.read(src / name)
