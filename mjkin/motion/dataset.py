@@ -65,7 +65,7 @@ from ..runtime.parallel import set_threads
 from ..runtime.progress import track
 from . import bvh
 from .clips import CLIP_SUFFIXES, read_clip
-from .retarget import read_mapping, report, retarget
+from .retarget import MAX_ERROR, check_max_error, read_mapping, report, retarget, verdict
 from .terrain import Terrain
 from .trajectory import Trajectory
 
@@ -438,8 +438,8 @@ def _measure(work: Work, clip: bvh.Clip) -> tuple[Trajectory, dict[str, Any]]:
 
 
 def retarget_clip(work: Work, job: Job) -> Outcome:
-    """Read, retarget and measure one clip: its report row (what it is made from, ``status`` ``ok`` or the error)
-    and trajectory (or None).
+    """Read, retarget and measure one clip: its report row (what it is made from, ``status`` ``ok``, ``failed``
+    (:func:`mjkin.retarget`'s ``max_error``) or the error) and trajectory (or None).
     """  # noqa: D205
     try:
         clip = _read(work, job)
@@ -447,7 +447,7 @@ def retarget_clip(work: Work, job: Job) -> Outcome:
     except Exception as e:  # noqa: BLE001 - one bad clip never stops the others: its row says why
         return {"clip": job.name, **work.made_from(job), "status": _one_line(e)}, None
     return {"clip": job.name, "frames": clip.frames, "fps": clip.fps, **measured, **work.made_from(job),
-            "status": "ok"}, traj
+            "status": traj.meta["retarget"]["status"]}, traj
 
 
 def _warm_up(work: Work, jobs: Sequence[Job]) -> None:
@@ -542,15 +542,17 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
         body_model: the SMPL/SMPL-H/SMPL-X model file for ``.npz`` clips
             (:func:`mjkin.motion.clips.read_clip`); without it they fail, each with its row.
         **options: :func:`mjkin.retarget`'s (``mapping``, ``scale``, ``max_speed``, ``clearance``, ``scene``,
-            ...); ``model_source`` defaults to where ``model`` loads from. A mapping or scene file is read
-            here first, so a bad one stops the run before any clip.
+            ``max_error``, ...); ``model_source`` defaults to where ``model`` loads from. A clip done before
+            under another ``max_error`` is judged again from its row's ``frame_error_p95``, not redone. A
+            mapping or scene file is read here first, so a bad one stops the run before any clip.
 
     Returns:
         The report's rows, one per clip in the order found: ``clip`` (path in ``out``'s terms),
         ``frames``, ``fps``, then :func:`mjkin.motion.retarget.report`'s keys (``frames_per_second``
         wall-clock, key-point errors, skate, ``floor_min``, ``limits``, speeds, self-contact, ...),
-        what its file was made from (:data:`RECORD`, :func:`made_from`) and ``status`` (``ok`` or the
-        clip's one-line error, the measures then absent).
+        what its file was made from (:data:`RECORD`, :func:`made_from`) and ``status``: ``ok``, ``failed``
+        (its key points miss by more than ``max_error``: :func:`mjkin.motion.retarget.verdict`; its file is
+        written) or the clip's one-line error (the measures then absent).
 
     Raises:
         MjkinIOError: a source, mapping or scene file does not exist, or a file cannot be written.
@@ -569,6 +571,7 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     if isinstance(options.get("scene"), str | os.PathLike):
         Terrain.load(options["scene"])  # a bad scene before any work (then cached by file, for forked workers too)
     _check_options(tree, options)
+    max_error = check_max_error(options.get("max_error", MAX_ERROR))
     folder = as_path(out, "out")
     if folder.exists() and not folder.is_dir():
         raise InputError(f"output {str(folder)!r} is a file; several clips need a folder (made if missing)")
@@ -598,8 +601,9 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     for j in jobs:
         row = None if overwrite else previous.get(j.name)
         if row is not None and all(row.get(k) == v for k, v in work.made_from(j).items()) \
-                and _reads(j.output(folder, fmt), row.get("frames"), tree.nq):
-            report_file.put(row)
+                and isinstance(row.get("frame_error_p95"), float) and _reads(j.output(folder, fmt), row.get("frames"),
+                                                                             tree.nq):
+            report_file.put({**row, "status": verdict(row["frame_error_p95"], max_error)})  # judged by this bound
     todo = [j for j in jobs if j.name not in report_file.rows]
     # largest first, so that no worker ends on a long clip alone (a clip gone since is left to fail in its job)
     largest_first = sorted(todo, key=lambda j: -(j.path.stat().st_size if j.path.is_file() else 0))

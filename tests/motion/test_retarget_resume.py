@@ -65,6 +65,8 @@ def test_a_rerun_with_other_options_redoes_every_clip(tmp_path: Path, solved: li
         solved.clear()
         retarget_many(src, "primate", out, **options)  # the same again: done
         assert solved == [], options
+    retarget_many(src, "primate", out, clearance=0.004, max_error=0.5)  # the bound only judges: nothing to redo
+    assert solved == []
 
 
 def test_a_rerun_onto_another_model_redoes_every_clip(tmp_path: Path, solved: list[str]) -> None:
