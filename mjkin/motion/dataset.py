@@ -9,9 +9,13 @@ row's ``status`` and the others go on.
 
 Every file is written atomically (:mod:`mjkin.runtime.files`) by the calling process,
 ``report.csv`` again after each clip from the rows of the clips done so far, so a run killed
-at any moment loses no finished clip and leaves no half-written file. Run again, a clip whose
-file exists and whose row in the previous ``report.csv`` says ``ok`` is skipped (its row kept);
-``overwrite=True`` redoes every clip.
+at any moment loses no finished clip and leaves no half-written file. Each row records what its
+file was made from (:data:`RECORD`: the model's digest, :func:`mjkin.retarget`'s options, mjkin's
+version). Run again, a clip is skipped (its row kept) when its row in the previous ``report.csv``
+is done (``ok`` or ``failed``), records what this run would make it from, and its file reads back
+whole (:func:`read_motion`: its frames of this model's qpos); any other clip is redone, and
+``overwrite=True`` redoes every clip. The output folder may be a source folder: the motion files
+found there are not clips (an ``.npz`` holding ``qpos_names``, or one report.csv lists as an output).
 
 Clips run in this process, in local worker processes (forked after this process has
 compiled the kernels on a few frames, so they compile nothing) or as Ray tasks (the
@@ -30,12 +34,17 @@ Formats (:func:`write_motion`, by suffix):
 from __future__ import annotations
 
 import csv
+import hashlib
 import inspect
 import io
+import json
 import multiprocessing
 import os
+import pickle
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+import warnings
+import zipfile
+from collections.abc import Collection, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from graphlib import CycleError, TopologicalSorter
@@ -44,6 +53,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import InputError, MjkinError, MjkinIOError
 from ..kinematics.qspace import BALL, FREE
@@ -55,7 +65,7 @@ from ..runtime.parallel import set_threads
 from ..runtime.progress import track
 from . import bvh
 from .clips import CLIP_SUFFIXES, read_clip
-from .retarget import read_mapping, report, retarget
+from .retarget import MAX_ERROR, check_max_error, read_mapping, report, retarget, verdict
 from .terrain import Terrain
 from .trajectory import Trajectory
 
@@ -63,6 +73,9 @@ FORMATS = ("npz", "csv", "json")
 REPORT = "report.csv"
 WARMUP_FRAMES = 3  # frames of the first clip retargeted here before workers start: every kernel compiled once
 WARMUP_TRIES = 3  # clips tried for that warm-up (one may not read or map)
+RECORD = ("model_sha256", "options", "mjkin_version")  # report.csv's columns of what a clip's file was made from
+DONE = ("ok", "failed")  # the statuses of a clip whose file was written
+OPTIONS = inspect.signature(retarget)  # what retarget takes, for the options given to retarget_many
 Outcome = tuple[dict[str, Any], Trajectory | None]  # a clip's report row and trajectory (None when it failed)
 COORDS = {FREE: ("x", "y", "z", "qw", "qx", "qy", "qz"), BALL: ("qw", "qx", "qy", "qz")}  # suffixes per coordinate
 
@@ -81,22 +94,88 @@ class Job:
 
 @dataclass(frozen=True)
 class Work:
-    """What every clip's job shares: the figure, the body model of ``.npz`` clips, :func:`mjkin.retarget`'s options."""
+    """What every clip's job shares: the figure, the body model of ``.npz`` clips, :func:`mjkin.retarget`'s options,
+    and what a clip's file is made from (:func:`made_from`), by the clip's suffix.
+    """  # noqa: D205
 
     tree: Tree
     body_model: str | None
     options: dict[str, Any]
+    records: dict[str, dict[str, str]]
+
+    def made_from(self, job: Job) -> dict[str, str]:
+        """The :data:`RECORD` of ``job``'s file."""
+        return self.records[job.path.suffix.lower()]
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
         """Pickle the figure as its ``MjModel``, its tree rebuilt where it arrives (as :mod:`mjkin.distributed` does).
 
         A pickled tree's arrays arrive read-only from Ray's object store, a type the kernels are not compiled for.
         """
-        return _work, (self.tree.model, self.body_model, self.options)
+        return _work, (self.tree.model, self.body_model, self.options, self.records)
 
 
-def _work(model: mujoco.MjModel, body_model: str | None, options: dict[str, Any]) -> Work:
-    return Work(Tree.from_model(model), body_model, options)
+def _work(model: mujoco.MjModel, body_model: str | None, options: dict[str, Any],
+          records: dict[str, dict[str, str]]) -> Work:
+    return Work(Tree.from_model(model), body_model, options, records)
+
+
+# ------------------------------------------------------------------ what a file is made from
+NOT_MADE_FROM = ("source", "tree", "model_source", "body_model", "max_error")  # retarget's arguments left out of
+# the options recorded: the clip and figure (recorded apart), where the model was loaded from (its digest says what
+# it is), the body model (its file's digest, for .npz clips only) and max_error (it judges the result, not makes it)
+
+
+def model_digest(model: mujoco.MjModel) -> str:
+    """SHA-256 (hex) of a compiled model as MuJoCo saves it (MJB).
+
+    The compiled model holds every number the compiler made of the XML, its includes, defaults and mesh files: the
+    same files give the same digest run after run, any change that reaches the model gives another (and so may a
+    MuJoCo release that compiles differently). The XML text alone would miss its includes and meshes.
+    """
+    buffer = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return hashlib.sha256(buffer.data).hexdigest()
+
+
+def _file_digest(path: str) -> str:
+    """SHA-256 (hex) of a file's bytes; its path when it cannot be read (each clip needing it then fails alone)."""
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
+    except OSError:
+        return path
+    return digest.hexdigest()
+
+
+def _plain(value: Any) -> Any:
+    """A recorded option that JSON has no form for: numpy values as numbers, other objects (goals) by digest."""
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    return f"sha256 {hashlib.sha256(pickle.dumps(value)).hexdigest()}"
+
+
+def made_from(tree: Tree, options: dict[str, Any], body_model: str | None) -> dict[str, dict[str, str]]:
+    """What a clip's file is made from, by clip suffix: :data:`RECORD`'s columns as report.csv holds them.
+
+    ``model_sha256`` (:func:`model_digest`), ``options``: :func:`mjkin.retarget`'s arguments, its defaults
+    filled in, as JSON with sorted keys (a scene by its compiled model's digest, an ``.npz`` clip's body model by
+    its file's; not those of :data:`NOT_MADE_FROM`), and ``mjkin_version``.
+    """
+    from .. import __version__
+
+    bound = OPTIONS.bind(None, tree, **options)
+    bound.apply_defaults()
+    made = {k: v for k, v in bound.arguments.items() if k not in NOT_MADE_FROM}
+    if made.get("scene") is not None:
+        scene = made["scene"]
+        made["scene"] = model_digest((scene if isinstance(scene, Terrain) else Terrain.load(scene)).model)
+    digest = model_digest(tree.model)
+    by_clip = {".bvh": made, ".npz": {**made, "body_model": None if body_model is None else _file_digest(body_model)}}
+    return {suffix: dict(zip(RECORD, (digest, json.dumps(m, sort_keys=True, default=_plain), __version__),
+                             strict=True)) for suffix, m in by_clip.items()}
 
 
 # ------------------------------------------------------------------ files
@@ -142,6 +221,42 @@ def write_motion(path: str | os.PathLike[str], traj: Trajectory, tree: Tree, fps
     raise InputError(f"motion file {str(path)!r} must end in {', '.join('.' + f for f in FORMATS)}")
 
 
+def read_motion(path: str | os.PathLike[str]) -> NDArray[np.float64]:
+    """The qpos ``(F, nq)`` of a file :func:`write_motion` wrote (by suffix; an ``.npz`` read without pickles).
+
+    Raises:
+        MjkinError: the file is missing, damaged or not such a file (:class:`MjkinIOError` or :class:`InputError`).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        return Trajectory.load(path).q
+    if suffix not in (".npz", ".csv"):
+        raise InputError(f"motion file {str(path)!r} must end in {', '.join('.' + f for f in FORMATS)}")
+    try:
+        if suffix == ".csv":
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an empty file: no rows, as the check below says
+                q = np.loadtxt(path, delimiter=",", ndmin=2)
+        else:
+            with np.load(path, allow_pickle=False) as f:
+                q = f["qpos"]
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
+        raise MjkinIOError(f"cannot read motion file {str(path)!r}: {_one_line(e)}") from None
+    if q.ndim != 2 or q.dtype != np.float64:
+        raise MjkinIOError(f"motion file {str(path)!r} holds qpos of shape {q.shape} ({q.dtype}), not (frames, nq)")
+    return q
+
+
+def _reads(path: Path, frames: Any, nq: int) -> bool:
+    """Whether the motion file ``path`` reads back whole: ``frames`` rows of ``nq`` finite numbers."""
+    try:
+        q = read_motion(path)
+    except MjkinError:
+        return False
+    return q.shape == (frames, nq) and bool(np.isfinite(q).all())
+
+
 def _cell(value: Any) -> str:
     """A report value as a CSV cell: None empty, floats exactly (repr)."""
     return "" if value is None else repr(value) if isinstance(value, float) else str(value)
@@ -149,7 +264,7 @@ def _cell(value: Any) -> str:
 
 def _value(column: str, text: str) -> Any:
     """A cell of a previous report.csv as a value: empty None, a number as int or float, else the text."""
-    if column in ("clip", "status") or text == "":
+    if column in ("clip", "status", *RECORD) or text == "":
         return None if text == "" else text
     for kind in (int, float):
         try:
@@ -216,7 +331,7 @@ class ReportFile:
 
 
 def read_report(path: Path) -> dict[str, dict[str, Any]]:
-    """The rows of a previous report.csv by clip, those whose status is ``ok`` only ({} when there is none).
+    """The rows of a previous report.csv by clip, those whose clip is done only (:data:`DONE`; {} when there is none).
 
     Raises:
         MjkinIOError: it exists but cannot be read.
@@ -229,15 +344,17 @@ def read_report(path: Path) -> dict[str, dict[str, Any]]:
         raise MjkinIOError(f"cannot read the previous report {str(path)!r}: {e}; delete it or give overwrite") from None
     rows = csv.DictReader(io.StringIO(text))
     return {row["clip"]: {k: _value(k, v or "") for k, v in row.items() if k is not None}
-            for row in rows if row.get("clip") and row.get("status") == "ok"}
+            for row in rows if row.get("clip") and row.get("status") in DONE}
 
 
 # ------------------------------------------------------------------ clips
-def find_clips(sources: Sequence[str | os.PathLike[str]], skip: Path | None = None) -> list[Job]:
+def find_clips(sources: Sequence[str | os.PathLike[str]], skip: Path | None = None,
+               outputs: Collection[Path] = ()) -> list[Job]:
     """The clips of ``sources``: files as given, folders searched recursively for :data:`CLIP_SUFFIXES`.
 
-    Hidden files and folders (a name starting with ``.``) and the folder ``skip`` (the output)
-    are left out; a clip found twice counts once. Within a folder clips come by relative path.
+    Hidden files and folders (a name starting with ``.``), the folder ``skip`` (the output) and
+    motion files (:func:`_is_output`; ``outputs``: the resolved paths a previous report.csv lists
+    as outputs) are left out; a clip found twice counts once. Within a folder clips come by relative path.
 
     Raises:
         MjkinIOError: a source does not exist.
@@ -248,7 +365,8 @@ def find_clips(sources: Sequence[str | os.PathLike[str]], skip: Path | None = No
     for source in sources:
         src = Path(source)
         if src.is_dir():
-            found = sorted((Job(p, p.relative_to(src).as_posix()) for p in _walk(src, skip)), key=lambda j: j.name)
+            found = sorted((Job(p, p.relative_to(src).as_posix()) for p in _walk(src, skip, outputs)),
+                           key=lambda j: j.name)
             if not found:
                 raise InputError(f"folder {str(src)!r} holds no clips ({', '.join(CLIP_SUFFIXES)} files, searched "
                                  "recursively)")
@@ -265,18 +383,36 @@ def find_clips(sources: Sequence[str | os.PathLike[str]], skip: Path | None = No
     return list(unique.values())
 
 
-def _walk(folder: Path, skip: Path | None) -> Iterator[Path]:
-    """Clip files under ``folder``, not hidden, not under ``skip``."""
+def _walk(folder: Path, skip: Path | None, outputs: Collection[Path]) -> Iterator[Path]:
+    """Clip files under ``folder``, not hidden, not under ``skip``, not motion files (:func:`_is_output`)."""
     for root, dirs, files in os.walk(folder):
         dirs[:] = [d for d in dirs if not d.startswith(".") and Path(root, d).resolve() != skip]
-        yield from (Path(root, f) for f in files if not f.startswith(".") and Path(f).suffix.lower() in CLIP_SUFFIXES)
+        yield from (Path(root, f) for f in files if not f.startswith(".") and Path(f).suffix.lower() in CLIP_SUFFIXES
+                    and not _is_output(Path(root, f), outputs))
+
+
+def _is_output(path: Path, outputs: Collection[Path]) -> bool:
+    """Whether ``path`` is a motion file (:func:`write_motion`), no clip: an ``.npz`` holding ``qpos_names`` (an
+    AMASS clip holds none), or one that does not read as an ``.npz`` (a damaged file) at a path of ``outputs``.
+    """  # noqa: D205
+    if path.suffix.lower() != ".npz":
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return "qpos_names" in f.files
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        return path.resolve() in outputs
 
 
 def _check_outputs(jobs: Sequence[Job], out: Path, fmt: str) -> None:
-    """Refuse two clips writing one file (or a clip writing over the report)."""
+    """Refuse two clips writing one file, a clip writing over the report, or over a clip."""
+    clips = {job.path.resolve(): job for job in jobs}
     taken: dict[Path, str] = {out / REPORT: "the report"}
     for job in jobs:
         dest = job.output(out, fmt)
+        if dest.resolve() in clips:
+            raise InputError(f"the {fmt} file of clip {str(job.path)!r} would overwrite clip "
+                             f"{str(clips[dest.resolve()].path)!r}; write another format or into another folder")
         if dest in taken:
             raise InputError(f"{taken[dest]} and clip {str(job.path)!r} would both write {str(dest)!r}; rename the "
                              "clip or retarget it into another folder")
@@ -302,13 +438,16 @@ def _measure(work: Work, clip: bvh.Clip) -> tuple[Trajectory, dict[str, Any]]:
 
 
 def retarget_clip(work: Work, job: Job) -> Outcome:
-    """Read, retarget and measure one clip: its report row (``status`` ``ok`` or the error) and trajectory (or None)."""
+    """Read, retarget and measure one clip: its report row (what it is made from, ``status`` ``ok``, ``failed``
+    (:func:`mjkin.retarget`'s ``max_error``) or the error) and trajectory (or None).
+    """  # noqa: D205
     try:
         clip = _read(work, job)
         traj, measured = _measure(work, clip)
     except Exception as e:  # noqa: BLE001 - one bad clip never stops the others: its row says why
-        return {"clip": job.name, "status": _one_line(e)}, None
-    return {"clip": job.name, "frames": clip.frames, "fps": clip.fps, **measured, "status": "ok"}, traj
+        return {"clip": job.name, **work.made_from(job), "status": _one_line(e)}, None
+    return {"clip": job.name, "frames": clip.frames, "fps": clip.fps, **measured, **work.made_from(job),
+            "status": traj.meta["retarget"]["status"]}, traj
 
 
 def _warm_up(work: Work, jobs: Sequence[Job]) -> None:
@@ -376,7 +515,7 @@ def _on_ray(work: Work, jobs: Sequence[Job], workers: int | None, address: str |
 def _check_options(tree: Tree, options: dict[str, Any]) -> None:
     """Refuse options :func:`mjkin.retarget` does not take, before any clip runs."""
     try:
-        inspect.signature(retarget).bind(None, tree, **options)
+        OPTIONS.bind(None, tree, **options)
     except TypeError as e:
         raise InputError(f"retarget_many: {e} (options are mjkin.retarget's)") from None
 
@@ -397,19 +536,23 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
             Ray tasks (None: as many as the cluster runs).
         ray: run the clips as Ray tasks: True attaches to the running Ray session or starts a
             local one, a string is a cluster's address (the ``ray`` extra).
-        overwrite: redo clips already done (by default a clip whose file exists and whose row in
-            ``out/report.csv`` says ``ok`` is skipped, its row kept).
+        overwrite: redo clips already done (by default a clip is skipped, its row kept, when its row in
+            ``out/report.csv`` is done and records what this run would make its file from, and its file
+            reads back whole; see the module).
         body_model: the SMPL/SMPL-H/SMPL-X model file for ``.npz`` clips
             (:func:`mjkin.motion.clips.read_clip`); without it they fail, each with its row.
         **options: :func:`mjkin.retarget`'s (``mapping``, ``scale``, ``max_speed``, ``clearance``, ``scene``,
-            ...); ``model_source`` defaults to where ``model`` loads from. A mapping or scene file is read
-            here first, so a bad one stops the run before any clip.
+            ``max_error``, ...); ``model_source`` defaults to where ``model`` loads from. A clip done before
+            under another ``max_error`` is judged again from its row's ``frame_error_p95``, not redone. A
+            mapping or scene file is read here first, so a bad one stops the run before any clip.
 
     Returns:
         The report's rows, one per clip in the order found: ``clip`` (path in ``out``'s terms),
         ``frames``, ``fps``, then :func:`mjkin.motion.retarget.report`'s keys (``frames_per_second``
-        wall-clock, key-point errors, skate, ``floor_min``, ``limits``, speeds, self-contact, ...)
-        and ``status`` (``ok`` or the clip's one-line error, the other keys then absent).
+        wall-clock, key-point errors, skate, ``floor_min``, ``limits``, speeds, self-contact, ...),
+        what its file was made from (:data:`RECORD`, :func:`made_from`) and ``status``: ``ok``, ``failed``
+        (its key points miss by more than ``max_error``: :func:`mjkin.motion.retarget.verdict`; its file is
+        written) or the clip's one-line error (the measures then absent).
 
     Raises:
         MjkinIOError: a source, mapping or scene file does not exist, or a file cannot be written.
@@ -428,6 +571,7 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     if isinstance(options.get("scene"), str | os.PathLike):
         Terrain.load(options["scene"])  # a bad scene before any work (then cached by file, for forked workers too)
     _check_options(tree, options)
+    max_error = check_max_error(options.get("max_error", MAX_ERROR))
     folder = as_path(out, "out")
     if folder.exists() and not folder.is_dir():
         raise InputError(f"output {str(folder)!r} is a file; several clips need a folder (made if missing)")
@@ -436,7 +580,14 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     except TypeError:
         raise InputError(f"sources must be a clip file or folder, or a list of them, got {type(sources).__name__}") \
             from None
-    jobs = find_clips([as_path(s, "a source") for s in given], folder)
+    try:
+        previous = read_report(folder / REPORT)
+    except MjkinIOError:
+        if not overwrite:
+            raise
+        previous = {}  # rewritten anyway
+    listed = {Job(folder, name).output(folder, fmt).resolve() for name in previous}  # outputs, no clips
+    jobs = find_clips([as_path(s, "a source") for s in given], folder, listed)
     _check_outputs(jobs, folder, fmt)
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -445,12 +596,15 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     for place in {job.output(folder, fmt).parent for job in jobs}:
         remove_stale_temps(place)  # what a killed run was writing
     report_file = ReportFile(folder / REPORT, [j.name for j in jobs])
-    previous = {} if overwrite else read_report(report_file.path)
+    body_model = None if body_model is None else os.fspath(body_model)
+    work = Work(tree, body_model, options, made_from(tree, options, body_model))
     for j in jobs:
-        if j.name in previous and j.output(folder, fmt).is_file():
-            report_file.put(previous[j.name])
+        row = None if overwrite else previous.get(j.name)
+        if row is not None and all(row.get(k) == v for k, v in work.made_from(j).items()) \
+                and isinstance(row.get("frame_error_p95"), float) and _reads(j.output(folder, fmt), row.get("frames"),
+                                                                             tree.nq):
+            report_file.put({**row, "status": verdict(row["frame_error_p95"], max_error)})  # judged by this bound
     todo = [j for j in jobs if j.name not in report_file.rows]
-    work = Work(tree, None if body_model is None else os.fspath(body_model), options)
     # largest first, so that no worker ends on a long clip alone (a clip gone since is left to fail in its job)
     largest_first = sorted(todo, key=lambda j: -(j.path.stat().st_size if j.path.is_file() else 0))
     if ray:

@@ -31,6 +31,10 @@ solve per frame through one :class:`mjkin.Problem`):
 
 :func:`report` measures the result: key-point errors, foot skate, floor penetration,
 limits, speeds and self-penetration (MuJoCo contacts between non-adjacent bodies).
+
+Never a silent failure: each frame's error is its worst key point (hands, feet and head, relative to the pelvis,
+against their targets: :func:`frame_errors`), and a clip whose errors' 95th percentile over frames exceeds
+``max_error`` (:data:`MAX_ERROR` by default) is ``failed`` (:func:`verdict`); its trajectory is still returned.
 """
 
 from __future__ import annotations
@@ -84,6 +88,8 @@ BODY_WEIGHTS = {"pelvis": 3.0, "pelvis_turn": 0.05, "torso_turn": 0.3, "head": 0
 # otherwise: limbs that come close in the source (hands at the hips, knees brushing, legs crossing at 120 Hz)
 # stay apart, at 9-16 % of the primate's frames/s and 2-9 % of the G1's (`mjkin bench retarget`).
 SELF_CLEARANCE = 0.002
+MAX_ERROR = 0.10  # m: a clip whose frame errors' ERROR_PERCENTILE exceeds this is failed
+ERROR_PERCENTILE = 95  # over frames: a few frames may miss (a hand through the body moved out), not a tenth of them
 EASE_S = 0.2  # s over which a lifted foot's target returns from where it stood to the source's (6 frames at 30 Hz)
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -471,7 +477,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
              max_speed: ArrayLike = MAX_SPEED, tol: float = 1e-4, clearance: float | None = SELF_CLEARANCE,
              extra_goals: Sequence[G.Goal] = (), model_source: str = "",
              body_model: str | os.PathLike[str] | None = None,
-             scene: str | os.PathLike[str] | Terrain | None = None) -> Trajectory:
+             scene: str | os.PathLike[str] | Terrain | None = None, max_error: float = MAX_ERROR) -> Trajectory:
     """Retarget a clip (BVH or AMASS/SMPL ``.npz``) onto ``tree``: a :class:`Trajectory`, ``q (F, nq)`` per frame.
 
     Args:
@@ -497,12 +503,16 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         body_model: the SMPL-H/SMPL-X body-model ``.npz`` of an ``.npz`` source (:mod:`mjkin.motion.smpl`).
         scene: the ground, an MJCF file whose world geoms the feet stand on (floors, ramps, steps; a
             Menagerie ``scene.xml``) or a :class:`~mjkin.motion.terrain.Terrain`; default: the plane z = 0.
+        max_error: the bound (m, > 0) on the frames' errors' :data:`ERROR_PERCENTILE` th percentile
+            (:func:`frame_errors`) past which the clip is ``failed``; it judges, the solve is the same.
 
     Returns:
         The trajectory; ``meta["retarget"]`` holds the contacts ``(2, F)``, ``metres_per_unit`` and
         ``root_ratio`` (see :class:`Retarget`), the ``clearance`` held (m, or None), the frames per
-        second (planning and solving, the first frame left out: it may compile the solver); ``targets
-        (F, 6, 3)`` are the key-point targets (:data:`KEYS`; the feet's as held).
+        second (planning and solving, the first frame left out: it may compile the solver), ``errors``
+        (each frame's, m, a list of F: :func:`frame_errors`), ``max_error`` and ``status``: ``ok``, or
+        ``failed`` when the errors' percentile exceeds ``max_error``; ``targets (F, 6, 3)`` are the
+        key-point targets (:data:`KEYS`; the feet's as held).
 
     Raises:
         MjkinIOError, InputError: unreadable clip, body model or scene, roles that cannot be mapped, bad options.
@@ -520,6 +530,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"max_speed must be positive rad/s, got {max_speed!r}")
     if tree.nq < 7 or tree.layout.free_q.size == 0:
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
+    max_error = check_max_error(max_error)
     ground = scene if isinstance(scene, Terrain) else None if scene is None else Terrain.load(scene)
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale, ground)
@@ -539,8 +550,26 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                          "max_speed": speed.tolist(), "bodies": plan_.bodies, "clearance": margin,
                          "scene": None if ground is None else ground.source}}
     times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
-    return Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
+    traj = Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
                       source=model_source)
+    errors = frame_errors(tree, traj)
+    meta["retarget"].update(errors=errors.tolist(), max_error=max_error,
+                            status=verdict(float(np.percentile(errors, ERROR_PERCENTILE)), max_error))
+    return traj
+
+
+def check_max_error(value: object) -> float:
+    """``value`` as a bound for :func:`verdict`: metres, finite, > 0.
+
+    Raises:
+        InputError: anything else.
+    """
+    return check_number(value, "max_error (m)", 0.0, strict=True)
+
+
+def verdict(percentile: float, max_error: float) -> str:
+    """A clip's status from its frame errors' :data:`ERROR_PERCENTILE` th percentile (m): ``ok`` or ``failed``."""
+    return "ok" if percentile <= max_error else "failed"
 
 
 @dataclass(frozen=True)
@@ -666,14 +695,33 @@ def _point(tree: Tree, q: Array, body: str, offset: Array) -> Array:
     return T[..., :3, :3] @ offset + T[..., :3, 3]
 
 
+def keypoint_errors(tree: Tree, traj: Trajectory) -> Array:
+    """How far each key point misses its target, ``(F, 5)`` (m): head, hands and feet (:data:`KEYS` after the
+    pelvis), each relative to the pelvis, against ``traj.targets`` (relative to the pelvis's target).
+    """  # noqa: D205
+    if traj.targets is None:
+        raise InputError("the trajectory has no key-point targets: it was not made by mjkin.retarget")
+    bodies = traj.meta["retarget"]["bodies"]
+    offsets = role_offsets(tree, bodies)
+    got = np.stack([_point(tree, traj.q, bodies[r], offsets[r]) for r in KEYS], 1)
+    return np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)
+
+
+def frame_errors(tree: Tree, traj: Trajectory) -> Array:
+    """Each frame's error ``(F,)`` (m): its worst key point (:func:`keypoint_errors`)."""
+    return keypoint_errors(tree, traj).max(axis=1)
+
+
 def report(tree: Tree, traj: Trajectory, terrain: str | os.PathLike[str] | Terrain | None = None) -> dict:
     """Measured figures of a retargeted clip (lengths in m, speeds per second); see the keys.
 
     ``metres_per_unit`` (the clip's unit used) and ``root_ratio`` (figure root path per source metre)
     come from ``traj.meta`` (:class:`Retarget`);
     ``keypoint_error_median``/``_max``: hands, feet and head relative to the pelvis against
-    their targets; ``skate_per_frame_mean`` (mean horizontal slide of a planted foot per
-    frame), ``skate_per_contact_max`` (its largest drift over one contact); ``floor_min`` (the
+    their targets (:func:`keypoint_errors`, every point of every frame); ``frame_error_median``/``_p95``/``_max``
+    and ``worst_frame`` (its index): each frame's worst of them (:func:`frame_errors`);
+    ``skate_per_frame_mean`` (mean horizontal slide of a planted foot per frame), ``skate_per_contact_max`` (its
+    largest drift over one contact); ``floor_min`` (the
     feet's geoms' lowest point above the ground under it, < 0 into it), ``terrain_penetration`` (how
     deep a foot geom goes into the ground at most, 0 when none) and ``planted_float_max`` (how high a
     planted foot's lowest point is above the ground at most): the ground is ``terrain`` (by default the
@@ -690,10 +738,12 @@ def report(tree: Tree, traj: Trajectory, terrain: str | os.PathLike[str] | Terra
     out: dict = {"frames": F, "frames_per_second": info["frames_per_second"],
                  "metres_per_unit": info["metres_per_unit"], "root_ratio": info["root_ratio"]}
     if traj.targets is not None:
-        offsets = role_offsets(tree, bodies)
-        got = np.stack([_point(tree, q, bodies[r], offsets[r]) for r in KEYS], 1)
-        err = np.linalg.norm((got[:, 1:] - got[:, :1]) - (traj.targets[:, 1:] - traj.targets[:, :1]), axis=-1)
+        err = keypoint_errors(tree, traj)
         out["keypoint_error_median"], out["keypoint_error_max"] = float(np.median(err)), float(err.max())
+        worst = err.max(axis=1)
+        out["frame_error_median"] = float(np.median(worst))
+        out["frame_error_p95"] = float(np.percentile(worst, ERROR_PERCENTILE))
+        out["frame_error_max"], out["worst_frame"] = float(worst.max()), int(np.argmax(worst))
     heel = np.array(info["heel"], dtype=np.bool_)
     slide, drift, gap = [], [], np.empty((2, F))
     for i, s in enumerate(SIDES):

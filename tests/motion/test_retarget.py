@@ -209,8 +209,10 @@ def test_command_line_scale_moves_the_root_proportionally(tmp_path: Path, capsys
     travel, said = {}, {}
     for scale in ("0.01", "0.005"):
         out = tmp_path / f"walk{scale}.json"
+        # at half the clip's metres per unit the key points miss by 58 cm at the 95th percentile: failed (exit 3),
+        # the file still written
         assert run(["retarget", str(MOCAP / "mixamo_freebvh.bvh"), "--model", "primate", "-o", str(out), "--scale",
-                    scale, "--report"]) == 0
+                    scale, "--report"]) == (0 if scale == "0.01" else 3)
         printed = capsys.readouterr().out
         said[scale] = json.loads(printed[printed.index("{"):])
         assert f"{scale} m per BVH unit" in printed

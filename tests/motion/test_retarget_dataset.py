@@ -67,7 +67,7 @@ def test_a_folder_gives_a_file_per_clip_and_a_report(tmp_path: Path, primate: mj
     expected = list(report(primate, mjkin.retarget(src / "crouch.bvh", primate)))
     cols = list(written[0])
     assert cols[:4] == ["clip", "frames", "fps", "frames_per_second"] and cols[-1] == "status"
-    assert cols[1:-1] == ["frames", "fps", *[k for k in expected if k != "frames"]]
+    assert cols[1:-1] == ["frames", "fps", *[k for k in expected if k != "frames"], *dataset.RECORD]
     assert [r["clip"] for r in written] == names and written[0]["limits"] == ""  # None: no joint outside
     for row, name in zip(written, names, strict=True):
         clip = bvh.read(src / name)
@@ -301,9 +301,9 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert "2 of 2 clips on primate" in said.out and said.err == ""
     assert (out / "a.csv").is_file() and (out / "sub" / "b.csv").is_file() and (out / REPORT).is_file()
     (src / "bad.bvh").write_text("HIERARCHY\n")
-    assert run(["retarget", str(src), "--model", "primate", "-o", str(out), "--format", "csv"]) == 0
+    assert run(["retarget", str(src), "--model", "primate", "-o", str(out), "--format", "csv"]) == 3  # one failed
     said = capsys.readouterr()
-    assert "2 of 3 clips" in said.out and said.err.startswith("mjkin: warning: 1 clip failed")
+    assert "2 of 3 clips" in said.out and said.err.startswith("mjkin: 1 clip not retargeted (the error in report")
     one = tmp_path / "one.npz"  # one clip: -o names the file
     assert run(["retarget", str(src / "a.bvh"), "--model", "primate", "-o", str(one)]) == 0
     assert "wrote" in capsys.readouterr().out
