@@ -30,9 +30,10 @@ from ...motion.roles import source_mapping
 from .peers import Unavailable
 
 ROBOTS = {"gmr_unitree_g1": "unitree_g1"}  # shared model folder -> GMR's robot name, where the peer runs it
-# GMR's bvh_to_g1.json is tuned for LAFAN1's rest pose; the peer folder's refits for rigs at rest in a T-pose and
-# with the arms down (make_gmr_config.py, as GMR's issues #27 and #51 advise)
-CONFIGS = {"tpose": "bvh_tpose_to_g1.json", "armsdown": "bvh_armsdown_to_g1.json"}
+# per GMR robot, its config for each rest pose of a rig: GMR's bvh_to_g1.json is tuned for LAFAN1's rest pose; the
+# peer folder's refits are for rigs at rest in a T-pose and with the arms down (make_gmr_config.py, as GMR's issues
+# #27 and #51 advise)
+CONFIGS = {"unitree_g1": {"tpose": "bvh_tpose_to_g1.json", "armsdown": "bvh_armsdown_to_g1.json"}}
 NO_CONFIG = ("GMR has bvh_to_t1.json, tuned for LAFAN1's rest pose only; the peer folder's runner and rest-pose "
              "refits are for the G1")
 HOW = ("set MJKIN_GMR_PYTHON (GMR's venv's python) and MJKIN_GMR_PEER (a copy of ../shared/peers/gmr with its "
@@ -116,10 +117,10 @@ def retarget(gmr: Gmr, clip_path: Path, tree: Tree, robot: str = "unitree_g1",
     Raises:
         Unavailable: a robot the peer does not run, a failed run, or qpos that do not name ``tree``'s joints.
     """
-    if robot != "unitree_g1":
+    if robot not in CONFIGS:
         raise Unavailable(NO_CONFIG)
     clip = bvh.read(clip_path)
-    config = CONFIGS[rest_pose(clip)]
+    config = CONFIGS[robot][rest_pose(clip)]
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         lafan, out = Path(tmp) / "clip_lafan.bvh", Path(tmp) / "gmr.npz"
         _run([str(gmr.python), str(gmr.peer / "bvh_lafan.py"), str(clip_path), str(lafan),
