@@ -21,6 +21,10 @@ clip it came from, and measures it the same way for every tool:
   :func:`~mjkin.motion.retarget.plan` finds in the source, the same frames for every tool): the toe through a
   contact, the heel while it is down too, as :func:`mjkin.motion.retarget.report` counts skate.
 * **smoothness** — the mean absolute joint acceleration of the hinges and slides (second differences).
+
+The ground, slide and self-contact measures are those :func:`mjkin.motion.retarget.report` takes of mjkin's own
+output (which also measures it against its own targets), kept per frame here; on mjkin's output the two agree
+(``tests/motion/test_quality.py``).
 """
 
 from __future__ import annotations

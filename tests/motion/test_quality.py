@@ -17,7 +17,7 @@ from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.errors import InputError
 from mjkin.motion import bvh
 from mjkin.motion.quality import FLOAT, KEYPOINTS, foot_gaps, keypoint_errors, score
-from mjkin.motion.retarget import plan
+from mjkin.motion.retarget import plan, report
 from mjkin.motion.roles import figure_mapping, role_offsets
 from mjkin.motion.terrain import Terrain
 
@@ -158,3 +158,15 @@ def test_keypoints_are_against_the_source_scaled_as_mjkin_plans_it() -> None:
 def test_a_trajectory_of_another_length_is_refused() -> None:
     with pytest.raises(InputError, match="one pose a frame"):
         score(g1(), standing()[:-1], clip())
+
+
+def test_the_score_agrees_with_mjkins_own_report_where_they_measure_the_same() -> None:
+    """The ground, slide and self-contact measures are report()'s, per frame: on mjkin's own output they agree."""
+    tree = mjkin.load("primate")
+    traj = mjkin.retarget(WALK, tree)
+    rep, got = report(tree, traj), score(tree, traj.q, clip())
+    assert got["foot_penetration"] == pytest.approx(rep["terrain_penetration"], abs=1e-12)
+    assert got["self_contact_deepest"] == pytest.approx(rep["self_contact_deepest"], abs=1e-12)
+    assert got["contact_frames"] == rep["contact_frames"]
+    assert got["slide_speed_mean"] == pytest.approx(rep["skate_per_frame_mean"] / clip().frame_time, rel=1e-9)
+    assert got["limits"] == rep["limits"]
