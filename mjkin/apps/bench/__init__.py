@@ -85,11 +85,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     common(s)
 
     s = sub.add_parser("retarget", help="a folder of BVH clips onto figures: frames/s median and IQR over the clips "
-                                        "(the LAFAN1 form), key points, skate, floor, limits, speed, self-contact")
+                                        "(the LAFAN1 form), key points, skate, floor, limits, speed, self-contact; "
+                                        "GMR beside mjkin on its robots")
     s.add_argument("--clips", metavar="DIR", help="folder of BVH clips, searched recursively (default ../shared/mocap)")
     s.add_argument("--models", nargs="+", metavar="NAME|PATH",
-                   help="figures: primate, g1 or MJCF files with a free root (default primate and, when it is "
-                        "there, g1)")
+                   help="figures: primate, g1, gmr_unitree_g1, gmr_booster_t1 or MJCF files with a free root "
+                        "(default primate and those of ../shared/models that are there); on gmr_unitree_g1 GMR runs "
+                        "beside mjkin when found ($MJKIN_GMR_PYTHON and $MJKIN_GMR_PEER, else ../gmr-venv and "
+                        "../gmr-peer)")
     s.add_argument("--repeat", type=positive_int, default=3, help="timed runs per clip after a warm-up (default 3)")
     common(s)
 

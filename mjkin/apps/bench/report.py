@@ -24,19 +24,22 @@ class Report:
     """What a benchmark measured: titled tables of rows, and the settings it ran with.
 
     ``published`` rows are figures quoted from elsewhere (with their source), printed
-    beside the measured ones and kept apart from them in the JSON.
+    beside the measured ones and kept apart from them in the JSON. ``notes`` are lines printed
+    after the tables (e.g. why a peer has no row), kept as the JSON's ``"notes"`` when there are any.
     """
 
     tables: Tables
     settings: dict[str, object] = field(default_factory=dict)
     extra: dict[str, list[Row]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     def as_json(self) -> dict[str, object]:
         """``{"rows": [...], "settings": {...}, ...}``: every measured row, then the extras (e.g. published)."""
         published = [id(r) for rows in self.extra.values() for r in rows]
         rows = [{k: None if isinstance(v, float) and math.isnan(v) else v for k, v in r.items()}
                 for rows in self.tables.values() for r in rows if id(r) not in published]
-        return {"rows": rows, "settings": self.settings, **self.extra}
+        return {"rows": rows, "settings": self.settings, **self.extra, **({"notes": list(self.notes)} if self.notes
+                                                                          else {})}
 
 
 GC_NOTE = "Python's garbage collector off inside timed loops, as timeit does"

@@ -414,6 +414,8 @@ def main(args: argparse.Namespace) -> int:
             print()
         if report.settings:
             print("settings: " + "; ".join(f"{k}: {v}" for k, v in report.settings.items()))
+        for note in report.notes:
+            print(note)
         out[one.which] = report.as_json()
     if args.json:
         data = out if args.which == "all" else out[args.which]
