@@ -2,17 +2,22 @@
 
 The first run compiles mjkin's kernels (minutes on a small machine; later
 runs load them from the disk cache). numba announces every real compilation
-(a cache miss, never a cache hit) as a ``"numba:compile"`` event; while enabled
-(the CLI), the first such event prints :data:`COMPILING` once on stderr, on a
-terminal or not, so a run that sits still for minutes (in CI, or piped into
-``tee``) is explained. Bars show no rate or ETA until their first item is done,
-since that item may include the compilation and would make the estimate for
-the rest hours long; then the clock starts afresh.
+(a cache miss, never a cache hit) as a ``"numba:compile"`` event; the first such
+event prints :data:`COMPILING` once on stderr, on a terminal or not, so a run
+that sits still for minutes (in CI, or piped into ``tee``) is explained: from the
+CLI as ``mjkin: ...``, from Python through the ``mjkin`` logger (a warning, which
+Python prints on stderr unless logging is set up otherwise). On a terminal, a
+compile that lasts over 5 s shows its seconds as it goes. Bars show no rate or
+ETA until their first item is done, since that item may include the compilation
+and would make the estimate for the rest hours long; then the clock starts afresh.
 """
 
 from __future__ import annotations
 
+import logging
 import sys
+import threading
+import time
 from collections.abc import Iterable, Iterator, Sized
 from typing import TypeVar
 
@@ -20,7 +25,8 @@ from numba.core import event
 
 T = TypeVar("T")
 
-COMPILING = "compiling kernels for their first use (cached for later runs; a minute or two)..."
+COMPILING = "compiling kernels this run needs now (cached for later runs; a minute or two)..."
+TICK = 5.0  # seconds of compiling after which a terminal shows the time it has taken
 
 _enabled = False
 _said: set[str] = set()  # the notices printed in this process
@@ -51,23 +57,58 @@ def compiling_notice() -> bool:
 
 
 class _CompileListener(event.Listener):
+    """Says that numba compiles (once), and on a terminal how long the outermost compile has taken so far."""
+
+    def __init__(self) -> None:
+        self.depth = 0
+        self.stop: threading.Event | None = None
+
     def on_start(self, event: event.Event) -> None:
         fn = getattr(event.data.get("dispatcher"), "py_func", None)
-        if not (getattr(fn, "__module__", "") or "").startswith("numba"):  # not numba's own helpers (0.1 s, warm too)
+        if (getattr(fn, "__module__", "") or "").startswith("numba"):  # not numba's own helpers (0.1 s, warm too)
+            return
+        self.depth += 1
+        if self.depth > 1:
+            return
+        if _enabled:
             compiling_notice()
+        elif COMPILING not in _said:
+            _said.add(COMPILING)
+            logging.getLogger("mjkin").warning("mjkin: %s", COMPILING)
+        if shown():
+            self.stop = threading.Event()
+            threading.Thread(target=_ticker, args=(self.stop, getattr(fn, "__name__", "")), daemon=True).start()
 
     def on_end(self, event: event.Event) -> None:
-        pass
+        fn = getattr(event.data.get("dispatcher"), "py_func", None)
+        if (getattr(fn, "__module__", "") or "").startswith("numba") or not self.depth:
+            return
+        self.depth -= 1
+        if not self.depth and self.stop is not None:
+            self.stop.set()
+            self.stop = None
+
+
+def _ticker(stop: threading.Event, name: str) -> None:
+    """Past :data:`TICK` seconds, a line on the terminal that counts the seconds until ``stop`` is set."""
+    if stop.wait(TICK):
+        return
+    from tqdm import tqdm
+
+    start = time.monotonic() - TICK
+    with tqdm(total=None, desc=f"{name}: {TICK:.0f} s", bar_format="mjkin: compiling {desc}", leave=False,
+              file=sys.stderr) as line:
+        while not stop.wait(1.0 - (time.monotonic() - start) % 1.0):
+            line.set_description_str(f"{name}: {time.monotonic() - start:.0f} s")
 
 
 _listener = _CompileListener()
+event.register("numba:compile", _listener)
 
 
 def enable(on: bool = True) -> None:
-    """Let the compile notice print, and :func:`track` draw bars when stderr is a terminal (the CLI turns this on)."""
+    """Let notices print, and :func:`track` draw bars when stderr is a terminal (the CLI turns this on)."""
     global _enabled
-    if bool(on) != _enabled:
-        (event.register if on else event.unregister)("numba:compile", _listener)
     _enabled = bool(on)
 
 

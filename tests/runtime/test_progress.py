@@ -27,6 +27,8 @@ def terminal(monkeypatch):
     """
     err = Terminal()
     monkeypatch.setattr(progress, "_said", set())
+    monkeypatch.setattr(progress._listener, "depth", 0)  # no compile left open by another test's events
+    monkeypatch.setattr(progress._listener, "stop", None)
     progress.enable(True)
     yield lambda: monkeypatch.setattr(sys, "stderr", err) or err
     progress.enable(False)
@@ -93,13 +95,43 @@ def test_a_cold_cache_says_it_compiles_and_a_warm_one_is_silent(tmp_path):
     assert warm.returncode == 0 and warm.stderr == "" and warm.stdout == cold.stdout
 
 
-def test_disabled_progress_stops_listening(terminal):
+def test_from_python_the_notice_goes_to_the_mjkin_logger_once_and_no_bar_is_drawn(terminal, caplog):
+    """mjkin.retarget_many from a script compiled for 3 minutes in silence: now one warning says so."""
     terminal = terminal()
     progress.enable(False)
-    fresh_kernel()(1)
+    with caplog.at_level("WARNING", logger="mjkin"):
+        fresh_kernel()(1)
+        fresh_kernel()(2)
+    assert [r.getMessage() for r in caplog.records if r.name == "mjkin"] == [f"mjkin: {progress.COMPILING}"]
     assert terminal.getvalue() == ""
     assert list(progress.track(range(4), "quiet")) == [0, 1, 2, 3]
     assert terminal.getvalue() == ""
+
+
+def test_a_long_compile_shows_its_seconds_on_a_terminal(terminal, monkeypatch):
+    """mjkin demo sat 81 s without a sign of life on a terminal while it compiled."""
+    import time
+
+    from numba.core import event as ev
+
+    terminal = terminal()
+    monkeypatch.setattr(progress, "TICK", 0.2)
+    from types import SimpleNamespace
+
+    kernel = SimpleNamespace(py_func=SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve"))
+    start, end = ev.EventStatus.START, ev.EventStatus.END
+    progress._listener.on_start(ev.Event("numba:compile", start, data={"dispatcher": kernel}))
+    progress._listener.on_start(ev.Event("numba:compile", start, data={"dispatcher": kernel}))  # nested: one line
+    time.sleep(1.6)
+    progress._listener.on_end(ev.Event("numba:compile", end, data={"dispatcher": kernel}))
+    assert progress._listener.depth == 1 and progress._listener.stop is not None
+    progress._listener.on_end(ev.Event("numba:compile", end, data={"dispatcher": kernel}))
+    time.sleep(0.3)
+    text = terminal.getvalue()
+    assert "mjkin: compiling solve: 1 s" in text and progress._listener.stop is None
+    shown = len(text)
+    time.sleep(1.2)
+    assert len(terminal.getvalue()) == shown  # stopped with the compile
 
 
 def seconds(text: str) -> int:
