@@ -40,6 +40,7 @@ import types as pytypes
 from collections.abc import Callable, Iterator
 from typing import Any, ParamSpec, TypeVar
 
+import numba
 import numpy as np
 from numba.core import sigutils
 from numba.core.compiler_lock import global_compiler_lock
@@ -71,7 +72,7 @@ def mode() -> str:
     value = os.environ.get("MJKIN_COMPILE", "background")
     if value not in MODES:
         raise InputError(f"MJKIN_COMPILE must be one of {', '.join(MODES)}, got {value!r}")
-    return value
+    return "interpret" if numba.config.DISABLE_JIT else value
 
 
 @contextlib.contextmanager
@@ -129,10 +130,22 @@ def python_version(obj: Any, stand_in: Any) -> None:
     PYTHON[id(obj)] = stand_in
 
 
+class Plain:
+    """A kernel under ``NUMBA_DISABLE_JIT=1`` (numba's switch for debuggers and coverage): its source run as Python."""
+
+    def __init__(self, fn: Callable) -> None:
+        self.py_func = self.__wrapped__ = fn
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, *args: Any) -> Any:
+        """The kernel's source run as Python, kernels it calls too (:func:`interpreted_call`)."""
+        return interpreted_call(self, *args)
+
+
 def _stand_in(value: Any) -> Any:
     if id(value) in PYTHON:
         return PYTHON[id(value)]
-    if isinstance(value, Dispatcher):
+    if isinstance(value, (Dispatcher, Plain)):
         return interpreted(value)
     return value
 
@@ -146,7 +159,7 @@ def _globals(namespace: dict) -> dict:
     return out
 
 
-def interpreted(kernel: Dispatcher) -> Callable:
+def interpreted(kernel: Dispatcher | Plain) -> Callable:
     """``kernel``'s Python source as a function whose calls of other kernels are interpreted too (nothing compiles)."""
     twin = _TWINS.get(id(kernel))
     if twin is None:

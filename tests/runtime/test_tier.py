@@ -1,6 +1,7 @@
 """Interpreted first, compiled behind (mjkin.runtime.tier): the Python versions solve as the compiled kernels do, a
 child compiles into the disk cache, and the first call after it runs compiled, loaded, not compiled here."""
 
+import json
 import os
 import subprocess
 import sys
@@ -376,3 +377,30 @@ def test_a_compile_lock_held_too_long_is_waited_for_a_bounded_time_and_said(tmp_
                          timeout=120, check=True)
     assert run.stdout.strip() == "[0.0, 3.0, 6.0]"
     assert "another process held its compile lock for 1 s; compiling it here" in run.stderr
+
+
+_NO_JIT = textwrap.dedent("""
+    import json, numba, numpy as np, mjkin, mjkin.goals as G
+    assert numba.config.DISABLE_JIT
+    tree = mjkin.load("panda")
+    q = tree.random_q(np.random.default_rng(3), 3)
+    T = tree.pose(q[0], "flange")
+    res = mjkin.solve(tree, [G.Pose("flange", T=tree.pose(q[1], "flange")), G.Clearance(0.0)], q0=q[2])
+    print(json.dumps([T.tolist(), tree.fk(q).tolist(), tree.jacobian(q, "flange").tolist(), bool(res.success),
+                      res.status]))
+""")
+
+
+def test_numbas_disable_jit_switch_imports_and_solves_as_python():
+    """NUMBA_DISABLE_JIT=1 (debuggers, coverage): mjkin imports, and FK, Jacobians and a solve run as the compiled
+    kernels do, slowly."""
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
+    run = subprocess.run([sys.executable, "-c", _NO_JIT], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    T, F, J, success, status = json.loads(run.stdout)
+    tree = mjkin.load("panda")
+    q = tree.random_q(np.random.default_rng(3), 3)
+    np.testing.assert_allclose(T, tree.pose(q[0], "flange"), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(F, tree.fk(q), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(J, tree.jacobian(q, "flange"), rtol=0, atol=1e-14)
+    assert success and status == "converged"
