@@ -46,7 +46,7 @@ def _jit(**options: Any) -> Callable[[Callable], Any]:
 
     def decorate(fn: Callable) -> Any:
         loaded(fn.__code__.co_filename)  # its source as imported: what it compiles, whatever the disk holds later
-        if numba.config.DISABLE_JIT:  # numba's switch for debuggers and coverage: every kernel runs as Python
+        if tier._NO_JIT:  # numba's switch for debuggers and coverage: every kernel runs as Python
             return tier.Plain(fn)
         dispatcher = numba.njit(**{"nogil": True, "fastmath": False, **options})(fn)
         dispatcher.__class__ = tier.Kernel

@@ -52,6 +52,7 @@ from . import progress
 from .cache import PACKAGE, KernelCache, LazyCache
 
 MODES = ("background", "wait", "interpret")
+_NO_JIT = bool(getattr(numba.config, "DISABLE_JIT", False))  # numba's switch for debuggers and coverage
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
 SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
 # seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here: many small
@@ -72,7 +73,7 @@ def mode() -> str:
     value = os.environ.get("MJKIN_COMPILE", "background")
     if value not in MODES:
         raise InputError(f"MJKIN_COMPILE must be one of {', '.join(MODES)}, got {value!r}")
-    return "interpret" if numba.config.DISABLE_JIT else value
+    return "interpret" if _NO_JIT else value
 
 
 @contextlib.contextmanager
