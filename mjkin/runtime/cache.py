@@ -45,12 +45,28 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 from numba.core import caching, config
 
 from . import progress
 
 PACKAGE = Path(__file__).resolve().parent.parent  # mjkin/
+NUMBA = ((0, 68), (0, 69))  # the numba releases this module's use of numba's private caching API is tested with
+
+
+def numba_unsupported(version: str) -> str | None:
+    """Why numba ``version`` cannot run mjkin's kernel cache (one line), or None when it is in :data:`NUMBA`."""
+    release = tuple(int(p) for p in version.split(".")[:2] if p.isdigit())
+    (low, high) = NUMBA
+    if low <= release < high:
+        return None
+    return (f"mjkin's kernel cache is tested with numba >={low[0]}.{low[1]},<{high[0]}.{high[1]} and this is numba "
+            f"{version}: pip install 'numba>={low[0]}.{low[1]},<{high[0]}.{high[1]}'")
+
+
+if (_why := numba_unsupported(numba.__version__)) is not None:
+    raise ImportError(_why)
 
 
 def _locator(*names: str) -> Any:

@@ -345,3 +345,19 @@ def test_a_kernel_another_process_is_compiling_is_waited_for_and_loaded_not_comp
         for name in ("kpkg.kern", "kpkg.help", "kpkg"):
             sys.modules.pop(name, None)
     assert out.split() == ["4.0", "1"]  # loaded from the cache, not compiled a second time
+
+
+def test_numba_outside_the_tested_range_is_refused_in_one_line():
+    """numba 0.60 broke ``import mjkin`` with a StopIteration deep in the cache; the range is checked, and said."""
+    import tomllib
+
+    from mjkin.runtime.cache import NUMBA, numba_unsupported
+
+    assert numba_unsupported(numba.__version__) is None
+    for version in ("0.60.0", "0.69.0rc1", "1.0.0"):
+        why = numba_unsupported(version)
+        assert why is not None and "\n" not in why and f"numba {version}" in why
+    (low, high) = NUMBA
+    deps = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]["dependencies"]
+    assert f"numba>={low[0]}.{low[1]},<{high[0]}.{high[1]}" in deps  # the package asks for what is tested
+    assert any(d.startswith("mujoco>=") and ",<" in d for d in deps)  # an upper bound on mujoco too
