@@ -285,6 +285,20 @@ def _middle(z: _Zero, chain: list[int], end: Array) -> int | None:
     return axes[best][0] if scores[best] > 1e-6 * z.height else None
 
 
+def _arm_end(z: _Zero, chain: list[int]) -> Array:
+    """Where the arm ``chain`` ends, for finding its elbow: the farthest point of its geoms from its first body.
+
+    But where the body farthest out has no joint (a hand fixed past the wrist's joints), that body's origin: a
+    robot's hand mesh reaching 0.2 m past its wrist (GMR's G1) made the wrist the arm's middle joint.
+    """
+    start, bodies = z.pos[chain[0]], z.subtree(chain[0])
+    hand = bodies[int(np.argmax(np.linalg.norm(z.pos[bodies] - start, axis=1)))]
+    if not z.dofs[hand]:
+        return z.pos[hand]
+    tips = np.vstack([z.reach(b) for b in bodies])
+    return tips[np.argmax(np.linalg.norm(tips - start, axis=1))]
+
+
 def _nearest(z: _Zero, bodies: list[int], point: Array) -> int:
     return bodies[int(np.argmin(np.linalg.norm(z.pos[bodies] - point, axis=1)))]
 
@@ -426,8 +440,7 @@ def _find(z: _Zero) -> FoundFigure:
     arms = [_arm(z, s, skip) for s in SIDES]
     for s, chain in zip(SIDES, arms, strict=True):
         if chain:
-            start, tip = z.pos[chain[0]], np.vstack([z.reach(b) for b in z.subtree(chain[0])])
-            end = tip[np.argmax(np.linalg.norm(tip - start, axis=1))]  # the hand's farthest point
+            end = _arm_end(z, chain)
             roles = _limb(z, chain, end, ("shoulder", "elbow", "wrist"), s, hand=True)
             found.update(roles)
             limbs |= set(z.subtree(chain[0])) if roles else set()

@@ -417,3 +417,16 @@ def test_lafan1_and_amass_joint_names_map() -> None:
         f"{s}_{p}": f"{S}{j}" for s, S in (("left", "Left"), ("right", "Right")) for p, j in (
             ("hip", "UpLeg"), ("knee", "Leg"), ("ankle", "Foot"), ("toe", "Toe"), ("shoulder", "Arm"),
             ("elbow", "ForeArm"), ("wrist", "Hand"))}
+
+
+GMR_G1 = G1.parents[1] / "gmr_unitree_g1" / "g1_mocap_29dof.xml"
+
+
+@pytest.mark.skipif(not GMR_G1.is_file(), reason="GMR's G1 (../shared/models/gmr_unitree_g1) is not here")
+def test_a_long_hand_mesh_does_not_make_the_wrist_the_elbow() -> None:
+    """GMR's G1: its hand mesh reaches 0.2 m past the wrist, which made the wrist pitch the arm's middle joint (the
+    shoulder mapped to the elbow link, the elbow to the wrist)."""
+    bodies = find_figure(mjkin.load(GMR_G1)).bodies
+    for side in ("left", "right"):
+        assert (bodies[f"{side}_shoulder"], bodies[f"{side}_elbow"], bodies[f"{side}_wrist"]) == (
+            f"{side}_shoulder_roll_link", f"{side}_elbow_link", f"{side}_wrist_pitch_link")
