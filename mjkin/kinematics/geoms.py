@@ -40,6 +40,12 @@ class Geoms(NamedTuple):
     rot: Array  # (ngeom, 3, 3) geom axes in its body frame
     rbound: Array  # (ngeom,) bounding-sphere radius about the origin (0 for planes: unbounded)
     margin: Array  # (ngeom,) MuJoCo's geom_margin
+    # a mesh geom's convex hull, which is what MuJoCo collides (:func:`hulls`): vertices hull_adr[g] .. + hull_num[g]
+    hull_adr: Index  # (ngeom,) first vertex of geom g's hull in hull_vert (0 and hull_num 0 for other geoms)
+    hull_num: Index  # (ngeom,)
+    hull_vert: Array  # (H, 3) hull vertices, each in its geom's frame
+    hull_nbr_adr: Index  # (H + 1,) vertex v's neighbours on its hull: hull_nbr[hull_nbr_adr[v]:hull_nbr_adr[v + 1]]
+    hull_nbr: Index  # (E,) vertex ids into hull_vert; a hull without them is searched vertex by vertex
 
 
 def geom_arrays(model: mujoco.MjModel) -> Geoms:
@@ -52,7 +58,77 @@ def geom_arrays(model: mujoco.MjModel) -> Geoms:
     return Geoms(np.array(model.geom_type, dtype=np.int64), np.array(model.geom_bodyid, dtype=np.int64),
                  np.array(model.geom_size, dtype=np.float64).reshape(n, 3),
                  np.array(model.geom_pos, dtype=np.float64).reshape(n, 3), rot.reshape(n, 3, 3),
-                 np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64))
+                 np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64),
+                 *hulls(model))
+
+
+def _mesh_hull(model: mujoco.MjModel, mesh: int) -> tuple[Array, list[list[int]]]:
+    """A mesh's convex hull: its vertices ``(h, 3)`` (the mesh's frame, which is its geoms') and each one's
+    neighbours (local ids).
+
+    MuJoCo's own hull when it made one (``mesh_graph``, made for every mesh a geom collides with, honouring
+    ``maxhullvert``; laid out as ``numvert, numface, vert_edgeadr[numvert], vert_globalid[numvert],
+    edge_localid[numvert + 3 numface] (each vertex's neighbours, -1 after the last), face_globalid[3 numface]``),
+    else SciPy's (Qhull, as MuJoCo), else every vertex with no neighbours (searched one by one).
+    """  # noqa: D205
+    adr, num = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    vert = np.asarray(model.mesh_vert[adr:adr + num], dtype=np.float64)
+    gadr = int(model.mesh_graphadr[mesh])
+    if gadr >= 0:
+        graph = np.asarray(model.mesh_graph)
+        nv, nf = int(graph[gadr]), int(graph[gadr + 1])
+        edge_adr = graph[gadr + 2:gadr + 2 + nv]
+        ids = graph[gadr + 2 + nv:gadr + 2 + 2 * nv]
+        local = graph[gadr + 2 + 2 * nv:gadr + 2 + 2 * nv + nv + 3 * nf]
+        nbrs = []
+        for i in range(nv):
+            k, row = int(edge_adr[i]), []
+            while k < len(local) and local[k] >= 0:
+                row.append(int(local[k]))
+                k += 1
+            nbrs.append(row)
+        return vert[ids], nbrs
+    try:
+        from scipy.spatial import ConvexHull
+
+        hull = ConvexHull(vert)
+    except Exception:  # noqa: BLE001  (flat or too few vertices: Qhull refuses; every vertex is the hull)
+        return vert, [[] for _ in range(num)]
+    index = {int(v): i for i, v in enumerate(hull.vertices)}
+    sets: list[set[int]] = [set() for _ in hull.vertices]
+    for tri in hull.simplices:
+        for a in tri:
+            sets[index[int(a)]].update(index[int(b)] for b in tri if b != a)
+    return vert[hull.vertices], [sorted(x) for x in sets]
+
+
+def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
+    """The mesh geoms' convex hulls as :class:`Geoms` keeps them: ``hull_adr``, ``hull_num``, ``hull_vert``,
+    ``hull_nbr_adr``, ``hull_nbr`` (each mesh's hull once, shared by its geoms).
+    """  # noqa: D205
+    n = model.ngeom
+    adr, num = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    verts: list[Array] = []
+    nbr_count: list[int] = []
+    nbrs: list[int] = []
+    done: dict[int, tuple[int, int]] = {}
+    total = 0
+    for g in range(n):
+        mesh = int(model.geom_dataid[g])
+        if model.geom_type[g] != MESH or mesh < 0:
+            continue
+        if mesh not in done:
+            v, nb = _mesh_hull(model, mesh)
+            done[mesh] = (total, len(v))
+            verts.append(v)
+            for row in nb:
+                nbr_count.append(len(row))
+                nbrs.extend(total + k for k in row)
+            total += len(v)
+        adr[g], num[g] = done[mesh]
+    vert = np.concatenate(verts) if verts else np.zeros((0, 3))
+    nbr_adr = np.concatenate([[0], np.cumsum(nbr_count, dtype=np.int64)]).astype(np.int64)
+    return adr, num, np.ascontiguousarray(vert), nbr_adr, np.array(nbrs, dtype=np.int64)
 
 
 def contact_pairs(tree: Bodies) -> Index:
@@ -98,7 +174,7 @@ def contact_pairs(tree: Bodies) -> Index:
 def native(t1: int, t2: int) -> bool:
     """Whether :func:`pair_distance` computes a pair of geom types itself (else it returns NaN)."""
     a, b = min(t1, t2), max(t1, t2)
-    return (a == PLANE or SPHERE <= a <= BOX) and SPHERE <= b <= BOX
+    return (a == PLANE or SPHERE <= a <= MESH) and SPHERE <= b <= MESH
 
 
 def native_pairs(geoms: Geoms, pairs: ArrayLike) -> NDArray[np.bool_]:

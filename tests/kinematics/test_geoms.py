@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -10,6 +12,7 @@ from hypothesis import strategies as st
 
 import mjkin
 from conftest import ALL_MODELS, FD_TOL, bundled, model_id, shared, tree_of
+from mjkin.apps.bench.report import shared_models_dir
 from mjkin.kinematics import distance as D
 from mjkin.kinematics import geoms as G
 from mjkin.kinematics.frames import forward
@@ -307,3 +310,44 @@ def test_batched_distances_equal_per_q(rng):
     assert D.shape == (2, 3, len(contact_pairs(tree)))
     for idx in np.ndindex(2, 3):
         np.testing.assert_array_equal(D[idx], tree.distances(Q[idx]))
+
+
+GMR_G1 = (shared_models_dir() or Path("../shared/models")) / "gmr_unitree_g1" / "g1_mocap_29dof.xml"
+need_gmr_g1 = pytest.mark.skipif(not GMR_G1.is_file(), reason=f"GMR's G1 (collision meshes) is not here ({GMR_G1})")
+
+
+@need_gmr_g1
+def test_mesh_pairs_are_measured_on_their_hulls_as_mujoco_does(rng):
+    """Issue 55: GMR's G1 collides mostly STL meshes. mjkin measures them itself, on their convex hulls (as
+    MuJoCo does), to mj_geomDistance's figure wherever they are apart; a penetrating pair reads negative. (It
+    used to measure none of them: a clearance kept their bounding spheres apart, 62 mm deep where MuJoCo found
+    the pair 9.5 mm apart.)"""
+    tree = tree_of(GMR_G1)
+    pairs = contact_pairs(tree)
+    assert native_pairs(tree.geoms, pairs).all()
+    m = tree.model.__copy__()
+    m.opt.ccd_tolerance, m.opt.ccd_iterations = 1e-12, 500
+    qs = np.vstack([tree.qpos0, tree.random_q(rng, 2)])
+    f = forward(tree, qs)
+    p1, p2 = np.empty(3), np.empty(3)
+    for k, q in enumerate(qs):
+        d = world_state(tree, q)
+        for a, b in pairs.tolist():
+            ours = D.pair_distance(tree.geoms, f.rot[k:k + 1], f.pos[k:k + 1], a, b, p1, p2)
+            ref = mujoco.mj_geomDistance(m, d, a, b, 100.0, None)
+            if ref > 0:
+                assert abs(ours - ref) < 1e-6, (a, b, k)
+                assert abs(np.linalg.norm(p2 - p1) - ours) < 1e-9
+            else:
+                assert ours < 1e-9, (a, b, k)
+
+
+@need_gmr_g1
+def test_mesh_distance_jacobians_match_finite_differences(rng):
+    tree = tree_of(GMR_G1)
+    pairs = contact_pairs(tree)
+    q = tree.random_q(rng, 1)[0]
+    d = tree.distances(q, pairs)
+    apart = pairs[(d > 1e-3) & (d < 0.05)][:40]  # near, where a clearance reads them; kinks (ties) skipped
+    assert len(apart) >= 5
+    fd_check(tree, q, apart, tol=1e-5, kinks=True, h=1e-5)
