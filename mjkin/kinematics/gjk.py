@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..runtime.jit import njit, on_stack, unshared, unshared_int64
-from .geoms import BOX, CAPSULE, CYLINDER, MESH, SPHERE, Geoms
+from .geoms import BOX, CAPSULE, CYLINDER, MESH, SEEDS, SPHERE, Geoms
 
 Array = NDArray[np.float64]
 
@@ -65,8 +65,9 @@ def support(kind: int, size: Array, R: Array, c: Array, v: Array, z: Array) -> N
 def hull_support(geoms: Geoms, g: int, R: Array, c: Array, v: Array, z: Array, start: int) -> int:
     """The vertex ``z`` (world) of mesh geom ``g``'s convex hull farthest along ``v`` (world); returns its id.
 
-    Climbs the hull's vertex graph from vertex ``start`` (an id in ``g``'s hull, or -1: its first) to a vertex
-    no neighbour of which is farther: on a convex hull that is the farthest (a hull without a graph is searched
+    Climbs the hull's vertex graph from vertex ``start`` (an id in ``g``'s hull; -1: the farthest of its
+    :data:`~mjkin.kinematics.geoms.SEEDS` first, the farthest along the axes and diagonals) to a vertex no
+    neighbour of which is farther: on a convex hull that is the farthest (a hull without a graph is searched
     vertex by vertex). Start from the last answer for a direction that changed little.
     """
     lv0 = R[0, 0] * v[0] + R[1, 0] * v[1] + R[2, 0] * v[2]  # v in the geom's frame
@@ -76,6 +77,11 @@ def hull_support(geoms: Geoms, g: int, R: Array, c: Array, v: Array, z: Array, s
     V, adr, nbr = geoms.hull_vert, geoms.hull_nbr_adr, geoms.hull_nbr
     best = start if a <= start < a + n else a
     top = V[best, 0] * lv0 + V[best, 1] * lv1 + V[best, 2] * lv2
+    if best != start:
+        for k in range(a + 1, a + min(n, SEEDS)):
+            x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
+            if x > top:
+                best, top = k, x
     if adr[a + n] == adr[a]:  # no graph: every vertex
         for k in range(a, a + n):
             x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2

@@ -283,13 +283,18 @@ def test_fallback_is_mujocos_from_mjkin_fk(rng):
                 assert abs(grad[i] - fd) < 1e-2, (g1, g2, i)
 
 
-@pytest.mark.parametrize("name", ["primate", "arm7"])
-def test_near_pairs_are_those_whose_bounding_spheres_come_within_reach(name, rng):
-    tree = tree_of(name)
+@pytest.mark.parametrize("name", ["primate", "arm7", "gmr_g1"])
+def test_near_pairs_are_those_whose_bounding_spheres_and_boxes_come_within_reach(name, rng):
+    """The broad phase keeps a pair when its bounding spheres and its boxes (geom_aabb, by separating axes) come
+    within reach: never a pair whose geoms are within reach, and on GMR's G1 far fewer than the spheres alone."""
+    if name == "gmr_g1" and not GMR_G1.is_file():
+        pytest.skip(f"GMR's G1 is not here ({GMR_G1})")
+    tree = tree_of(GMR_G1 if name == "gmr_g1" else name)
     pairs = contact_pairs(tree)
     gs = tree.geoms
     reach = 0.05
     out = np.empty(len(pairs), np.int64)
+    fewer = 0
     for q in tree.random_q(rng, 20):
         f = forward(tree, q[None])
         k = G.near_pairs(gs, f.rot, f.pos, pairs, reach, out)
@@ -299,8 +304,11 @@ def test_near_pairs_are_those_whose_bounding_spheres_come_within_reach(name, rng
         plane_a, plane_b = gs.type[a] == PLANE, gs.type[b] == PLANE
         gap[plane_a] = np.einsum("ij,ij->i", R[a, :, 2], x[b] - x[a])[plane_a] - gs.rbound[b][plane_a]
         gap[plane_b] = np.einsum("ij,ij->i", R[b, :, 2], x[a] - x[b])[plane_b] - gs.rbound[a][plane_b]
-        np.testing.assert_array_equal(out[:k], np.flatnonzero(gap <= reach))
-        assert set(np.flatnonzero(tree.distances(q, pairs) <= reach)) <= set(out[:k].tolist())
+        near = set(out[:k].tolist())
+        assert near <= set(np.flatnonzero(gap <= reach).tolist())
+        assert set(np.flatnonzero(tree.distances(q, pairs) <= reach)) <= near
+        fewer += int((gap <= reach).sum()) - k
+    assert fewer > 0 or name != "gmr_g1"
 
 
 def test_batched_distances_equal_per_q(rng):
