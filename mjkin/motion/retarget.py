@@ -85,6 +85,10 @@ BODY_WEIGHTS = {"pelvis": 3.0, "pelvis_turn": 0.05, "torso_turn": 0.3, "head": 0
 # otherwise: limbs that come close in the source (hands at the hips, knees brushing, legs crossing at 120 Hz)
 # stay apart, at 9-16 % of the primate's frames/s and 2-9 % of the G1's (`mjkin bench retarget`).
 SELF_CLEARANCE = 0.002
+# m past the clearance within which a pair of the figure's geoms is measured in each evaluation (Clearance.reach):
+# a humanoid's links stay near each other (the G1's meshes: 66 pairs within 10 cm, 14 within 2 cm, in a walk),
+# and each pair measured costs a GJK on two hulls; a pair farther off joins when a step brings it near
+SELF_REACH = 0.02
 EASE_S = 0.2  # s over which a lifted foot's target returns from where it stood to the source's (6 frames at 30 Hz)
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -528,7 +532,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     if clearance is not None:
         margin = check_number(clearance, "clearance (m)")
         pairs = self_pairs(tree, margin)
-        extra += (G.Clearance(margin, pairs=pairs),) if pairs else ()
+        extra += (G.Clearance(margin, pairs=pairs, reach=SELF_REACH),) if pairs else ()
     q, t_first, unmet = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
