@@ -63,60 +63,51 @@ def geom_arrays(model: mujoco.MjModel) -> Geoms:
                  np.array(model.geom_aabb, dtype=np.float64).reshape(n, 6), *hulls(model))
 
 
-def _mesh_hull(model: mujoco.MjModel, mesh: int) -> tuple[Array, list[list[int]]]:
+def _mesh_hull(model: mujoco.MjModel, mesh: int) -> tuple[Array, Index, Index]:
     """A mesh's convex hull: its vertices ``(h, 3)`` (the mesh's frame, which is its geoms') and each one's
-    neighbours (local ids).
+    neighbours as ``adr (h + 1,)`` into ``nbr`` (local ids).
 
     MuJoCo's own hull when it made one (``mesh_graph``, made for every mesh a geom collides with, honouring
     ``maxhullvert``; laid out as ``numvert, numface, vert_edgeadr[numvert], vert_globalid[numvert],
     edge_localid[numvert + 3 numface] (each vertex's neighbours, -1 after the last), face_globalid[3 numface]``),
-    else SciPy's (Qhull, as MuJoCo), else every vertex with no neighbours (searched one by one).
+    else every vertex with no neighbours (searched one by one; MuJoCo makes no hull for a mesh no geom of which
+    collides, and such a geom is measured only when a caller names it).
     """  # noqa: D205
     adr, num = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
     vert = np.asarray(model.mesh_vert[adr:adr + num], dtype=np.float64)
     gadr = int(model.mesh_graphadr[mesh])
-    if gadr >= 0:
-        graph = np.asarray(model.mesh_graph)
-        nv, nf = int(graph[gadr]), int(graph[gadr + 1])
-        edge_adr = graph[gadr + 2:gadr + 2 + nv]
-        ids = graph[gadr + 2 + nv:gadr + 2 + 2 * nv]
-        local = graph[gadr + 2 + 2 * nv:gadr + 2 + 2 * nv + nv + 3 * nf]
-        nbrs = []
-        for i in range(nv):
-            k, row = int(edge_adr[i]), []
-            while k < len(local) and local[k] >= 0:
-                row.append(int(local[k]))
-                k += 1
-            nbrs.append(row)
-        return vert[ids], nbrs
-    try:
-        from scipy.spatial import ConvexHull
-
-        hull = ConvexHull(vert)
-    except Exception:  # noqa: BLE001  (flat or too few vertices: Qhull refuses; every vertex is the hull)
-        return vert, [[] for _ in range(num)]
-    index = {int(v): i for i, v in enumerate(hull.vertices)}
-    sets: list[set[int]] = [set() for _ in hull.vertices]
-    for tri in hull.simplices:
-        for a in tri:
-            sets[index[int(a)]].update(index[int(b)] for b in tri if b != a)
-    return vert[hull.vertices], [sorted(x) for x in sets]
+    if gadr < 0:
+        return vert, np.zeros(num + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    graph = np.asarray(model.mesh_graph, dtype=np.int64)
+    nv, nf = int(graph[gadr]), int(graph[gadr + 1])
+    start = graph[gadr + 2:gadr + 2 + nv]
+    ids = graph[gadr + 2 + nv:gadr + 2 + 2 * nv]
+    local = graph[gadr + 2 + 2 * nv:gadr + 2 + 2 * nv + nv + 3 * nf]
+    ends = np.flatnonzero(local < 0)
+    stop = ends[np.searchsorted(ends, start)]  # each vertex's list ends at the first -1 from its start
+    count = stop - start
+    nbr = local[np.repeat(start, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))]
+    return vert[ids], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), nbr
 
 
 SEEDS = 14  # a hull's first vertices: its farthest along the 6 axis and 8 diagonal directions (a climb starts there)
 
 
-def _seeded(vert: Array, nbrs: list[list[int]]) -> tuple[Array, list[list[int]]]:
-    """A hull's vertices reordered so that its :data:`SEEDS` first are the farthest along the axes and diagonals
-    (fewer when they repeat), its neighbour lists renumbered to match.
+def _seeded(vert: Array, adr: Index, nbr: Index) -> tuple[Array, Index, Index]:
+    """A hull (as :func:`_mesh_hull`) with its vertices reordered so that its :data:`SEEDS` first are the farthest
+    along the axes and diagonals (fewer when they repeat), its neighbour lists moved and renumbered to match.
     """  # noqa: D205
     dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
                      *([x, y, z] for x in (1, -1) for y in (1, -1) for z in (1, -1))], dtype=np.float64)
-    first = list(dict.fromkeys(int(i) for i in np.argmax(vert @ dirs.T, axis=0)))
-    order = first + [i for i in range(len(vert)) if i not in set(first)]
+    first = np.array(list(dict.fromkeys(np.argmax(vert @ dirs.T, axis=0).tolist())), dtype=np.int64)
+    rest = np.ones(len(vert), dtype=bool)
+    rest[first] = False
+    order = np.concatenate([first, np.flatnonzero(rest)])
     new = np.empty(len(vert), dtype=np.int64)
     new[order] = np.arange(len(vert))
-    return vert[order], [[int(new[k]) for k in nbrs[i]] for i in order]
+    count = np.diff(adr)[order]
+    pick = np.repeat(adr[:-1][order], count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    return vert[order], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), new[nbr[pick]]
 
 
 def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
@@ -125,9 +116,9 @@ def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
     """  # noqa: D205
     n = model.ngeom
     adr, num = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
-    verts: list[Array] = []
-    nbr_count: list[int] = []
-    nbrs: list[int] = []
+    verts: list[Array] = [np.zeros((0, 3))]
+    counts: list[Index] = [np.zeros(0, dtype=np.int64)]
+    nbrs: list[Index] = [np.zeros(0, dtype=np.int64)]
     done: dict[int, tuple[int, int]] = {}
     total = 0
     for g in range(n):
@@ -135,17 +126,16 @@ def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
         if model.geom_type[g] != MESH or mesh < 0:
             continue
         if mesh not in done:
-            v, nb = _seeded(*_mesh_hull(model, mesh))
+            v, a, nb = _seeded(*_mesh_hull(model, mesh))
             done[mesh] = (total, len(v))
             verts.append(v)
-            for row in nb:
-                nbr_count.append(len(row))
-                nbrs.extend(total + k for k in row)
+            counts.append(np.diff(a))
+            nbrs.append(nb + total)
             total += len(v)
         adr[g], num[g] = done[mesh]
-    vert = np.concatenate(verts) if verts else np.zeros((0, 3))
-    nbr_adr = np.concatenate([[0], np.cumsum(nbr_count, dtype=np.int64)]).astype(np.int64)
-    return adr, num, np.ascontiguousarray(vert), nbr_adr, np.array(nbrs, dtype=np.int64)
+    nbr_adr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
+    return (adr, num, np.ascontiguousarray(np.concatenate(verts)), nbr_adr,
+            np.ascontiguousarray(np.concatenate(nbrs), dtype=np.int64))
 
 
 def contact_pairs(tree: Bodies) -> Index:

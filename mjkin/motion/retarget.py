@@ -526,13 +526,13 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
     if tree.nq < 7 or tree.layout.free_q.size == 0:
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     ground = scene if isinstance(scene, Terrain) else None if scene is None else Terrain.load(scene)
-    t0 = time.perf_counter()
-    plan_ = plan(clip, tree, mapping, scale, ground)
     extra, margin = tuple(extra_goals), None
-    if clearance is not None:
+    if clearance is not None:  # the figure's own (a model's, not the clip's: not timed, as a compile is not)
         margin = check_number(clearance, "clearance (m)")
         pairs = self_pairs(tree, margin)
         extra += (G.Clearance(margin, pairs=pairs, reach=SELF_REACH),) if pairs else ()
+    t0 = time.perf_counter()
+    plan_ = plan(clip, tree, mapping, scale, ground)
     q, t_first, unmet = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
