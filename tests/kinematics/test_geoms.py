@@ -257,7 +257,8 @@ def test_primitive_distance_jacobians_match_finite_differences(kinds, s1, s2, po
 
 
 def test_fallback_is_mujocos_from_mjkin_fk(rng):
-    """Pairs mjkin does not compute itself: MuJoCo's distance at mjkin's geom frames, and its gradient."""
+    """The fallback (for pairs mjkin does not compute itself: height fields, SDFs) is MuJoCo's distance at mjkin's
+    geom frames, and its gradient; mjkin's own of a mesh pair (its hull) agrees with it wherever they are apart."""
     tree = mjkin.load("""<mujoco><asset><mesh name="tet" vertex="0 0 0  .2 0 0  0 .2 0  0 0 .2"/></asset>
         <worldbody>
         <body><joint type="ball"/><geom type="ellipsoid" size=".1 .2 .3" pos="0 0 .2"/></body>
@@ -265,15 +266,14 @@ def test_fallback_is_mujocos_from_mjkin_fk(rng):
         <body pos="0 .5 0"><joint axis="0 0 1"/><geom type="mesh" mesh="tet"/></body>
         </worldbody></mujoco>""")
     pairs = contact_pairs(tree)
-    assert pairs.tolist() == [[0, 1], [0, 2], [1, 2]] and native_pairs(tree.geoms, pairs).tolist() == [
-        True, False, False]
+    assert pairs.tolist() == [[0, 1], [0, 2], [1, 2]] and native_pairs(tree.geoms, pairs).all()
     for q in tree.random_q(rng, 5):
         d = world_state(tree, q)
         ours = tree.distances(q)
         for k, (g1, g2) in enumerate(pairs.tolist()):
             ref = mujoco.mj_geomDistance(tree.model, d, g1, g2, 10.0, None)
             dist, grad = D.fallback_distance(tree, q, g1, g2)
-            assert abs(dist - ref) < 1e-9 and (ours[k] == dist if k else abs(ours[k] - ref) < DIST_TOL)
+            assert abs(dist - ref) < 1e-9 and (abs(ours[k] - ref) < DIST_TOL if ref > 0 else ours[k] < DIST_TOL)
             h = 1e-4  # MuJoCo's convex solver stops at ~1e-6: a coarse difference
             for i in range(tree.nv):
                 e = np.zeros(tree.nv)
