@@ -18,6 +18,7 @@ import pytest
 import mjkin
 from mjkin.apps.bench.report import shared_models_dir
 from mjkin.apps.bench.retarget import mocap_dir
+from mjkin.goals import HalfSpace
 from mjkin.motion import Trajectory, bvh
 from mjkin.motion.retarget import KEYS, SIDES, report, self_pairs
 from mjkin.motion.roles import role_offsets
@@ -154,3 +155,19 @@ def test_pairs_touching_at_rest_do_not_hold_the_figure() -> None:
     kept = self_pairs(tree, 0.002)
     assert kept == [p for p in every if p != (ids["hip"], ids["shin"])] and (ids["thigh"], ids["arm"]) in kept
     assert all(d >= 0.002 for d in tree.distances(tree.qpos0, np.array(kept)))
+
+
+def test_frames_whose_constraints_cannot_be_met_are_counted() -> None:
+    """Hard goals no pose meets (the pelvis above 10 m and below 9 m) leave every frame unmet: each keeps the
+    pose the solver found nearest to meeting them, is listed in the result and counted by the report."""
+    from test_retarget import crouch_bvh
+
+    primate = figure("primate")
+    clip_ = bvh.parse(crouch_bvh(frames=6))
+    apart = [HalfSpace("lower_torso", point=(0.0, 0.0, 10.0), normal=(0.0, 0.0, 1.0), kind="body", priority=1),
+             HalfSpace("lower_torso", point=(0.0, 0.0, 9.0), normal=(0.0, 0.0, -1.0), kind="body", priority=1)]
+    traj = mjkin.retarget(clip_, primate, extra_goals=apart)
+    assert traj.meta["retarget"]["constraint_unmet"] == list(range(6))
+    assert report(primate, traj)["constraint_unmet_frames"] == 6 and np.isfinite(traj.q).all()
+    free = mjkin.retarget(clip_, primate)
+    assert free.meta["retarget"]["constraint_unmet"] == [] and report(primate, free)["constraint_unmet_frames"] == 0
