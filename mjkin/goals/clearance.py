@@ -44,17 +44,21 @@ class Clearance(Goal):
     contype/conaffinity, parent–child and welded bodies, ``<exclude>``, ``<pair>``).
     Distances and gradients come from mjkin's FK and its own sphere/capsule/box/plane/cylinder
     primitives (:func:`mjkin.kinematics.geoms.pair_distance`). Each evaluation takes the
-    pairs whose bounding spheres come within ``margin + REACH`` (a broad phase), computes
+    pairs whose bounding spheres and boxes come within ``margin + reach`` (a broad phase,
+    :func:`~mjkin.kinematics.geoms.near_pairs`; ``reach`` default :data:`REACH`), computes
     their distances and gives a row to the ``closest`` nearest (a fixed number of rows;
-    spare rows read ``REACH``, inert). In a pair mjkin does not compute (a mesh, an
-    ellipsoid, a cylinder against a box, ...) the geom it cannot take is measured as its
-    bounding sphere (:func:`bounded_geoms`): that pair's clearance kept is a lower bound
-    of the true one.
+    spare rows read ``reach``, inert). Meshes are measured on their convex hulls, as MuJoCo
+    collides them. In a pair mjkin does not compute (a height field, an SDF) the geom it cannot
+    take is measured as its bounding sphere (:func:`bounded_geoms`): that pair's clearance kept
+    is a lower bound of the true one. A pair farther than ``reach`` gives no row until a step
+    brings it near; the step is then judged with it (a smaller reach measures fewer pairs per
+    evaluation: faster where many geoms stay near each other, as a humanoid's).
     """
 
     margin: float = 0.0
     pairs: Sequence[tuple[int | str, int | str]] | None = None
     closest: int = field(default=8, kw_only=True)
+    reach: float | None = field(default=None, kw_only=True)
     rows: ClassVar[int] = -1
     units: ClassVar[Units] = METRES
     hard: ClassVar[bool] = True
@@ -65,6 +69,8 @@ class Clearance(Goal):
         super().__post_init__()
         number(self.margin, "Clearance margin (m)")
         check_count(self.closest, "Clearance closest", 1)
+        if self.reach is not None and not number(self.reach, "Clearance reach (m)") > 0:
+            raise GoalError(f"Clearance reach must be positive metres, got {self.reach!r}")
         if self.pairs is not None and not _pairs_given(self.pairs):
             raise GoalError("Clearance pairs must be None or (geom1, geom2) pairs of geom names or ids")
 
@@ -97,7 +103,7 @@ class Clearance(Goal):
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:
         """The margin and the broad phase's reach into ``data``."""
         data[:, 0] = float(self.margin)
-        data[:, 1] = float(self.margin) + self.REACH
+        data[:, 1] = float(self.margin) + (self.REACH if self.reach is None else float(self.reach))
 
 
 def _pairs_given(pairs: object) -> bool:

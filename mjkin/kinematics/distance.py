@@ -5,8 +5,8 @@ configuration's FK output (negative: penetration depth), with witness points on
 each geom; :func:`pair_distance_jacobian` adds its gradient ``n·(J_p2 − J_p1)``
 along the unit normal ``n`` from geom 1 to geom 2. Pairs computed here
 (:func:`mjkin.kinematics.geoms.native`): any two of sphere, capsule, ellipsoid,
-cylinder and box, and a plane with any of them (planes are half-spaces, as in
-MuJoCo). Other pairs (meshes, height fields, SDFs) go through
+cylinder, box and mesh (its convex hull, as MuJoCo collides it), and a plane with any
+of them (planes are half-spaces, as in MuJoCo). Other pairs (height fields, SDFs) go through
 :func:`fallback_distance`, which asks ``mujoco.mj_geomDistance`` with the geom
 frames taken from mjkin's FK.
 
@@ -20,8 +20,10 @@ separated pair this is the exact distance (to ~1e-12 of the segment's length),
 for a penetrating capsule it is its deepest point's depth. Box–box: the
 separating-axis test (15 axes); separated boxes take the least of the
 vertex–box and edge–edge distances (exact), overlapping ones the smallest
-overlap along the axes (the penetration depth). Ellipsoids, cylinder–cylinder
-and cylinder–box: :func:`mjkin.kinematics.gjk.gjk`.
+overlap along the axes (the penetration depth). Ellipsoids, cylinder–cylinder,
+cylinder–box and meshes: :func:`mjkin.kinematics.gjk.gjk`; a sphere or capsule against a mesh
+is its core (a point or segment) against the hull, less its radius, so a shallow penetration
+is exact.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from .geoms import (
     CAPSULE,
     CYLINDER,
     ELLIPSOID,
+    MESH,
     PLANE,
     SPHERE,
     Geoms,
@@ -48,7 +51,7 @@ from .geoms import (
     native,
     native_pairs,
 )
-from .gjk import gjk, support
+from .gjk import gjk, support, support_any
 from .jacobian import jacobian_kernel
 
 Array = NDArray[np.float64]
@@ -424,14 +427,20 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
         for i in range(3):
             n[i] = Ra[i, 2]
             v[i] = -n[i]
-        support(tb, sb, Rb, cb, v, qb)
+        support_any(geoms, gb, tb, sb, Rb, cb, v, qb, -1)
         d = n[0] * (qb[0] - ca[0]) + n[1] * (qb[1] - ca[1]) + n[2] * (qb[2] - ca[2])
         for i in range(3):
             qa[i] = qb[i] - d * n[i]
     elif tb == BOX and ta == BOX:
         d = box_box(sa, Ra, ca, sb, Rb, cb, qa, qb, n)
-    elif ta == ELLIPSOID or tb == ELLIPSOID or ta == CYLINDER:  # cylinder-cylinder, cylinder-box
-        d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n)
+    elif tb == MESH and (ta == SPHERE or ta == CAPSULE):  # the core against the hull, less the radius
+        core = unshared(S, 27, (3,))
+        core[0], core[1], core[2] = 0.0, sa[1] if ta == CAPSULE else 0.0, 0.0
+        d = gjk(CAPSULE, core, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb) - sa[0]
+        for i in range(3):
+            qa[i] += sa[0] * n[i]
+    elif ta == ELLIPSOID or tb == ELLIPSOID or ta == CYLINDER or tb == MESH:  # cylinder-cylinder, cylinder-box
+        d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb)
     else:  # a sphere or capsule against a sphere, capsule, cylinder or box
         a, u = unshared(S, 27, (3,)), unshared(S, 30, (3,))
         ra = _core(ta, sa, Ra, ca, a, u)

@@ -40,6 +40,13 @@ class Geoms(NamedTuple):
     rot: Array  # (ngeom, 3, 3) geom axes in its body frame
     rbound: Array  # (ngeom,) bounding-sphere radius about the origin (0 for planes: unbounded)
     margin: Array  # (ngeom,) MuJoCo's geom_margin
+    box: Array  # (ngeom, 6) MuJoCo's geom_aabb: the centre and half-sizes of a box about the geom, its own axes
+    # a mesh geom's convex hull, which is what MuJoCo collides (:func:`hulls`): vertices hull_adr[g] .. + hull_num[g]
+    hull_adr: Index  # (ngeom,) first vertex of geom g's hull in hull_vert (0 and hull_num 0 for other geoms)
+    hull_num: Index  # (ngeom,)
+    hull_vert: Array  # (H, 3) hull vertices, each in its geom's frame
+    hull_nbr_adr: Index  # (H + 1,) vertex v's neighbours on its hull: hull_nbr[hull_nbr_adr[v]:hull_nbr_adr[v + 1]]
+    hull_nbr: Index  # (E,) vertex ids into hull_vert; a hull without them is searched vertex by vertex
 
 
 def geom_arrays(model: mujoco.MjModel) -> Geoms:
@@ -52,7 +59,83 @@ def geom_arrays(model: mujoco.MjModel) -> Geoms:
     return Geoms(np.array(model.geom_type, dtype=np.int64), np.array(model.geom_bodyid, dtype=np.int64),
                  np.array(model.geom_size, dtype=np.float64).reshape(n, 3),
                  np.array(model.geom_pos, dtype=np.float64).reshape(n, 3), rot.reshape(n, 3, 3),
-                 np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64))
+                 np.array(model.geom_rbound, dtype=np.float64), np.array(model.geom_margin, dtype=np.float64),
+                 np.array(model.geom_aabb, dtype=np.float64).reshape(n, 6), *hulls(model))
+
+
+def _mesh_hull(model: mujoco.MjModel, mesh: int) -> tuple[Array, Index, Index]:
+    """A mesh's convex hull: its vertices ``(h, 3)`` (the mesh's frame, which is its geoms') and each one's
+    neighbours as ``adr (h + 1,)`` into ``nbr`` (local ids).
+
+    MuJoCo's own hull when it made one (``mesh_graph``, made for every mesh a geom collides with, honouring
+    ``maxhullvert``; laid out as ``numvert, numface, vert_edgeadr[numvert], vert_globalid[numvert],
+    edge_localid[numvert + 3 numface] (each vertex's neighbours, -1 after the last), face_globalid[3 numface]``),
+    else every vertex with no neighbours (searched one by one; MuJoCo makes no hull for a mesh no geom of which
+    collides, and such a geom is measured only when a caller names it).
+    """  # noqa: D205
+    adr, num = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    vert = np.asarray(model.mesh_vert[adr:adr + num], dtype=np.float64)
+    gadr = int(model.mesh_graphadr[mesh])
+    if gadr < 0:
+        return vert, np.zeros(num + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    graph = np.asarray(model.mesh_graph, dtype=np.int64)
+    nv, nf = int(graph[gadr]), int(graph[gadr + 1])
+    start = graph[gadr + 2:gadr + 2 + nv]
+    ids = graph[gadr + 2 + nv:gadr + 2 + 2 * nv]
+    local = graph[gadr + 2 + 2 * nv:gadr + 2 + 2 * nv + nv + 3 * nf]
+    ends = np.flatnonzero(local < 0)
+    stop = ends[np.searchsorted(ends, start)]  # each vertex's list ends at the first -1 from its start
+    count = stop - start
+    nbr = local[np.repeat(start, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))]
+    return vert[ids], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), nbr
+
+
+SEEDS = 14  # a hull's first vertices: its farthest along the 6 axis and 8 diagonal directions (a climb starts there)
+
+
+def _seeded(vert: Array, adr: Index, nbr: Index) -> tuple[Array, Index, Index]:
+    """A hull (as :func:`_mesh_hull`) with its vertices reordered so that its :data:`SEEDS` first are the farthest
+    along the axes and diagonals (fewer when they repeat), its neighbour lists moved and renumbered to match.
+    """  # noqa: D205
+    dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+                     *([x, y, z] for x in (1, -1) for y in (1, -1) for z in (1, -1))], dtype=np.float64)
+    first = np.array(list(dict.fromkeys(np.argmax(vert @ dirs.T, axis=0).tolist())), dtype=np.int64)
+    rest = np.ones(len(vert), dtype=bool)
+    rest[first] = False
+    order = np.concatenate([first, np.flatnonzero(rest)])
+    new = np.empty(len(vert), dtype=np.int64)
+    new[order] = np.arange(len(vert))
+    count = np.diff(adr)[order]
+    pick = np.repeat(adr[:-1][order], count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    return vert[order], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), new[nbr[pick]]
+
+
+def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
+    """The mesh geoms' convex hulls as :class:`Geoms` keeps them: ``hull_adr``, ``hull_num``, ``hull_vert``,
+    ``hull_nbr_adr``, ``hull_nbr`` (each mesh's hull once, shared by its geoms).
+    """  # noqa: D205
+    n = model.ngeom
+    adr, num = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    verts: list[Array] = [np.zeros((0, 3))]
+    counts: list[Index] = [np.zeros(0, dtype=np.int64)]
+    nbrs: list[Index] = [np.zeros(0, dtype=np.int64)]
+    done: dict[int, tuple[int, int]] = {}
+    total = 0
+    for g in range(n):
+        mesh = int(model.geom_dataid[g])
+        if model.geom_type[g] != MESH or mesh < 0:
+            continue
+        if mesh not in done:
+            v, a, nb = _seeded(*_mesh_hull(model, mesh))
+            done[mesh] = (total, len(v))
+            verts.append(v)
+            counts.append(np.diff(a))
+            nbrs.append(nb + total)
+            total += len(v)
+        adr[g], num[g] = done[mesh]
+    nbr_adr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
+    return (adr, num, np.ascontiguousarray(np.concatenate(verts)), nbr_adr,
+            np.ascontiguousarray(np.concatenate(nbrs), dtype=np.int64))
 
 
 def contact_pairs(tree: Bodies) -> Index:
@@ -98,7 +181,7 @@ def contact_pairs(tree: Bodies) -> Index:
 def native(t1: int, t2: int) -> bool:
     """Whether :func:`pair_distance` computes a pair of geom types itself (else it returns NaN)."""
     a, b = min(t1, t2), max(t1, t2)
-    return (a == PLANE or SPHERE <= a <= BOX) and SPHERE <= b <= BOX
+    return (a == PLANE or SPHERE <= a <= MESH) and SPHERE <= b <= MESH
 
 
 def native_pairs(geoms: Geoms, pairs: ArrayLike) -> NDArray[np.bool_]:
@@ -119,18 +202,57 @@ def geom_world(geoms: Geoms, rot: Array, pos: Array, g: int, R: Array, x: Array)
                                 + rot[0, bd, i, 2] * geoms.pos[g, 2])
 
 
+@njit_inline
+def _box_gap(W: Array, box: Array, g1: int, g2: int, ax: Array) -> float:
+    """A lower bound (m) of the distance between geoms ``g1`` and ``g2``: their boxes' (``box``, placed by ``W``,
+    see :func:`near_pairs`) largest separation over the 15 separating axes (0 or less where the boxes overlap).
+    """  # noqa: D205
+    d0, d1, d2 = W[g2, 9] - W[g1, 9], W[g2, 10] - W[g1, 10], W[g2, 11] - W[g1, 11]  # centre to centre
+    for j in range(3):  # the boxes' centres are their geoms' origins moved along the geoms' axes
+        d0 += W[g2, j] * box[g2, j] - W[g1, j] * box[g1, j]
+        d1 += W[g2, 3 + j] * box[g2, j] - W[g1, 3 + j] * box[g1, j]
+        d2 += W[g2, 6 + j] * box[g2, j] - W[g1, 6 + j] * box[g1, j]
+    best = -np.inf
+    for k in range(15):
+        if k < 3:
+            for i in range(3):
+                ax[i] = W[g1, 3 * i + k]
+        elif k < 6:
+            for i in range(3):
+                ax[i] = W[g2, 3 * i + k - 3]
+        else:
+            a, b = (k - 6) // 3, (k - 6) % 3
+            ax[0] = W[g1, 3 + a] * W[g2, 6 + b] - W[g1, 6 + a] * W[g2, 3 + b]
+            ax[1] = W[g1, 6 + a] * W[g2, b] - W[g1, a] * W[g2, 6 + b]
+            ax[2] = W[g1, a] * W[g2, 3 + b] - W[g1, 3 + a] * W[g2, b]
+            norm = np.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+            if norm < 1e-9:
+                continue
+            for i in range(3):
+                ax[i] /= norm
+        sep = abs(d0 * ax[0] + d1 * ax[1] + d2 * ax[2])
+        for j in range(3):
+            sep -= box[g1, 3 + j] * abs(W[g1, j] * ax[0] + W[g1, 3 + j] * ax[1] + W[g1, 6 + j] * ax[2])
+            sep -= box[g2, 3 + j] * abs(W[g2, j] * ax[0] + W[g2, 3 + j] * ax[1] + W[g2, 6 + j] * ax[2])
+        if sep > best:
+            best = sep
+    return best
+
+
 @njit
 def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float, out: Index) -> int:
-    """Pairs whose bounding spheres come within ``reach`` (m) of each other, for one configuration's FK.
+    """Pairs that may come within ``reach`` (m) of each other, for one configuration's FK.
 
     Writes the indices into ``pairs (P, 2)`` of those pairs to ``out[:k]`` and returns
-    ``k``. A plane (unbounded) counts the other geom's bounding sphere's height above it.
-    Pass ``reach`` = the clearance margin plus a slack for how far the geoms may move
-    before the next call.
+    ``k``: those whose bounding spheres come within ``reach`` and whose boxes (MuJoCo's
+    ``geom_aabb`` in each geom's axes) too, by the separating axes. Every pair whose geoms
+    are within ``reach`` is among them. A plane (unbounded) counts the other geom's bounding
+    sphere's height above it. Pass ``reach`` = the clearance margin plus a slack for how far
+    the geoms may move before the next call.
     """
     geoms, rot, pos, pairs, out = borrowed((geoms, rot, pos, pairs, out))
     ng = geoms.type.shape[0]
-    S = on_stack(13 * ng)  # per geom: world axes (9), origin (3), placed yet (1)
+    S = on_stack(13 * ng + 3)  # per geom: world axes (9), origin (3), placed yet (1); an axis
     for g in range(ng):
         S[13 * g + 12] = 0.0
     for p in range(pairs.shape[0]):  # each geom placed once, not once per pair
@@ -139,17 +261,19 @@ def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float,
                 S[13 * g + 12] = 1.0
                 geom_world(geoms, rot, pos, g, unshared(S, 13 * g, (3, 3)), unshared(S, 13 * g + 9, (3,)))
     W = unshared(S, 0, (ng, 13))  # a plane's normal: its z axis, W[g, 2], W[g, 5], W[g, 8]; its origin W[g, 9:12]
+    ax = unshared(S, 13 * ng, (3,))
     k = 0
     for p in range(pairs.shape[0]):
         g1, g2 = pairs[p, 0], pairs[p, 1]
-        if geoms.type[g1] == PLANE or geoms.type[g2] == PLANE:
+        plane = geoms.type[g1] == PLANE or geoms.type[g2] == PLANE
+        if plane:
             a, b = (g1, g2) if geoms.type[g1] == PLANE else (g2, g1)  # a: the plane
             gap = W[a, 2] * (W[b, 9] - W[a, 9]) + W[a, 5] * (W[b, 10] - W[a, 10]) + W[a, 8] * (W[b, 11] - W[a, 11])
             gap -= geoms.rbound[b]
         else:
             gap = np.sqrt((W[g2, 9] - W[g1, 9]) ** 2 + (W[g2, 10] - W[g1, 10]) ** 2 + (W[g2, 11] - W[g1, 11]) ** 2) - (
                 geoms.rbound[g1] + geoms.rbound[g2])
-        if gap <= reach:
+        if gap <= reach and (plane or _box_gap(W, geoms.box, g1, g2, ax) <= reach):
             out[k] = p
             k += 1
     return k

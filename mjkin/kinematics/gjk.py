@@ -1,8 +1,9 @@
 """Distance between two convex primitives from their support points (Gilbert–Johnson–Keerthi).
 
 For the pairs without a closed form in :mod:`mjkin.kinematics.distance`:
-ellipsoids, cylinder–cylinder, cylinder–box. GJK walks a simplex of support
-points of the Minkowski difference towards the origin; apart shapes get their
+ellipsoids, cylinder–cylinder, cylinder–box, and meshes (their convex hulls, as MuJoCo collides
+them: a hull's support point is found by climbing its vertex graph, :func:`hull_support`).
+GJK walks a simplex of support points of the Minkowski difference towards the origin; apart shapes get their
 distance to :data:`GJK_TOL` with the closest points. Overlapping shapes get the
 deepest separation over their axes and the axes' cross products, an estimate at
 least as deep as the true penetration.
@@ -14,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..runtime.jit import njit, on_stack, unshared, unshared_int64
-from .geoms import BOX, CAPSULE, CYLINDER, SPHERE
+from .geoms import BOX, CAPSULE, CYLINDER, MESH, SEEDS, SPHERE, Geoms
 
 Array = NDArray[np.float64]
 
@@ -58,6 +59,56 @@ def support(kind: int, size: Array, R: Array, c: Array, v: Array, z: Array) -> N
         for j in range(3):
             for i in range(3):
                 z[i] += R[i, j] * size[j] * sv[j] / norm
+
+
+@njit
+def hull_support(geoms: Geoms, g: int, R: Array, c: Array, v: Array, z: Array, start: int) -> int:
+    """The vertex ``z`` (world) of mesh geom ``g``'s convex hull farthest along ``v`` (world); returns its id.
+
+    Climbs the hull's vertex graph from vertex ``start`` (an id in ``g``'s hull; -1: the farthest of its
+    :data:`~mjkin.kinematics.geoms.SEEDS` first, the farthest along the axes and diagonals) to a vertex no
+    neighbour of which is farther: on a convex hull that is the farthest (a hull without a graph is searched
+    vertex by vertex). Start from the last answer for a direction that changed little.
+    """
+    lv0 = R[0, 0] * v[0] + R[1, 0] * v[1] + R[2, 0] * v[2]  # v in the geom's frame
+    lv1 = R[0, 1] * v[0] + R[1, 1] * v[1] + R[2, 1] * v[2]
+    lv2 = R[0, 2] * v[0] + R[1, 2] * v[1] + R[2, 2] * v[2]
+    a, n = geoms.hull_adr[g], geoms.hull_num[g]
+    V, adr, nbr = geoms.hull_vert, geoms.hull_nbr_adr, geoms.hull_nbr
+    best = start if a <= start < a + n else a
+    top = V[best, 0] * lv0 + V[best, 1] * lv1 + V[best, 2] * lv2
+    if best != start:
+        for k in range(a + 1, a + min(n, SEEDS)):
+            x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
+            if x > top:
+                best, top = k, x
+    if adr[a + n] == adr[a]:  # no graph: every vertex
+        for k in range(a, a + n):
+            x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
+            if x > top:
+                best, top = k, x
+    else:
+        moved = True
+        while moved:
+            moved = False
+            for e in range(adr[best], adr[best + 1]):
+                k = nbr[e]
+                x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
+                if x > top:
+                    best, top, moved = k, x, True
+    for i in range(3):
+        z[i] = c[i] + R[i, 0] * V[best, 0] + R[i, 1] * V[best, 1] + R[i, 2] * V[best, 2]
+    return best
+
+
+@njit
+def support_any(geoms: Geoms, g: int, kind: int, size: Array, R: Array, c: Array, v: Array, z: Array,
+                start: int) -> int:
+    """:func:`support` of a primitive or :func:`hull_support` of mesh geom ``g`` (returns its vertex id, else -1)."""
+    if kind == MESH:
+        return hull_support(geoms, g, R, c, v, z, start)
+    support(kind, size, R, c, v, z)
+    return -1
 
 
 @njit
@@ -153,7 +204,7 @@ def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array)
 
 @njit
 def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array,
-             p2: Array, n: Array) -> float:
+             p2: Array, n: Array, geoms: Geoms, ga: int, gb: int) -> float:
     """Signed distance of two overlapping convex geoms, estimated by separating axes (their own and crosses).
 
     The largest separation ``n·(p2 - p1)`` over the candidate axes, with ``p1``, ``p2`` the
@@ -185,8 +236,8 @@ def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: A
             for i in range(3):
                 u[i] = sg * ax[i] / norm
                 m[i] = -u[i]
-            support(ta, sa, Ra, ca, u, za)
-            support(tb, sb, Rb, cb, m, zb)
+            support_any(geoms, ga, ta, sa, Ra, ca, u, za, -1)
+            support_any(geoms, gb, tb, sb, Rb, cb, m, zb, -1)
             sep = u[0] * (zb[0] - za[0]) + u[1] * (zb[1] - za[1]) + u[2] * (zb[2] - za[2])
             if sep > best:
                 best = sep
@@ -197,12 +248,13 @@ def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: A
 
 @njit
 def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array, p2: Array,
-        n: Array) -> float:
-    """Signed distance of two convex geoms (sphere, capsule, ellipsoid, cylinder, box) by their support points.
+        n: Array, geoms: Geoms, ga: int, gb: int) -> float:
+    """Signed distance of two convex geoms (sphere, capsule, ellipsoid, cylinder, box, mesh) by their support points.
 
     Gilbert–Johnson–Keerthi on the Minkowski difference: separated geoms get their distance
     (to :data:`GJK_TOL`) with the closest points ``p1``, ``p2``; overlapping ones
-    :func:`_overlap`'s estimate.
+    :func:`_overlap`'s estimate. ``geoms``, ``ga``, ``gb``: where a mesh's hull is (read for
+    ``ta`` or ``tb`` :data:`MESH` only).
     """
     S = on_stack(49)
     W, A, B = unshared(S, 0, (4, 3)), unshared(S, 12, (4, 3)), unshared(S, 24, (4, 3))
@@ -213,12 +265,13 @@ def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array,
     if vv == 0.0:
         v[0], vv = 1.0, 1.0
     k = 0
+    wa, wb = -1, -1  # the hulls' last support vertices: the next climb starts there
     for _ in range(GJK_STEPS):
         norm = np.sqrt(vv)
         for i in range(3):
             dir_a[i], dir_b[i] = -v[i] / norm, v[i] / norm
-        support(ta, sa, Ra, ca, dir_a, A[k])
-        support(tb, sb, Rb, cb, dir_b, B[k])
+        wa = support_any(geoms, ga, ta, sa, Ra, ca, dir_a, A[k], wa)
+        wb = support_any(geoms, gb, tb, sb, Rb, cb, dir_b, B[k], wb)
         vw = 0.0
         for i in range(3):
             W[k, i] = A[k, i] - B[k, i]
@@ -228,7 +281,7 @@ def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array,
         k = _simplex_closest(W, A, B, lam, k + 1, v)
         vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
         if k == 4 or vv <= 1e-24:
-            return _overlap(ta, sa, Ra, ca, tb, sb, Rb, cb, p1, p2, n)
+            return _overlap(ta, sa, Ra, ca, tb, sb, Rb, cb, p1, p2, n, geoms, ga, gb)
     for i in range(3):
         p1[i] = p2[i] = 0.0
         for j in range(k):

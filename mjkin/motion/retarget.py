@@ -53,6 +53,7 @@ from .. import spatial
 from ..errors import InputError
 from ..ik import Problem
 from ..ik.kernel import HARD_TOL
+from ..ik.result import Result
 from ..kinematics.geoms import contact_pairs
 from ..kinematics.qspace import BALL, HINGE
 from ..kinematics.tree import Tree, fingerprint
@@ -90,6 +91,10 @@ BODY_WEIGHTS = {"pelvis": 3.0, "pelvis_turn": 0.05, "torso_turn": 0.3, "head": 0
 SELF_CLEARANCE = 0.002
 MAX_ERROR = 0.10  # m: a clip whose frame errors' ERROR_PERCENTILE exceeds this is failed
 ERROR_PERCENTILE = 95  # over frames: a few frames may miss (a hand through the body moved out), not a tenth of them
+# m past the clearance within which a pair of the figure's geoms is measured in each evaluation (Clearance.reach):
+# a humanoid's links stay near each other (the G1's meshes: 66 pairs within 10 cm, 14 within 2 cm, in a walk),
+# and each pair measured costs a GJK on two hulls; a pair farther off joins when a step brings it near
+SELF_REACH = 0.02
 EASE_S = 0.2  # s over which a lifted foot's target returns from where it stood to the source's (6 frames at 30 Hz)
 CONTACT_ON = (0.03, 0.25)  # m above the floor, m/s: a foot point lower and slower touches down
 CONTACT_OFF = (0.06, 0.5)  # ... higher or faster: it lifts (hysteresis)
@@ -532,13 +537,14 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         raise InputError(f"model {tree.name!r} has no free root joint to carry the figure")
     max_error = check_max_error(max_error)
     ground = scene if isinstance(scene, Terrain) else None if scene is None else Terrain.load(scene)
+    extra, margin = tuple(extra_goals), None
+    if clearance is not None:  # the figure's own (a model's, not the clip's: not timed, as a compile is not)
+        margin = check_number(clearance, "clearance (m)")
+        pairs = self_pairs(tree, margin)
+        extra += (G.Clearance(margin, pairs=pairs, reach=SELF_REACH),) if pairs else ()
     t0 = time.perf_counter()
     plan_ = plan(clip, tree, mapping, scale, ground)
-    extra, margin = tuple(extra_goals), None
-    if clearance is not None:
-        margin, pairs = check_number(clearance, "clearance (m)"), self_pairs(tree)
-        extra += (G.Clearance(margin, pairs=pairs),) if pairs else ()
-    q, t_first = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
+    q, t_first, unmet = solve_frames(tree, plan_, tol, extra, step_limit(tree, speed * clip.frame_time))
     elapsed = time.perf_counter() - t0 - t_first
     feet = {f"{s}_ankle": plan_.feet[i, :, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, :, :3, 3]
             for i, s in enumerate(SIDES)}  # the feet's own targets: frozen while planted
@@ -548,7 +554,7 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
                          "contact": plan_.contact.tolist(), "heel": plan_.heel.tolist(),
                          "frames_per_second": max(clip.frames - 1, 1) / elapsed,
                          "max_speed": speed.tolist(), "bodies": plan_.bodies, "clearance": margin,
-                         "scene": None if ground is None else ground.source}}
+                         "constraint_unmet": unmet, "scene": None if ground is None else ground.source}}
     times = np.arange(clip.frames, dtype=np.float64) * clip.frame_time
     traj = Trajectory(times=times, q=q, fingerprint=fingerprint(tree), model=tree.name, targets=targets, meta=meta,
                       source=model_source)
@@ -634,20 +640,30 @@ def step_limit(tree: Tree, max_step: Array) -> G.StepLimit:
     return G.StepLimit(q_prev=tree.qpos0, max_step=np.maximum(per_joint - HARD_TOL, 0.0))
 
 
-def self_pairs(tree: Tree) -> list[tuple[int, int]]:
-    """The geom pairs ``[(geom1, geom2), ...]`` (ids) MuJoCo would collide between the figure's own bodies."""
+def self_pairs(tree: Tree, margin: float | None = None) -> list[tuple[int, int]]:
+    """The geom pairs ``[(geom1, geom2), ...]`` (ids) MuJoCo would collide between the figure's own bodies.
+
+    With a ``margin`` (m), only those at least that far apart in the rest pose (``qpos0``): a pair nearer there
+    touches by design (a shell around a joint, parts built against each other) and a clearance of ``margin`` on
+    it could not be met at the start, which would hold the figure still.
+    """
     pairs = contact_pairs(tree)
     body = tree.model.geom_bodyid
-    return [(int(a), int(b)) for a, b in pairs if body[a] != 0 and body[b] != 0]
+    pairs = pairs[(body[pairs[:, 0]] != 0) & (body[pairs[:, 1]] != 0)]
+    if margin is not None and len(pairs):
+        pairs = pairs[tree.distances(tree.qpos0, pairs) >= margin]
+    return [(int(a), int(b)) for a, b in pairs]
 
 
 def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal] = (),
-                 limit: G.StepLimit | None = None) -> tuple[Array, float]:
+                 limit: G.StepLimit | None = None) -> tuple[Array, float, list[int]]:
     """Joint values ``(F, nq)``, frame by frame through one :class:`~mjkin.Problem`.
 
     Each frame is warm-started from (and rests toward) the previous frame's pose; ``extra``
     goals join every frame's; ``limit``, with ``q_prev`` the previous frame's pose, every frame's
-    after the first. Also returns the seconds the first frame took (it may include compiling the solver).
+    after the first. Also returns the seconds the first frame took (it may include compiling the solver)
+    and the frames whose hard constraints could not all be met (each keeps the pose the solver found nearest
+    to meeting them: it ranks a pose that meets them above any that does not, then by how far it misses).
     """
     F = len(plan_.points["pelvis"])
     q = tree.qpos0.copy()
@@ -655,9 +671,13 @@ def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal
     q[free[:3]] += plan_.points["pelvis"][0] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
     out = np.empty((F, tree.nq))
     layout = frame_goals(tree, plan_, extra)
+    unmet: list[int] = []
     t = time.perf_counter()
     first = Problem(tree, layout.at(0, q), tol=tol, restarts=0, max_iters=MAX_ITERS)  # no previous frame to limit
-    q = out[0] = first.solve(q).q
+    res = first.solve(q)
+    q = out[0] = res.q
+    if _misses(res):
+        unmet.append(0)
     t_first = time.perf_counter() - t
     problem = Problem(tree, layout.at(0, q) + ([] if limit is None else [limit]), tol=tol, restarts=0,
                       max_iters=MAX_ITERS)
@@ -665,8 +685,16 @@ def solve_frames(tree: Tree, plan_: Retarget, tol: float, extra: Sequence[G.Goal
         goals = layout.at(f, q)
         if limit is not None:
             goals.append(replace(limit, q_prev=q))
-        q = out[f] = problem.solve(q, goals).q
-    return out, t_first
+        res = problem.solve(q, goals)
+        q = out[f] = res.q
+        if _misses(res):
+            unmet.append(f)
+    return out, t_first, unmet
+
+
+def _misses(res: Result) -> bool:
+    """Whether a frame's answer leaves a hard constraint unmet (by more than the solver's ``HARD_TOL``)."""
+    return any(g.hard and res.goal_errors[i, 0] > HARD_TOL for i, g in enumerate(res.goals))
 
 
 # ------------------------------------------------------------------- report
@@ -728,7 +756,9 @@ def report(tree: Tree, traj: Trajectory, terrain: str | os.PathLike[str] | Terra
     one the clip was retargeted onto, ``meta["retarget"]["scene"]``, else the plane z = 0), its height
     by rays cast down from the lowest points of the feet's geoms (:func:`.terrain.foot_points`, every
     :data:`.terrain.SPACING` on boxes and meshes); ``limits`` (None or what is outside);
-    ``speed_max``/``speed_limit_ratio``; ``self_contact_frames``, ``self_contact_deepest``.
+    ``speed_max``/``speed_limit_ratio``; ``self_contact_frames``, ``self_contact_deepest``;
+    ``constraint_unmet_frames``: frames whose hard constraints (clearance, ground, speed) the solver could not
+    all meet (``meta["retarget"]["constraint_unmet"]`` lists them).
     """
     info = traj.meta["retarget"]
     bodies = info["bodies"]
@@ -777,4 +807,5 @@ def report(tree: Tree, traj: Trajectory, terrain: str | os.PathLike[str] | Terra
             frames += 1
             deep = min(deep, min(mine))
     out["self_contact_frames"], out["self_contact_deepest"] = frames, deep
+    out["constraint_unmet_frames"] = len(info.get("constraint_unmet", ()))
     return out
