@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -237,13 +238,16 @@ def _solve_voxels(tree: Tree, frame: tuple[str, str], centres: Array, rots: Arra
 
 
 def _save(path: Path, m: ReachabilityMap) -> None:
-    """Write map ``m`` to ``path`` (``.npz``) atomically."""
+    """Write map ``m`` to ``path`` (``.npz``) atomically; a write that fails (a full disk) is a warning, never an
+    error: the map is built, only not cached.
+    """  # noqa: D205
     try:
         with atomic_path(path) as tmp:
             np.savez_compressed(tmp, origin=m.origin, resolution=m.resolution, reached=m.reached,
                                 orientations=m.orientations, axes=m.axes, seconds=m.seconds)
-    except OSError as e:
-        raise MjkinIOError(f"cannot write the reachability cache {str(path)!r}: {e}") from None
+    except OSError as e:  # MjkinIOError too: atomic_path's own
+        warnings.warn(f"cannot write the reachability cache {str(path)!r}: {' '.join(str(e).split())}; the map is "
+                      "kept, not cached", stacklevel=3)
 
 
 def _load(path: Path, frame: str) -> ReachabilityMap:
