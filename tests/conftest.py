@@ -88,6 +88,21 @@ def mujoco_log(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         left.unlink(missing_ok=True)
 
 
+@contextlib.contextmanager
+def no_hang(seconds: int = 20) -> Iterator[None]:
+    """Fail instead of waiting forever (a FIFO read blocks until a writer comes)."""
+    def timeout(signum: int, frame: object) -> None:
+        raise TimeoutError(f"still reading after {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, timeout)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)

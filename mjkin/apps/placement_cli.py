@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import InputError, MjkinIOError
+from ..runtime import files
 from ..runtime.files import atomic_path, check_writable
 from .argtypes import positive_float, positive_int
 
@@ -139,11 +140,10 @@ def run_reachability(args: argparse.Namespace) -> int:
 
 
 def _read_poses(path: str) -> np.ndarray:
+    text = files.read_input_text(path, "--poses file", files.LIMITS["json"])
     try:
-        data = json.loads(Path(path).read_text())
-    except OSError as e:
-        raise MjkinIOError(f"cannot read --poses {path!r}: {e.strerror}") from None
-    except ValueError as e:
+        data = json.loads(text)
+    except (ValueError, RecursionError) as e:
         raise InputError(f"--poses {path!r} is not JSON: {e}") from None
     rows = data.get("poses") if isinstance(data, dict) else data
     try:

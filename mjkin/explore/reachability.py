@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ from ..ik.method import MAX_RESTARTS
 from ..ik.reasons import reach_bound
 from ..ik.solve import solve
 from ..kinematics.tree import FAR, Tree, check_tree, fingerprint
+from ..runtime import files
 from ..runtime.checks import check_count, check_number, shown
 from ..runtime.files import atomic_path
 
@@ -42,6 +44,7 @@ VERSION = 1  # of the cache files' contents
 MAX_PLACEMENTS = 1_000_000  # base placements (grid cells x yaws) place_base scores at most
 MAX_SCORED = 20_000_000  # target points place_base scores at most (placements x poses; 24 bytes each, ~0.5 GB)
 MAX_VERIFIED = 1_000_000  # IK solves place_base verifies with at most (verify x poses; seconds to a minute)
+MAX_ORIENTATIONS = 10_000  # orientations a map tries per voxel at most (each voxel solves all of them at once)
 MAX_VOXELS = 1_000_000  # voxels a capability map holds at most (each one a batch of solves)
 SAMPLES = 20_000  # random configurations: the box, and the start of each voxel's solves
 NEAREST = 8  # of the samples nearest a voxel, the start is the one whose z axis is nearest the asked direction
@@ -119,11 +122,13 @@ def orientation_set(n: int) -> Array:
 def _orientations(orientations: int | ArrayLike) -> tuple[Array, str]:
     """Rotations ``(K, 3, 3)`` and the axes they constrain, from a count (z directions) or quaternions ``(K, 4)``."""
     if isinstance(orientations, (int, np.integer)) and not isinstance(orientations, bool):
-        return orientation_set(check_count(orientations, "orientations")), "z"
+        return orientation_set(check_count(orientations, "orientations", most=MAX_ORIENTATIONS)), "z"
     quat = np.asarray(orientations, dtype=np.float64)
     if quat.ndim != 2 or quat.shape[1] != 4 or not len(quat) or not np.all(np.isfinite(quat)) or np.any(
             np.linalg.norm(quat, axis=-1) < 1e-9):
         raise InputError(f"orientations must be a count or (K, 4) quaternions (w, x, y, z), got {shown(orientations)}")
+    if len(quat) > MAX_ORIENTATIONS:
+        raise InputError(f"orientations must be at most {MAX_ORIENTATIONS} quaternions, got {len(quat)}")
     return spatial.quat_to_mat(spatial.quat_normalize(quat)), "xyz"
 
 
@@ -233,22 +238,27 @@ def _solve_voxels(tree: Tree, frame: tuple[str, str], centres: Array, rots: Arra
 
 
 def _save(path: Path, m: ReachabilityMap) -> None:
-    """Write map ``m`` to ``path`` (``.npz``) atomically."""
+    """Write map ``m`` to ``path`` (``.npz``) atomically; a write that fails (a full disk) is a warning, never an
+    error: the map is built, only not cached.
+    """  # noqa: D205
     try:
         with atomic_path(path) as tmp:
             np.savez_compressed(tmp, origin=m.origin, resolution=m.resolution, reached=m.reached,
                                 orientations=m.orientations, axes=m.axes, seconds=m.seconds)
-    except OSError as e:
-        raise MjkinIOError(f"cannot write the reachability cache {str(path)!r}: {e}") from None
+    except OSError as e:  # MjkinIOError too: atomic_path's own
+        warnings.warn(f"cannot write the reachability cache {str(path)!r}: {' '.join(str(e).split())}; the map is "
+                      "kept, not cached", stacklevel=3)
 
 
 def _load(path: Path, frame: str) -> ReachabilityMap:
     """The map cached in ``path``."""
     try:
-        with np.load(path) as f:
+        with files.open_input(path, "reachability cache", files.LIMITS["npz clip"]) as fh, np.load(fh) as f:
             return ReachabilityMap(frame=frame, origin=f["origin"], resolution=float(f["resolution"]),
                                    reached=f["reached"], orientations=f["orientations"], axes=str(f["axes"]),
                                    seconds=float(f["seconds"]))
+    except MjkinIOError:  # what the file is (a FIFO, too big) said in one line already
+        raise
     except (OSError, KeyError, ValueError) as e:
         raise MjkinIOError(f"cannot read the reachability cache {str(path)!r}: {e}") from None
 

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import GoalError
 from ..runtime.jit import matvec3, njit_ir_inline
-from .base import RADIANS, Array, FrameGoal, Units, array, unit
+from .base import RADIANS, Array, FrameGoal, Units, point, unit
 from .compiled import skew_times
 
 if TYPE_CHECKING:
@@ -38,7 +38,7 @@ class Aim(FrameGoal):
         axis = unit(self.axis, "Aim axis")
         if axis.ndim != 1:
             raise GoalError("Aim axis is fixed in the frame: give one (3,) vector")
-        return [array(self.point, (3,), "Aim point"), axis]
+        return [point(self.point, "Aim point"), axis]
 
 
 @njit_ir_inline

@@ -73,6 +73,22 @@ def array(value: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
     return a
 
 
+MAX_DISTANCE = 1e10  # m: a target point farther from the world origin is refused (its squares overflow on the way)
+
+
+def point(value: ArrayLike, what: str) -> Array:
+    """A world point ``(3,)`` or ``(B, 3)`` (m) as :func:`array`, each coordinate within :data:`MAX_DISTANCE`.
+
+    No figure reaches 1e10 m (25 times the Moon's distance), and a point at 1e308 m made the solver's
+    arrays inf (numpy's LinAlgError); refused here, before any solve.
+    """
+    a = array(value, (3,), what)
+    if a.size and float(np.abs(a).max()) > MAX_DISTANCE:
+        raise GoalError(f"{what} must be within {MAX_DISTANCE:g} m of the world origin in each coordinate, got "
+                        f"{float(a.flat[np.abs(a).argmax()]):.3g} m")
+    return a
+
+
 def broadcast(shapes: Sequence[tuple[int, ...]]) -> tuple[int, ...]:
     """``np.broadcast_shapes`` without its cost (a few µs) when every shape is the same (the usual case)."""
     if len(set(shapes)) <= 1:

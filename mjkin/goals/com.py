@@ -20,7 +20,7 @@ from ..kinematics.com import com_kernel
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE
 from ..kinematics.jacobian import jacobian_kernel
 from ..runtime.jit import njit, njit_ir_inline
-from .base import METRES, Array, Goal, Units, array, number
+from .base import METRES, Array, Goal, Units, array, number, point
 from .compiled import owned
 
 if TYPE_CHECKING:
@@ -47,7 +47,7 @@ class ComTarget(Goal):
     _cores: ClassVar[tuple[int, ...]] = (1,)
 
     def _validate(self) -> list[Array]:
-        return [array(self.xyz, (3,), "CenterOfMass xyz")]
+        return [point(self.xyz, "CenterOfMass xyz")]
 
     def encode(self, tree: Tree, data: Array, rest: Array) -> None:  # noqa: D102
         data[:, 0:3] = self.targets()[0]

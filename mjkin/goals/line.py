@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..runtime.jit import njit_ir_inline
-from .base import METRES, Array, FrameGoal, Units, array, unit
+from .base import METRES, Array, FrameGoal, Units, point, unit
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -28,7 +28,7 @@ class Line(FrameGoal):
     _batched: ClassVar[tuple[str, ...]] = ("point", "direction")
 
     def _validate(self) -> list[Array]:
-        return [array(self.point, (3,), "Line point"), unit(self.direction, "Line direction")]
+        return [point(self.point, "Line point"), unit(self.direction, "Line direction")]
 
 
 @njit_ir_inline

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 from numpy.typing import ArrayLike
 
 from ..runtime.jit import njit_inline, njit_ir_inline
-from .base import METRES, Array, FrameGoal, Units, array, unit
+from .base import METRES, Array, FrameGoal, Units, point, unit
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
@@ -27,7 +27,7 @@ class Plane(FrameGoal):
     _batched: ClassVar[tuple[str, ...]] = ("point", "normal")
 
     def _validate(self) -> list[Array]:
-        return [array(self.point, (3,), f"{type(self).__name__} point"),
+        return [point(self.point, f"{type(self).__name__} point"),
                 unit(self.normal, f"{type(self).__name__} normal")]
 
 

@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import spatial
 from ..errors import InputError, MjkinIOError
+from ..runtime import files
 
 Array = NDArray[np.float64]
 CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")
@@ -129,13 +129,20 @@ def read(path: str | os.PathLike[str]) -> Clip:
     Raises:
         BvhError: missing or unreadable file, or malformed content (file and line named).
     """
+    text = files.read_input_text(path, "BVH file", files.LIMITS["bvh"], BvhError, errors="replace")
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
-        raise BvhError(f"BVH file not found: {str(path)!r}") from None
-    except OSError as e:
-        raise BvhError(f"cannot read BVH file {str(path)!r}: {e.strerror or e}") from None
-    return parse(text, str(path))
+        return parse(text, str(path))
+    except MemoryError:
+        raise BvhError(f"BVH file {str(path)!r} is too big to read in the memory there is ({len(text) / files.MB:.0f} "
+                       "MB of text)") from None
+
+
+SHOWN = 40  # characters of a token an error message quotes
+
+
+def shown(token: str) -> str:
+    """``token`` quoted for a message, cut to :data:`SHOWN` characters."""
+    return repr(token if len(token) <= SHOWN else token[:SHOWN] + "...")
 
 
 class _Tokens:
@@ -159,7 +166,7 @@ class _Tokens:
         if tok is None:
             raise self.error(f"file ends early; expected {expected or what}")
         if expected is not None and tok.upper() != expected.upper():
-            raise self.error(f"expected {expected!r}, got {tok!r}")
+            raise self.error(f"expected {expected!r}, got {shown(tok)}")
         self.i += 1
         return tok
 
@@ -185,14 +192,14 @@ class _Tokens:
             value = float(tok)
         except ValueError:
             self.i -= 1
-            raise self.error(f"expected a number ({what}), got {tok!r}") from None
+            raise self.error(f"expected a number ({what}), got {shown(tok)}") from None
         if between is not None and not between[0] <= value <= between[1]:  # nan and inf fail too
             self.i -= 1
             raise self.error(f"{what} must be a finite number of {unit} from {between[0]:g} to {between[1]:g}, "
-                             f"got {tok!r}")
+                             f"got {shown(tok)}")
         if not np.isfinite(value):
             self.i -= 1
-            raise self.error(f"{what} must be finite, got {tok!r}")
+            raise self.error(f"{what} must be finite, got {shown(tok)}")
         return value
 
 
@@ -203,6 +210,8 @@ def parse(text: str, source: str = "<string>") -> Clip:
         BvhError: malformed content: the message gives the line and what was expected.
     """
     tk = _Tokens(text, source)
+    if (tk.peek() or "").upper() != "HIERARCHY":  # not a BVH file: what it holds may be private (a link to a secret)
+        raise tk.error("a BVH file starts with HIERARCHY; this one does not")
     tk.take("HIERARCHY")
     names: list[str] = []
     parents: list[int] = []
@@ -252,7 +261,7 @@ def parse(text: str, source: str = "<string>") -> Clip:
                     tk.take("Site")
                 open_joints.append(joint(me, word == "END"))
             else:
-                raise tk.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {tk.peek()!r}")
+                raise tk.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {shown(tk.peek() or '')}")
     if not names:
         raise tk.error("expected ROOT after HIERARCHY")
     tk.take("MOTION")
@@ -278,7 +287,7 @@ def parse(text: str, source: str = "<string>") -> Clip:
         if bad is None:
             raise BvhError(f"BVH {source!r}: cannot read {F} frames of {n_cols} channel values") from None
         tk.i += data.index(bad)
-        raise tk.error(f"expected a channel value (a number), got {bad!r}") from None
+        raise tk.error(f"expected a channel value (a number), got {shown(bad)}") from None
     if not np.isfinite(values).all():
         raise BvhError(f"BVH {source!r}: channel values must be finite numbers (found nan or inf)")
     columns = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)

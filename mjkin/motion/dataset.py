@@ -60,7 +60,7 @@ from ..kinematics.qspace import BALL, FREE
 from ..kinematics.tree import Tree, load, source_of
 from ..runtime import ray_session, tier
 from ..runtime.checks import check_choice, check_count
-from ..runtime.files import as_path, remove_stale_temps, write_text, write_with
+from ..runtime.files import LIMITS, as_path, kind_of, read_input_text, remove_stale_temps, write_text, write_with
 from ..runtime.parallel import set_threads
 from ..runtime.progress import track
 from . import bvh
@@ -327,7 +327,9 @@ class ReportFile:
         for n in done:
             if n not in self.lines:
                 self.lines[n] = _line([_cell(self.rows[n].get(c)) for c in self.cols])
-        return write_text(self.path, _line(self.cols) + "".join(self.lines[n] for n in done))
+        text = _line(self.cols) + "".join(self.lines[n] for n in done)
+        # a clip's name in bytes that are not UTF-8 (decoded by Python as surrogates) is written as those bytes
+        return write_with(self.path, lambda p: p.write_text(text, encoding="utf-8", errors="surrogateescape"))
 
 
 def read_report(path: Path) -> dict[str, dict[str, Any]]:
@@ -336,15 +338,17 @@ def read_report(path: Path) -> dict[str, dict[str, Any]]:
     Raises:
         MjkinIOError: it exists but cannot be read.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
+    if not os.path.lexists(path):
         return {}
-    except (OSError, UnicodeDecodeError) as e:
-        raise MjkinIOError(f"cannot read the previous report {str(path)!r}: {e}; delete it or give overwrite") from None
-    rows = csv.DictReader(io.StringIO(text))
-    return {row["clip"]: {k: _value(k, v or "") for k, v in row.items() if k is not None}
-            for row in rows if row.get("clip") and row.get("status") in DONE}
+    hint = "delete it or give overwrite"
+    text = read_input_text(path, "previous report", LIMITS["report"], errors="surrogateescape", hint=hint)
+    try:
+        rows = csv.DictReader(io.StringIO(text))
+        return {row["clip"]: {k: _value(k, v or "") for k, v in row.items() if k is not None}
+                for row in rows if row.get("clip") and row.get("status") in DONE}
+    except csv.Error as e:  # a cell over csv's field_size_limit, a NUL
+        what = f"a cell over {csv.field_size_limit()} characters" if "field limit" in str(e) else str(e)
+        raise MjkinIOError(f"cannot read the previous report {str(path)!r}: {what}; {hint}") from None
 
 
 # ------------------------------------------------------------------ clips
@@ -375,6 +379,8 @@ def find_clips(sources: Sequence[str | os.PathLike[str]], skip: Path | None = No
             if src.suffix.lower() not in CLIP_SUFFIXES:
                 raise InputError(f"clip {str(src)!r} must be a {' or '.join(CLIP_SUFFIXES)} file (or a folder)")
             jobs.append(Job(src, src.name))
+        elif kind_of(src):  # a FIFO, a device: say so, never read it
+            raise MjkinIOError(f"clip {str(src)!r} is {kind_of(src)}, not a regular file; give the clip file itself")
         else:
             raise MjkinIOError(f"clip or folder not found: {str(src)!r}")
     unique: dict[Path, Job] = {}

@@ -12,13 +12,13 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError, MjkinIOError
+from ..runtime import files
 
 FORMAT = "mjkin-play-journal"
 SUFFIX = ".journal.jsonl"
@@ -35,10 +35,8 @@ def read(path: str | os.PathLike[str]) -> tuple[dict[str, Any], list[dict[str, A
     """
     name = repr(str(path))
     try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise MjkinIOError(f"recording journal not found: {name}") from None
-    except (OSError, ValueError) as e:
+        lines = files.read_input_text(path, "recording journal", files.LIMITS["json"]).splitlines()
+    except ValueError as e:
         raise MjkinIOError(f"cannot read recording journal {name}: {e}") from None
     docs: list[Any] = []
     for k, line in enumerate(lines, 1):

@@ -14,7 +14,6 @@ import re
 import weakref
 from dataclasses import dataclass, replace
 from functools import cached_property
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -23,6 +22,7 @@ from numpy.typing import NDArray
 from .. import spatial
 from ..errors import InputError, MjkinIOError
 from ..kinematics.tree import Tree
+from ..runtime import files
 from . import bvh
 
 Array = NDArray[np.float64]
@@ -553,12 +553,12 @@ def read_mapping(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
         MjkinIOError: missing or not JSON.
         InputError: not of that shape.
     """
+    text = files.read_input_text(path, "mapping file", files.LIMITS["mapping"])
     try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise MjkinIOError(f"mapping file not found: {str(path)!r}") from None
-    except (OSError, ValueError) as e:
-        raise MjkinIOError(f"cannot read mapping {str(path)!r}: {e}") from None
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as e:
+        raise MjkinIOError(f"cannot read mapping {str(path)!r}: {' '.join(str(e).split()) or 'nested too deeply'}") \
+            from None
     if not isinstance(doc, dict) or set(doc) - {"source", "figure"} or not all(
             isinstance(v, dict) and all(isinstance(a, str) and isinstance(b, str) for a, b in v.items())
             for v in doc.values()):

@@ -11,6 +11,11 @@ joints at rest are ``J_regressor (J, V) @ (v_template (V, 3) + shapedirs (V, 3, 
 ``kintree_table (2, J)``. SMPL (24 joints), SMPL-H (52: body and hands) and SMPL-X (55: body, jaw,
 eyes and hands) are read; face expressions are not.
 
+A clip or body model is read as a hostile file could be: only a regular file (not a FIFO or device), a clip of
+at most 256 MB and a body model of at most 1 GB (:data:`mjkin.runtime.files.LIMITS`), only the arrays named
+above decompressed, each only after its header declared numbers of at most :data:`MAX_ARRAY_BYTES` (256 MB:
+about 215,000 frames of SMPL-H ``poses``), so a zip bomb or a header declaring 1e12 values is one line.
+
 The clip's joints are named as Mixamo's and LAFAN1's (:data:`SKELETONS`), so the retargeting roles
 find them by name (SMPL's own ``left_foot`` is the toe, its ``left_shoulder`` the upper arm). Each joint
 has the channels ``Zrotation Yrotation Xrotation`` (degrees: :func:`euler_channels`), the root also
@@ -21,10 +26,14 @@ frame, facing +z, as BVH's). AMASS's world is z-up: the clip's world is it turne
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -106,30 +115,90 @@ def euler_channels(q: Array) -> Array:
     return np.rad2deg(spatial.quat_to_euler(q, SEQ))
 
 
-def _npz(path: str | os.PathLike[str], what: str) -> np.lib.npyio.NpzFile:
-    """The ``.npz`` archive at ``path`` (read without pickles: loading cannot run code)."""
-    try:
-        data = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise SmplError(f"{what} not found: {str(path)!r}") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise SmplError(f"cannot read {what} {str(path)!r} as an .npz archive: {e}") from None
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise SmplError(f"{what} {str(path)!r} is a single .npy array; expected an .npz archive of named arrays")
-    return data
+MAX_ARRAY_BYTES = 256 * files.MB  # the most one array of a clip or body model may hold (SMPL-X's shapedirs: 100 MB)
+MAX_MEMBERS = 1000  # arrays an archive may list (AMASS's hold ~10, the body models ~20)
 
 
-def _numbers(data: np.lib.npyio.NpzFile, key: str, what: str, expect: str) -> Array:
+class _Archive:
+    """An ``.npz`` archive whose arrays are read one by one, each only after its header passed the checks.
+
+    Nothing is decompressed but the arrays asked for, and an array's declared dtype and shape are checked
+    (numbers only, at most :data:`MAX_ARRAY_BYTES`) before any of its data is read: a zip bomb or a header
+    declaring 1e12 values is refused with one line, never allocated. There is no check of the compression
+    ratio: an array of zeros (a hand at rest) legitimately compresses a thousandfold; what is read is bounded
+    by the declared size, which is checked.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], what: str, limit: int) -> None:
+        self.name = f"{what} {str(path)!r}"
+        self._stack = contextlib.ExitStack()
+        f = self._stack.enter_context(files.open_input(path, what, limit, SmplError))
+        try:
+            if f.read(6) == b"\x93NUMPY":
+                raise SmplError(f"{self.name} is a single .npy array; expected an .npz archive of named arrays")
+            f.seek(0)
+            end = zipfile._EndRecData(f)  # type: ignore[attr-defined] # the count, before the directory is read
+            if end and end[zipfile._ECD_ENTRIES_TOTAL] > MAX_MEMBERS:  # type: ignore[attr-defined]
+                raise SmplError(f"{self.name} lists {end[zipfile._ECD_ENTRIES_TOTAL]} arrays; an .npz clip or "  # type: ignore[attr-defined]
+                                f"body model holds a few dozen (at most {MAX_MEMBERS} are read)")
+            f.seek(0)
+            self.zip = self._stack.enter_context(zipfile.ZipFile(f))
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile) as e:
+            self._stack.close()
+            raise SmplError(f"cannot read {self.name} as an .npz archive: {e}") from None
+        except BaseException:
+            self._stack.close()
+            raise
+        self.files = [n[:-4] for n in self.zip.namelist() if n.endswith(".npy")]
+
+    def __enter__(self) -> _Archive:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stack.close()
+
+    def array(self, key: str, what: str, expect: str) -> NDArray[Any]:
+        """The array ``key``; :class:`SmplError` (naming ``what`` and what to ``expect``) when it cannot be."""
+        try:
+            info = self.zip.getinfo(f"{key}.npy")
+            with self.zip.open(info) as m:
+                version = np.lib.format.read_magic(m)
+                if version not in ((1, 0), (2, 0)):
+                    raise ValueError(f"the .npy format version {version} is not read")
+                header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                    np.lib.format.read_array_header_2_0
+                shape, fortran, dtype = header(m)
+                if dtype.hasobject or dtype.kind not in "biuf":
+                    kind = "object" if dtype.hasobject else str(dtype)
+                    raise SmplError(f"{what}: {key!r} holds {kind} values; expected {expect}")
+                size = math.prod(shape) * dtype.itemsize
+                if size > MAX_ARRAY_BYTES:
+                    raise SmplError(f"{what}: {key!r} declares {tuple(shape)} {dtype.name} values "
+                                    f"({size / files.MB:.0f} MB); mjkin reads arrays of at most "
+                                    f"{MAX_ARRAY_BYTES // files.MB} MB; expected {expect}")
+                if info.file_size > MAX_ARRAY_BYTES + files.MB:  # what unpacking all of it would give (unread)
+                    raise SmplError(f"{what}: {key!r} unpacks to {info.file_size / files.MB:.0f} MB; mjkin reads "
+                                    f"arrays of at most {MAX_ARRAY_BYTES // files.MB} MB; expected {expect}")
+                data = m.read(size)  # no more than declared, whatever the zip says
+            if len(data) < size:
+                raise ValueError(f"it holds {len(data)} of its {size} bytes")
+            return np.frombuffer(data, dtype).reshape(shape, order="F" if fortran else "C")
+        except SmplError:
+            raise
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+            raise SmplError(f"{what}: cannot read {key!r} ({e}); expected {expect}") from None
+
+
+def _npz(path: str | os.PathLike[str], what: str) -> _Archive:
+    """The ``.npz`` archive at ``path`` (no pickles: loading cannot run code; see :class:`_Archive`)."""
+    return _Archive(path, what, files.LIMITS["body model" if what == "body model" else "npz clip"])
+
+
+def _numbers(data: _Archive, key: str, what: str, expect: str) -> Array:
     """The finite numbers of ``data[key]`` as float64; ``expect`` describes them for the message."""
     if key not in data.files:
         raise SmplError(f"{what} has no {key!r}; expected {expect}")
-    try:
-        a = np.asarray(data[key])
-    except (ValueError, OSError, zipfile.BadZipFile) as e:
-        raise SmplError(f"{what}: cannot read {key!r} ({e}); expected {expect}") from None
-    if a.dtype.kind not in "biuf":
-        raise SmplError(f"{what}: {key!r} holds {a.dtype} values; expected {expect}")
-    a = a.astype(np.float64)
+    a = data.array(key, what, expect).astype(np.float64)
     if not np.isfinite(a).all():
         raise SmplError(f"{what}: {key!r} holds nan or inf; expected {expect}")
     return a
@@ -152,6 +221,9 @@ def load_model(path: str | os.PathLike[str]) -> BodyModel:
     if p.suffix.lower() == ".pkl":
         raise SmplError(f"body model {str(path)!r} is a pickle, which mjkin does not load (it can run code); give the "
                         "model's .npz (SMPL-X and AMASS's SMPL+H are published as .npz)")
+    kind = files.kind_of(p)
+    if kind:  # said of the path given (the file is read by its resolved path)
+        raise SmplError(f"body model {str(path)!r} is {kind}, not a regular file; give the file itself")
     try:
         return _load_model(p)
     except FileNotFoundError:
@@ -189,7 +261,7 @@ def _load_model(path: str) -> BodyModel:
     return BodyModel(kind, *arrays, source=path)
 
 
-def _poses(data: np.lib.npyio.NpzFile, model: BodyModel, what: str) -> tuple[Array, str]:
+def _poses(data: _Archive, model: BodyModel, what: str) -> tuple[Array, str]:
     """The clip's turns ``(F, 3 J)`` (rotation vectors, rad) in ``model``'s joint order, and the key they count from.
 
     From ``poses``, or else from its parts (:data:`PARTS`; a part the clip lacks is at rest).

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError, MjkinIOError
 from ..kinematics.qspace import BALL, HINGE, SLIDE
 from ..kinematics.tree import Tree, fingerprint
+from ..runtime import files
 from ..runtime.checks import check_array
 from ..runtime.files import as_path, write_text
 from . import journal
@@ -154,9 +155,8 @@ class Trajectory:
         path = as_path(path, "trajectory path")
         name = repr(str(path))
         try:
-            doc = journal.script(path) if Path(path).suffix == ".jsonl" else json.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise MjkinIOError(f"trajectory file not found: {name}") from None
+            doc = journal.script(path) if Path(path).suffix == ".jsonl" else \
+                json.loads(files.read_input_text(path, "trajectory file", files.LIMITS["json"]))
         except RecursionError:
             raise MjkinIOError(f"cannot read trajectory {name}: its JSON is nested too deeply") from None
         except (OSError, ValueError) as e:

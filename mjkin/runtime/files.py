@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import json
 import math
 import os
 import re
+import stat
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -191,3 +193,108 @@ def per_file(maxsize: int) -> Callable[[Callable[[str], T]], Callable[[str | os.
         return read
 
     return decorate
+
+
+# ------------------------------------------------------------------ reading what the user gives
+MB = 1 << 20
+# the most mjkin reads of each kind of file (bytes): a sane file is far smaller; a bigger one (or /dev/zero, a
+# file still growing) is refused by a one-line error before it fills the memory
+LIMITS = {
+    "bvh": 64 * MB,  # parsing takes ~10x the text: 64 MB is ~300k frames of a 60-joint skeleton
+    "npz clip": 256 * MB,  # AMASS clips are a few MB; only the arrays read are decompressed, each checked first
+    "body model": 1024 * MB,  # SMPL-X's .npz is ~0.5 GB (unused arrays are never decompressed)
+    "json": 256 * MB,  # trajectories, journals, poses
+    "mapping": 1 * MB,  # a few dozen names
+    "report": 256 * MB,  # report.csv: ~0.5 kB a clip
+}
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _size(n: int) -> str:
+    return f"{n / MB:g} MB" if n >= MB else f"{n} bytes"
+
+
+def _too_big(what: str, name: str, limit: int, hint: str) -> str:
+    hint = "is it the right file?" if hint == "give the file itself" else hint
+    return f"{what} {name} is over {_size(limit)}, the most mjkin reads of a {what}; {hint}"
+
+
+def kind_of(path: str | os.PathLike[str]) -> str | None:
+    """What ``path`` is when it is no regular file (links followed): "a FIFO (named pipe)", "a folder", ...
+
+    None for a regular file or a path that does not exist.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    return None if stat.S_ISREG(mode) else next((k for test, k in _KINDS if test(mode)), "not a regular file")
+
+
+@contextlib.contextmanager
+def open_input(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,
+               hint: str = "give the file itself") -> Iterator[io.BufferedReader]:
+    """The regular file at ``path`` opened for reading (binary); ``what`` names it in errors ("BVH file", ...).
+
+    A FIFO, a device, a socket or a folder is refused without being read (opened non-blocking, so a FIFO
+    never waits for a writer), and so is a file over ``limit`` bytes; symlinks are followed. The messages
+    say what is wrong with the file, never what it holds.
+
+    Raises:
+        error: (a :class:`MjkinIOError`) missing, not a regular file, over ``limit``, or unreadable.
+    """
+    name = repr(os.fspath(path))
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise error(f"{what} not found: {name}") from None
+    except OSError as e:
+        if e.errno == errno.ENXIO:  # a socket (or a FIFO with no reader on some systems)
+            raise error(f"{what} {name} is a socket, not a regular file; {hint}") from None
+        raise error(f"cannot read {what} {name}: {e.strerror or e}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a regular file")
+            raise error(f"{what} {name} is {kind}, not a regular file; {hint}")
+        if st.st_size > limit:
+            raise error(_too_big(what, name, limit, hint))
+        os.set_blocking(fd, True)
+        f = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    with f:
+        yield f
+
+
+def read_input(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,
+               hint: str = "give the file itself") -> bytes:
+    """The bytes of the regular file at ``path``, at most ``limit`` (see :func:`open_input`).
+
+    A file that grows past ``limit`` while read (or says it is empty, as ``/proc`` files do, but is not) is
+    refused as well: no more than ``limit + 1`` bytes are ever read.
+
+    Raises:
+        error: (a :class:`MjkinIOError`) missing, not a regular file, over ``limit``, or unreadable.
+    """
+    with open_input(path, what, limit, error, hint) as f:
+        try:
+            data = f.read(limit + 1)
+        except OSError as e:
+            raise error(f"cannot read {what} {os.fspath(path)!r}: {e.strerror or e}") from None
+    if len(data) > limit:
+        raise error(_too_big(what, repr(os.fspath(path)), limit, hint))
+    return data
+
+
+def read_input_text(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,
+                    errors: str = "strict", hint: str = "give the file itself") -> str:
+    """:func:`read_input` decoded as UTF-8 (``errors`` as :meth:`bytes.decode`'s; strict: a one-line error)."""
+    data = read_input(path, what, limit, error, hint)
+    try:
+        return data.decode("utf-8", errors)
+    except UnicodeDecodeError as e:
+        raise error(f"cannot read {what} {os.fspath(path)!r}: it is not UTF-8 text (byte {e.start}); {hint}") \
+            from None

@@ -6,6 +6,7 @@ import argparse
 import importlib
 import importlib.metadata
 import json
+import os
 import subprocess
 import sys
 
@@ -16,10 +17,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import mjkin
+from conftest import no_hang
 from mjkin import motion
 from mjkin.apps.argtypes import nonnegative_int
 from mjkin.apps.cli import build_parser, join_negative_vectors, main
-from mjkin.runtime import progress
+from mjkin.runtime import files, progress
 
 
 def test_info_outlines_the_tree(capsys):
@@ -99,6 +101,9 @@ BEFORE_WORK = [  # argv (with {script}/{bad}), text in the one line
     (["demo", "--fps", "0"], "--fps: must be a finite number > 0"),
     (["demo", "--fps", "inf"], "--fps: must be a finite number > 0"),
     (["demo", "--seconds", "0.01"], "at least 2 frames"),
+    (["demo", "--seconds", "1e12"], "--seconds x --fps must give at most 100,000 frames, got 30,000,000,000,000"),
+    (["reachability", "arm7", "--frame", "ee", "--orientations", "1000000000"],
+     "orientations must be a whole number from 1 to 10,000, got 1000000000"),
     (["demo", "-o", "/proc/x.mp4"], "folder '/proc' is not writable"),
     (["demo", "-o", "missing/x.mp4"], "folder 'missing' does not exist"),
     (["demo", "-o", "d.avi"], "output must end in .mp4"),
@@ -217,6 +222,39 @@ def test_bad_scripts_give_one_line(command, change, text, capsys, tmp_path, monk
     argv = ["replay", bad, "--model", "planar_2link"] if command == "replay" else \
         ["render", "planar_2link", "--script", bad]
     one_line_exit_2(argv + ["-o", "out.mp4"], text, capsys, tmp_path, keep=["five.json", "bad.json"])
+
+
+@pytest.mark.parametrize("kind", ["/dev/zero", "fifo", "huge"])
+@pytest.mark.parametrize("command", ["mapping", "poses", "replay"])
+def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys, tmp_path, monkeypatch):
+    """``--mapping``, ``--poses`` and ``replay`` given /dev/zero read until the memory ran out; a FIFO hung."""
+    monkeypatch.chdir(tmp_path)
+    clip = tmp_path / "a.bvh"
+    from test_retarget import crouch_bvh
+
+    clip.write_text(crouch_bvh(4))
+    odd = tmp_path / "odd.json"
+    if kind == "fifo":
+        os.mkfifo(odd)
+    elif kind == "/dev/zero":
+        odd.symlink_to("/dev/zero")
+    else:
+        with odd.open("wb") as f:
+            f.truncate(files.LIMITS["json"] + 1)
+    argv, what = {"mapping": (["retarget", str(clip), "--model", "primate", "--mapping", str(odd), "-o", "a.json"],
+                              "mapping file"),
+                  "poses": (["place-base", "arm7", "--frame", "ee", "--poses", str(odd), "--region", "-1,-1,1,1",
+                             "-o", "p.png"], "--poses file"),
+                  "replay": (["replay", str(odd), "--model", "planar_2link", "-o", "r.mp4"],
+                             "trajectory file")}[command]
+    limit = "1 MB" if command == "mapping" else "256 MB"
+    told = {"/dev/zero": "is a character device, not a regular file; give the file itself",
+            "fifo": "is a FIFO (named pipe), not a regular file; give the file itself",
+            "huge": f"is over {limit}, the most mjkin reads of a {what}; is it the right file?"}[kind]
+    if kind == "huge" and command == "mapping":
+        told = "is over 1 MB, the most mjkin reads of a mapping file; is it the right file?"
+    with no_hang(60):
+        one_line_exit_2(argv, f"{what} {str(odd)!r} {told}", capsys, tmp_path, keep=["a.bvh", "odd.json"])
 
 
 def test_script_with_the_format_but_no_keys(capsys, tmp_path, monkeypatch):

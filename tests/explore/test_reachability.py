@@ -173,7 +173,8 @@ def test_commands_write_their_plots(tmp_path, capsys):
     (["reachability", "arm7", "--frame", "nope"], "nope"),
     (["reachability", "arm7", "--frame", "ee", "-o", "map.txt"], "--output must end in"),
     (["reachability", "arm7", "--frame", "ee", "--resolution", "0.5", "--slice", "w=1"], "--slice must be"),
-    (["place-base", "arm7", "--frame", "ee", "--poses", "missing.json", "--region", "0,0,1,1"], "cannot read"),
+    (["place-base", "arm7", "--frame", "ee", "--poses", "missing.json", "--region", "0,0,1,1"],
+     "--poses file not found"),
     (["place-base", "arm7", "--frame", "ee", "--poses", "POSES", "--region", "0,0,1"], "--region must be"),
     (["place-base", "arm7", "--frame", "ee", "--poses", "BAD", "--region", "0,0,1,1"], "must hold a list"),
 ])
@@ -184,3 +185,19 @@ def test_command_mistakes_exit_2_with_one_line(argv, text, tmp_path, monkeypatch
     assert main([*argv, "--cache", "none"]) == 2
     err = capsys.readouterr().err.strip()
     assert text in err and "\n" not in err and "Traceback" not in err
+
+
+def test_a_full_cache_disk_never_fails_the_map(ur, tmp_path, monkeypatch):
+    """``OSError: [Errno 28] No space left on device`` writing the cache threw away the map just built."""
+    import errno
+
+    import numpy as np
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez_compressed", full)
+    with pytest.warns(UserWarning, match=r"cannot write the reachability cache .*No space left on device; the map is "
+                                         r"kept, not cached"):
+        m = mjkin.reachability(ur, "ee", cache=tmp_path, **SMALL)
+    assert m.reached.size and not list(tmp_path.iterdir())

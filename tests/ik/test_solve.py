@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 import mjkin
 from conftest import GYM_ASSETS, tree_of
 from mjkin import goals as G
+from mjkin.errors import GoalError
 from mjkin.goals.program import compile_goals
 from mjkin.ik import kernel
 from mjkin.ik.compiled import kernels
@@ -744,3 +745,32 @@ def test_a_target_at_1e308_is_unreachable_not_a_linalg_error(method, xyz):
     res = mjkin.solve(tree, mjkin.goals.Position("ee", xyz), method=method, timeout=0.5)
     assert not res.success and str(res.reason) == "out_of_reach"
     assert np.all(np.isfinite(res.q)) and np.array_equal(tree.clip(res.q), res.q)
+
+
+# ------------------------------------------------------------------ absurd targets
+FAR_GOALS = {  # a goal with a point at a given world position (m); Position stays "unreachable" (the test above)
+    "Line": lambda p: G.Line("left_foot", point=p, direction=(-0.45, 0.08, -0.53)),
+    "Plane": lambda p: G.Plane("left_foot", point=p, normal=(0.0, 1.0, 0.0)),
+    "Aim": lambda p: G.Aim("left_foot", point=p),
+    "CenterOfMass": lambda p: G.CenterOfMass(p),
+}
+
+
+@pytest.mark.parametrize("kind", list(FAR_GOALS))
+def test_a_target_point_past_1e10_m_is_a_one_line_goal_error(kind: str) -> None:
+    """``Line(point=[0.45, -1e308, -0.56])`` reached the solver and raised numpy's LinAlgError (inf in the
+    Jacobian); Plane the same."""
+    primate = mjkin.load("primate")
+    with pytest.raises(GoalError) as e:
+        mjkin.solve(primate, FAR_GOALS[kind]([0.45, -1e308, -0.56]), method="pinv")
+    assert "\n" not in str(e.value) and "within 1e+10 m of the world origin" in str(e.value), str(e.value)
+
+
+@given(st.floats(1e10, 1e308, exclude_min=True), st.integers(0, 2), st.sampled_from([1.0, -1.0]),
+       st.sampled_from(sorted(FAR_GOALS)))
+def test_any_coordinate_past_1e10_m_is_refused(x: float, axis: int, sign: float, kind: str) -> None:
+    p = [0.1, 0.2, 0.3]
+    p[axis] = sign * x
+    with pytest.raises(GoalError, match="within 1e\\+10 m"):
+        FAR_GOALS[kind](p).targets()  # checked there, before any solve
+    FAR_GOALS[kind]([0.1, 0.2, 1e9]).targets()  # far, yet a target

@@ -3,14 +3,17 @@ units, one-line errors; the two shared clips."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import no_hang
 from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.errors import InputError, MjkinError
 from mjkin.motion import bvh
+from mjkin.runtime import files
 
 MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)
 need_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"the shared clips are not here ({MOCAP})")
@@ -93,7 +96,7 @@ def test_units_from_height() -> None:
 
 
 @pytest.mark.parametrize(("edit", "message"), [
-    (("HIERARCHY", "HIERARCHI"), "line 1: expected 'HIERARCHY'"),
+    (("HIERARCHY", "HIERARCHI"), "line 1: a BVH file starts with HIERARCHY; this one does not"),
     (("OFFSET 0 10 0", "OFFSET 0 ten 0"), "line 8: expected a number"),
     (("Zrotation Xrotation Yrotation", "Zrotation Xrotation Wrotation"), "unknown channel 'wrotation'"),
     (("Frames: 2", "Frames: 3"), "needs 27 numbers, found 18"),
@@ -175,3 +178,56 @@ def test_the_cli_on_a_1000_deep_chain_says_one_short_line(tmp_path: Path, capsys
     assert main(["retarget", str(clip), "--model", "primate", "-o", str(tmp_path / "out.json")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot map" in err and "(961 more)" in err and len(err) < 1500
+
+
+# ------------------------------------------------------------------ hostile and odd files
+def odd_file(tmp_path: Path, kind: str, name: str = "x.bvh") -> Path:
+    """A file called ``name`` that is no regular BVH file: a FIFO, a link to /dev/zero, a folder, a huge sparse file."""
+    path = tmp_path / name
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "/dev/zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "folder":
+        path.mkdir()
+    elif kind == "huge":
+        with path.open("wb") as f:
+            f.truncate(files.LIMITS["bvh"] + 1)  # sparse: no disk used
+    return path
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("fifo", "is a FIFO (named pipe), not a regular file"), ("/dev/zero", "is a character device, not a regular file"),
+    ("folder", "is a folder, not a regular file"),
+    ("huge", "is over 64 MB, the most mjkin reads of a BVH file; is it the right file?")])
+def test_a_file_that_is_no_regular_bvh_is_refused_unread(tmp_path: Path, kind: str, message: str) -> None:
+    """A FIFO hung for ever, /dev/zero read until the memory ran out; a FIFO alone was said to be 'not found'."""
+    path = odd_file(tmp_path, kind)
+    with no_hang(), pytest.raises(bvh.BvhError) as e:
+        bvh.read(path)
+    assert str(e.value) == f"BVH file {str(path)!r} {message}" + ("; give the file itself" if kind != "huge" else "")
+
+
+def test_a_file_that_grows_past_the_limit_is_cut_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    """/proc files say they are empty; read no more than the limit and one byte."""
+    monkeypatch.setitem(files.LIMITS, "bvh", 1000)
+    with pytest.raises(bvh.BvhError, match=r"'/proc/self/maps' is over 1000 bytes, the most mjkin reads of a BVH file"):
+        bvh.read("/proc/self/maps")
+
+
+def test_what_a_file_holds_is_never_echoed(tmp_path: Path) -> None:
+    """A clip linked to a private file (/etc/shadow) put its first line into the error (and report.csv)."""
+    secret = tmp_path / "shadow"
+    secret.write_text("root:$6$s3cr3t:19000:0:99999:7:::\ndaemon:*:19000:0:99999:7:::\n")
+    clip = tmp_path / "clip.bvh"
+    clip.symlink_to(secret)
+    with pytest.raises(bvh.BvhError) as e:
+        bvh.read(clip)
+    assert "s3cr3t" not in str(e.value) and "root:" not in str(e.value)
+    assert str(e.value) == f"BVH {str(clip)!r} line 1: a BVH file starts with HIERARCHY; this one does not"
+
+
+def test_a_long_token_is_echoed_shortened() -> None:
+    with pytest.raises(bvh.BvhError) as e:
+        bvh.parse(small().replace("MOTION", "M" * 100_000))
+    assert len(str(e.value)) < 200 and "..." in str(e.value)

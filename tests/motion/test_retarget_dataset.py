@@ -4,6 +4,7 @@ workers, the command line."""
 from __future__ import annotations
 
 import csv
+import os
 import shutil
 import signal
 import subprocess
@@ -19,7 +20,7 @@ from test_retarget import MOCAP, crouch_bvh
 from test_smpl import motion, shaped_rest, write_body_model, write_clip
 
 import mjkin
-from conftest import ROOT
+from conftest import ROOT, no_hang
 from mjkin.apps.cli import run
 from mjkin.distributed import ray
 from mjkin.errors import InputError, MjkinError, MjkinIOError
@@ -121,6 +122,62 @@ def test_a_bad_clip_gets_a_row_and_the_others_finish(tmp_path: Path) -> None:
     assert "cannot map left_knee" in status["d.bvh"]
     assert [p.name for p in sorted(out.iterdir())] == ["a.npz", "c.npz", REPORT]
     assert {r["clip"]: r["status"] for r in rows_of(out / REPORT)} == status
+
+
+def test_odd_files_in_a_dataset_get_a_row_each_and_the_others_finish(tmp_path: Path) -> None:
+    """A FIFO named x.bvh hung the run for ever, a link to /dev/zero read until the memory ran out, a link to a
+    private file put its first line into report.csv; a clip named in bytes that are not UTF-8 stopped the whole
+    run when report.csv was written."""
+    src = crouches(tmp_path / "clips", ["a.bvh", "c.bvh"], frames=6)
+    os.mkfifo(src / "x.bvh")
+    (src / "zero.bvh").symlink_to("/dev/zero")
+    (tmp_path / "shadow").write_text("root:$6$s3cr3t:19000:0:99999:7:::\n")
+    (src / "shadow.bvh").symlink_to(tmp_path / "shadow")
+    bad = os.fsdecode(b"bad\xff\xfe.bvh")
+    (src / bad).write_text(crouch_bvh(6))
+    out = tmp_path / "out"
+    with no_hang(120):  # a FIFO read waits for ever
+        rows = retarget_many(src, "primate", out)
+    status = {r["clip"]: r["status"] for r in rows}
+    assert status == {
+        "a.bvh": "ok", bad: "ok", "c.bvh": "ok",
+        "shadow.bvh": f"BVH {str(src / 'shadow.bvh')!r} line 1: a BVH file starts with HIERARCHY; this one does not",
+        "x.bvh": f"BVH file {str(src / 'x.bvh')!r} is a FIFO (named pipe), not a regular file; give the file itself",
+        "zero.bvh": f"BVH file {str(src / 'zero.bvh')!r} is a character device, not a regular file; give the file "
+                    "itself"}
+    assert "s3cr3t" not in (out / REPORT).read_text(errors="replace")
+    assert (out / os.fsdecode(b"bad\xff\xfe.npz")).is_file()
+    again = retarget_many(src, "primate", out)  # the report, names in bytes and all, reads back: nothing redone
+    assert {r["clip"]: r["status"] for r in again} == status
+
+
+@pytest.mark.parametrize("case", ["fifo", "cell"])
+def test_a_previous_report_that_is_odd_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    case: str) -> None:
+    """report.csv as a FIFO hung the run; a cell over 128 kB (csv's field limit) was a traceback."""
+    src = crouches(tmp_path / "clips", ["a.bvh", "b.bvh"], frames=4)
+    out = tmp_path / "out"
+    out.mkdir()
+    if case == "fifo":
+        os.mkfifo(out / REPORT)
+    else:
+        (out / REPORT).write_text("clip,status\na.bvh," + "x" * 200_000 + "\n")
+    with no_hang(120):
+        assert run(["retarget", str(src), "--model", "primate", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"previous report {str(out / REPORT)!r}" in err, err
+    assert ("is a FIFO (named pipe), not a regular file" if case == "fifo" else "a cell over 131072 characters") in err
+    assert err.rstrip().endswith("delete it or give overwrite")
+
+
+def test_one_clip_that_is_a_fifo_is_called_a_fifo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """It was 'clip or folder not found'."""
+    os.mkfifo(tmp_path / "x.bvh")
+    with no_hang():
+        assert run(["retarget", str(tmp_path / "x.bvh"), "--model", "primate", "-o", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"mjkin: error: clip {str(tmp_path / 'x.bvh')!r} is a FIFO (named pipe), not a regular file; give "
+                   "the clip file itself\n")
 
 
 def test_npz_clips_take_the_body_model(tmp_path: Path) -> None:

@@ -3,6 +3,13 @@ motion (joint positions, retargeted q), the Euler channels, one-line errors; LAF
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
+import tracemalloc
+import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -14,6 +21,7 @@ from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
 import mjkin
+from conftest import no_hang
 from mjkin import spatial
 from mjkin.apps.cli import run
 from mjkin.errors import InputError, MjkinIOError
@@ -350,3 +358,82 @@ def test_command_line(same: Same, tmp_path: Path, capsys: pytest.CaptureFixture[
     assert run(["retarget", str(same.npz), "--model", "primate"]) == 2
     err = capsys.readouterr().err
     assert "needs its body model" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ hostile archives
+def write_declared(path: Path, key: str, shape: tuple[int, ...], data_bytes: int, dtype: str = "<f8") -> Path:
+    """An ``.npz`` whose ``key`` declares ``shape`` and holds ``data_bytes`` zeros (compressed: a zip bomb)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z, \
+            z.open(f"{key}.npy", "w", force_zip64=True) as m:
+        np.lib.format.write_array_header_1_0(m, {"descr": dtype, "fortran_order": False, "shape": shape})
+        chunk = bytes(1 << 24)
+        for start in range(0, data_bytes, len(chunk)):
+            m.write(chunk[: data_bytes - start])
+    return path
+
+
+def peak_of(call: Callable[[], object]) -> tuple[BaseException | None, int]:
+    """What ``call`` raised, and the most memory (bytes, Python's and numpy's) it held at once."""
+    tracemalloc.start()
+    try:
+        call()
+        raised = None
+    except Exception as e:  # noqa: BLE001 - the test looks at it
+        raised = e
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    return raised, peak
+
+
+@pytest.mark.parametrize("case", ["bomb", "1e12", "object", "clip bomb"])
+def test_a_crafted_archive_is_refused_on_its_headers(tmp_path: Path, case: str) -> None:
+    """A 1.6 MB zip bomb reached 3.3 GB before the shape check; an array declaring 1e12 values raised a raw
+    MemoryError. Each is refused on the array's header, nothing large read."""
+    model = write_body_model(tmp_path / "model.npz")
+    big = 300_000 * 156 * 8  # 374 MB of zeros in ~0.4 MB
+    if case == "bomb":
+        clip = write_declared(tmp_path / "bomb.npz", "poses", (300_000, 156), big)
+        message = r"'poses' declares \(300000, 156\) float64 values \(357 MB\); mjkin reads arrays of at most 256 MB"
+    elif case == "1e12":
+        clip = write_declared(tmp_path / "huge.npz", "poses", (10**12 // 156, 156), 0)
+        message = r"'poses' declares \(6410256410, 156\) float64 values \(7629395 MB\); mjkin reads arrays of at most"
+    elif case == "object":
+        clip = write_declared(tmp_path / "object.npz", "poses", (3, 156), 0, dtype="|O")
+        message = r"'poses' holds object values; expected \(frames, 3 x joints\) rotation vectors"
+    else:
+        clip, model = tmp_path / "clip.npz", write_declared(tmp_path / "bomb_model.npz", "kintree_table",
+                                                           (2, 300_000 * 78), big, dtype="<i8")
+        message = r"'kintree_table' declares \(2, 23400000\) int64 values \(357 MB\); mjkin reads arrays of at most"
+    raised, peak = peak_of(lambda: smpl.read(clip, model))
+    assert isinstance(raised, smpl.SmplError), raised
+    assert re.search(message, str(raised)), str(raised)
+    assert peak < 32 * 2**20, f"{peak / 2**20:.0f} MB held"
+
+
+def test_the_memory_cap_of_a_gigabyte_is_enough_to_refuse_a_bomb(tmp_path: Path) -> None:
+    """The command line, under an address-space limit of 1 GB, says one line for a 3.3 GB bomb."""
+    model = write_body_model(tmp_path / "model.npz")
+    clip = write_declared(tmp_path / "bomb.npz", "poses", (2_700_000, 156), 0)  # declared only: the header is enough
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (2**30, 2**30)); "
+            "from mjkin.apps.cli import main; sys.exit(main(sys.argv[1:]))")
+    r = subprocess.run([sys.executable, "-c", code, "retarget", str(clip), "--model", "primate", "--body-model",
+                        str(model), "-o", str(tmp_path / "out.json")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "'poses' declares (2700000, 156) float64 values (3214 MB); mjkin reads arrays of at most 256 MB" in r.stderr
+
+
+@pytest.mark.parametrize("kind", ["fifo", "/dev/zero"])
+@pytest.mark.parametrize("which", ["clip", "body model"])
+def test_a_clip_or_body_model_that_is_no_regular_file_is_refused_unread(tmp_path: Path, kind: str,
+                                                                         which: str) -> None:
+    """``--body-model`` as a FIFO hung for ever."""
+    model = write_body_model(tmp_path / "model.npz")
+    clip = write_clip(tmp_path / "walk.npz", *motion(52, 3), shaped_rest(model, np.linspace(-1.0, 1.0, 16), 16))
+    odd = tmp_path / "odd.npz"
+    os.mkfifo(odd) if kind == "fifo" else odd.symlink_to("/dev/zero")
+    with no_hang(), pytest.raises(smpl.SmplError) as e:
+        smpl.read(odd, model) if which == "clip" else smpl.read(clip, odd)
+    what = "AMASS/SMPL clip" if which == "clip" else "body model"
+    told = "a FIFO (named pipe)" if kind == "fifo" else "a character device"
+    assert str(e.value) == f"{what} {str(odd)!r} is {told}, not a regular file; give the file itself"

@@ -32,6 +32,7 @@ Images = Iterator[NDArray[np.uint8]]  # frames (height, width, 3), one at a time
 SHARES = {"seeds": 0.34, "arm": 0.36, "walk": 0.3}  # parts of the showcase's length
 SEED_METHODS = ("pinv", "dls", "ccd")
 WALK_STEPS = 4
+MAX_FRAMES = 100_000  # frames the showcase renders at most (55 min at 30 fps; each is rendered and kept in memory)
 OBSTACLES = np.array([[0.52, 0.02, 0.3, 0.1], [0.2, 0.0, 1.07, 0.08]])  # x, y, z, radius (m)
 ARM_STOPS = np.array([[0.45, 0.3, 0.45], [0.5, -0.25, 0.5], [0.3, -0.35, 0.9], [0.25, 0.35, 0.85],
                       [0.45, 0.3, 0.45]])
@@ -161,6 +162,8 @@ def scene_frames(scene: str = "all", seconds: float = 15.0, fps: float = 30.0) -
         raise InputError(f"unknown demo scene {scene!r}; choose one of: all, {', '.join(SCENES)}")
     if not (np.isfinite(seconds) and seconds > 0 and np.isfinite(fps) and fps > 0):
         raise InputError(f"--seconds and --fps must be positive, got {seconds!r}, {fps!r}")
+    if seconds * fps > MAX_FRAMES:
+        raise InputError(f"--seconds x --fps must give at most {MAX_FRAMES:,} frames, got {seconds * fps:,.0f}")
     total = sum(SHARES[s] for s in names)
     out = {s: _frames_of(SHARES[s] / total, seconds, fps) for s in names}
     if "walk" in out:  # whole steps
