@@ -172,7 +172,8 @@ class ReachEnv(gym.Env):
         self._achieved, self._R = self.target.copy(), t.achieved(self.q[None])[1]  # R: (1, 3, 3) or None
         self._painter: Painter | None = None
         self._camera: Any = None
-        # the target's ball: the success tolerance (the effector inside it succeeds), at least MARKER E across
+        # the target's ball: MARKER E in radius (arm7: 4.3 cm, PlanarReach: 0.9; a fixed 3 cm showed no pixel in the
+        # planar arm's world 30 units wide), or the success tolerance when that is larger
         self._marker = Overlay(point_size=max(self.success_tol, MARKER * self.extent))
 
     # ------------------------------------------------------------------ state
@@ -233,7 +234,11 @@ class ReachEnv(gym.Env):
         return self._observe(), reward, info["is_success"], False, info
 
     def render(self) -> NDArray[np.uint8] | None:
-        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window where one exists."""
+        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window where one exists.
+
+        The target is a red ball of radius ``max(success_tol, 0.03 E)``; the arm is staged as :mod:`mjkin.render`
+        stages every model (sky, checker floor, lights).
+        """
         if self.render_mode is None or (self.render_mode == "human" and not has_display()):
             return None
         if self._painter is None:
