@@ -19,6 +19,7 @@ from mjkin.runtime.checks import check_choice, check_count
 from .task import ReachTask, check_action
 
 EXPERT_CLEARANCE = 0.005  # m: what the expert keeps between every pair MuJoCo would collide, with obstacles
+MARKER = 0.03  # the target marker's least radius, as a fraction of the model's extent (E)
 
 Array = NDArray[np.float64]
 
@@ -171,6 +172,9 @@ class ReachEnv(gym.Env):
         self._achieved, self._R = self.target.copy(), t.achieved(self.q[None])[1]  # R: (1, 3, 3) or None
         self._painter: Painter | None = None
         self._camera: Any = None
+        # the target's ball: MARKER E in radius (arm7: 4.3 cm, PlanarReach: 0.9; a fixed 3 cm showed no pixel in the
+        # planar arm's world 30 units wide), or the success tolerance when that is larger
+        self._marker = Overlay(point_size=max(self.success_tol, MARKER * self.extent))
 
     # ------------------------------------------------------------------ state
     @property
@@ -230,7 +234,11 @@ class ReachEnv(gym.Env):
         return self._observe(), reward, info["is_success"], False, info
 
     def render(self) -> NDArray[np.uint8] | None:
-        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window where one exists."""
+        """An RGB frame with the target drawn (``rgb_array``); ``human`` shows it in a window where one exists.
+
+        The target is a red ball of radius ``max(success_tol, 0.03 E)``; the arm is staged as :mod:`mjkin.render`
+        stages every model (sky, checker floor, lights).
+        """
         if self.render_mode is None or (self.render_mode == "human" and not has_display()):
             return None
         if self._painter is None:
@@ -240,7 +248,7 @@ class ReachEnv(gym.Env):
             reach = self.task.achieved(self.tree.random_q(0, 64))[0][:, :3] if region is None else \
                 np.stack(region)  # where targets can be
             self._camera = default_camera(self.tree, self.home[None], reach)
-        frame = self._painter.draw(self.q, self._camera, [self.target[:3]], overlay=Overlay(point_size=0.03))
+        frame = self._painter.draw(self.q, self._camera, [self.target[:3]], overlay=self._marker)
         if self.render_mode == "human":  # pragma: no cover - needs a display
             show(frame, self.metadata["render_fps"])
             return None

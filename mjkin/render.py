@@ -13,14 +13,13 @@ video. Frames are made one at a time and go straight to the encoder (ffmpeg via
 imageio-ffmpeg, for .mp4 and .gif), so memory does not grow with the length of
 a clip; the video is written to a temporary file that is renamed when complete.
 
-A model that lacks what a picture needs is staged (:class:`Stage`) as MuJoCo
-Menagerie's scene.xml stages its robots, without changing the model, its poses
-or contacts: with no light its headlight is raised while each frame's scene is
-made; with no plane geom and no skybox a checker floor under the figure and a sky
-gradient are drawn; links with nothing visible (mesh-free models) get capsule
-bones between their bodies' origins. These are geoms put into each frame's
-scene, as the markers are; a model with a light, a floor and visible links is
-drawn exactly as it was.
+Every model is staged (:class:`Stage`) in one look, MuJoCo Menagerie's scene.xml, without changing
+the model, its poses or contacts: a sky gradient in place of its skybox (or the black of none), a
+checker floor sized to the figure in place of its floor planes (at their height; under the figure when
+it has none), Menagerie's headlight, and a light from above when it has no light of its own (its own
+lights are kept). A body with nothing visible shows its hidden geoms (collision shapes, group 3 and
+up), and links still bare get capsule bones between their bodies' origins. These are changes to each
+frame's scene, as the markers are; ``Painter(stage=False)`` draws the model exactly as it says.
 
 A figure drawn on a scene (``terrain``: :class:`mjkin.motion.terrain.Terrain`, the ground it was
 retargeted onto) stands among the scene's geoms in place of its own model's world geoms: the scene's
@@ -64,9 +63,10 @@ CAMERA_CHUNK = 256  # frames whose bounding points are made at once while placin
 SIDE_VIEW = (135.0, -20.0)  # azimuth, elevation (degrees) for figures that are not planar chains
 WALK_VIEW = (90.0, -8.0)  # from the figure's right side, world x (the walking direction) to the right
 Caption = str | Sequence[str] | Callable[[int], str] | None
-HEADLIGHT = (0.3, 0.6)  # ambient, diffuse: the least headlight of a model without lights (Menagerie's scene.xml)
+HEADLIGHT = (0.3, 0.6, 0.0)  # ambient, diffuse, specular of the headlight of every staged model (Menagerie's scene.xml)
+TOP_LIGHT = 0.7  # diffuse of the light from above a staged model without lights gets (Menagerie's, MuJoCo's default)
 FLOOR_RGBA = ((0.2, 0.3, 0.4, 1.0), (0.1, 0.2, 0.3, 1.0))  # checker squares (Menagerie's "groundplane")
-FLOOR_GLOW = 0.5  # the floor's emission: what Menagerie's light from above adds to it (a headlight grazes it)
+FLOOR_GLOW = 0.1  # the floor's emission: lifts its squares where the lights graze it
 SKY_RGB = ((0.3, 0.5, 0.7), (0.0, 0.0, 0.0))  # zenith and nadir of the sky gradient (Menagerie's "skybox")
 BONE_RGBA = (0.7, 0.7, 0.72, 1.0)  # the colour of bones: Menagerie's "metallic"
 SKY_BANDS = 32  # the sky is drawn as this many bands of the image, each of one colour
@@ -123,16 +123,30 @@ def trail_indices(t: int, max_points: int) -> NDArray[np.int64]:
 
 
 # ---------------------------------------------------------------------- camera
+def shown_geoms(model: mujoco.MjModel) -> NDArray[np.bool_]:
+    """``(ngeom,)``: the geoms a staged frame shows, drawn or not by default.
+
+    Those visible by default (groups 0–2, not transparent), and the hidden ones (groups 3 and up,
+    collision shapes; not transparent) of every moving body with no geom visible by default: a robot whose
+    real shapes are only in its collision geoms shows them.
+    """
+    rgba = np.where((model.geom_matid >= 0)[:, None], model.mat_rgba[np.maximum(model.geom_matid, 0)],
+                    model.geom_rgba) if model.nmat else model.geom_rgba
+    opaque = rgba[:, 3] > 0
+    visible = opaque & (model.geom_group < 3)
+    seen = np.zeros(model.nbody, bool)
+    seen[model.geom_bodyid[visible]] = True
+    return visible | (opaque & (model.geom_bodyid > 0) & ~seen[model.geom_bodyid])
+
+
 def figure_geoms(model: mujoco.MjModel) -> NDArray[np.int64]:
-    """Geoms that make up the figure: visible by default (groups 0–2, not transparent), no planes.
+    """Geoms that make up the figure: :func:`shown_geoms`, no planes.
 
     Geoms of the moving bodies, and world geoms only where the figure stands on them
     (a pedestal: the root body's origin lies in the geom's box); the rest of the
     world (floors, arena walls, tables) is stage, not figure.
     """
-    rgba = np.where((model.geom_matid >= 0)[:, None], model.mat_rgba[np.maximum(model.geom_matid, 0)],
-                    model.geom_rgba) if model.nmat else model.geom_rgba
-    keep = (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE) & (model.geom_group < 3) & (rgba[:, 3] > 0)
+    keep = (model.geom_type != mujoco.mjtGeom.mjGEOM_PLANE) & shown_geoms(model)
     roots = model.body_pos[1:][model.body_parentid[1:] == 0]
     for g in np.flatnonzero(keep & (model.geom_bodyid == 0)):
         R = spatial.quat_to_mat(spatial.quat_normalize(model.geom_quat[g]))
@@ -352,12 +366,14 @@ class Floor:
 
 @dataclass(frozen=True, eq=False)
 class Stage:
-    """What a :class:`Painter` adds to a model that lacks it, drawn into each frame's scene (the model is untouched).
+    """How a :class:`Painter` stages a model, drawn into each frame's scene (the model is untouched).
 
-    ``light``: the model has no light, so its headlight is turned on, at least :data:`HEADLIGHT`, while a
-    frame's scene is made. ``backdrop``: it has no plane geom and no skybox, so a checker floor under the
-    figure and a sky gradient are drawn. ``bones`` ``(k, 2)``: :func:`bare_links`, drawn as capsules of
-    ``radius`` (m) between the two body origins. ``size``: the diagonal (m) of the figure's box at ``qpos0``.
+    ``backdrop``: the sky gradient in place of the model's skybox and the checker floor in place of
+    its ``floors`` (geom ids: the world's planes facing up, at height ``floor``; None when it has none);
+    the headlight is :data:`HEADLIGHT` while a frame's scene is made. ``light``: the model has no light,
+    so one from above is added. ``reveal``: hidden geoms drawn (:func:`shown_geoms`). ``bones`` ``(k, 2)``:
+    :func:`bare_links`, drawn as capsules of ``radius`` (m) between the two body origins. ``size``: the
+    diagonal (m) of the figure's box at ``qpos0``. ``Stage()`` adds nothing.
     """
 
     light: bool = False
@@ -365,34 +381,49 @@ class Stage:
     bones: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     radius: float = 0.0
     size: float = 1.0
+    floor: float | None = None
+    floors: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    reveal: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @classmethod
     def of(cls, tree: Tree) -> Stage:
-        """The stage ``tree``'s model needs (nothing for a model with lights, a floor or sky and visible links)."""
+        """The stage of ``tree``'s model: the one look, and what its figure lacks (hidden shapes, bones)."""
         m = tree.model
         bones = bare_links(m)
         lo, hi = _figure_box(tree, tree.qpos0[None])
         size = max(float(np.linalg.norm(hi - lo)), 1e-3)
         length = np.linalg.norm(m.body_pos[bones[:, 1]], axis=1)
         radius = min(0.2 * float(np.median(length)), 0.03 * size) if len(bones) else 0.0
-        skybox = (m.tex_type == mujoco.mjtTexture.mjTEXTURE_SKYBOX).any()
-        return cls(light=m.nlight == 0, backdrop=not (m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE).any() and not skybox,
-                   bones=bones, radius=radius, size=size)
+        up = spatial.quat_to_mat(spatial.quat_normalize(m.geom_quat))[:, 2, 2] > 1 - 1e-9
+        floors = np.flatnonzero((m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE) & (m.geom_bodyid == 0) & up)
+        floor = float(m.geom_pos[floors, 2].max()) if len(floors) else None
+        reveal = np.flatnonzero(shown_geoms(m) & (m.geom_group >= 3))
+        return cls(light=m.nlight == 0, backdrop=True, bones=bones, radius=radius, size=size, floor=floor,
+                   floors=floors, reveal=reveal)
 
 
 def bare_links(model: mujoco.MjModel) -> NDArray[np.int64]:
     """Bones ``(k, 2)``: parent and child body ids of the links with nothing visible to show them.
 
-    A link runs from a (non-world) body's origin to its child's; it is bare when neither body's
-    :func:`figure_geoms` reach halfway along it from their origins (mesh-free models: no geoms,
-    hidden ones, or a dot at the origin).
+    A link runs from a (non-world) body's origin to its child's; it is bare when no :func:`figure_geoms`
+    visible by default (groups 0–2) of either body reaches its midpoint (the geom's bounding sphere):
+    mesh-free models with no geoms, hidden ones, or a dot at the origin. Hidden shapes a body shows
+    (:func:`shown_geoms`) are drawn besides the bone: they are often thinner than the link or cover a part.
     """
     ids = figure_geoms(model)
-    reach = np.zeros(model.nbody)  # how far each body's visible geometry reaches from its origin
-    np.maximum.at(reach, model.geom_bodyid[ids], np.linalg.norm(model.geom_pos[ids], axis=1) + model.geom_rbound[ids])
+    ids = ids[model.geom_group[ids] < 3]
     child = np.arange(1, model.nbody)
     parent = model.body_parentid[child]
-    keep = (parent > 0) & (2 * np.maximum(reach[parent], reach[child]) < np.linalg.norm(model.body_pos[child], axis=1))
+    pos = model.body_pos[child]
+    R = spatial.quat_to_mat(spatial.quat_normalize(model.body_quat[child]))
+    mid = {"parent": 0.5 * pos, "child": -0.5 * np.einsum("kji,kj->ki", R, pos)}  # in each body's frame
+    covered = np.zeros(len(child), bool)
+    for side, bodies in (("parent", parent), ("child", child)):
+        for k in np.flatnonzero(np.isin(bodies, model.geom_bodyid[ids])):
+            own = ids[model.geom_bodyid[ids] == bodies[k]]
+            covered[k] |= bool((np.linalg.norm(model.geom_pos[own] - mid[side][k], axis=1)
+                                <= model.geom_rbound[own]).any())
+    keep = (parent > 0) & ~covered & (np.linalg.norm(pos, axis=1) > 0)
     return np.stack([parent[keep], child[keep]], axis=1).astype(np.int64)
 
 
@@ -441,19 +472,42 @@ _LENDING = threading.Lock()  # one headlight lent at a time: painters of one mod
 
 @contextmanager
 def _headlight(model: mujoco.MjModel, on: bool) -> Iterator[None]:
-    """While open: ``model``'s headlight on and at least :data:`HEADLIGHT` bright (when ``on``); then as it was."""
+    """While open: ``model``'s headlight on and :data:`HEADLIGHT` (when ``on``); then as it was."""
     if not on:
         yield
         return
     light = model.vis.headlight
     with _LENDING:
-        kept = light.active, light.ambient.copy(), light.diffuse.copy()
+        kept = light.active, light.ambient.copy(), light.diffuse.copy(), light.specular.copy()
         light.active = 1
-        light.ambient[:], light.diffuse[:] = np.maximum(kept[1], HEADLIGHT[0]), np.maximum(kept[2], HEADLIGHT[1])
+        light.ambient[:], light.diffuse[:], light.specular[:] = HEADLIGHT
         try:
             yield
         finally:
-            light.active, light.ambient[:], light.diffuse[:] = kept
+            light.active, light.ambient[:], light.diffuse[:], light.specular[:] = kept
+
+
+def _add_top_light(scene: mujoco.MjvScene, floor: Floor, size: float) -> None:
+    """A light from straight above the floor's middle (:data:`TOP_LIGHT`, casting shadows, as Menagerie's)."""
+    if scene.nlight >= len(scene.lights):
+        return
+    light = scene.lights[scene.nlight]
+    scene.nlight += 1
+    light.type, light.headlight, light.castshadow = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, 0, 1
+    light.id, light.texid = -1, -1
+    light.pos[:] = [*floor.middle, floor.z + 2 * size]
+    light.dir[:] = [0.0, 0.0, -1.0]
+    light.ambient[:], light.diffuse[:], light.specular[:] = 0.0, TOP_LIGHT, 0.3
+    light.attenuation[:], light.cutoff, light.exponent, light.bulbradius = 0.0, 0.0, 0.0, 0.02
+    light.intensity, light.range = 0.0, 10.0 * size
+
+
+def _hide(scene: mujoco.MjvScene, hidden: NDArray[np.bool_]) -> None:
+    """Drop from the drawn scene the model geoms marked in ``hidden (ngeom,)`` (they are not drawn, cast nothing)."""
+    for g in scene.geoms[:scene.ngeom]:
+        if g.objtype == mujoco.mjtObj.mjOBJ_GEOM and 0 <= g.objid < len(hidden) and hidden[g.objid]:
+            g.type = mujoco.mjtGeom.mjGEOM_NONE
+            g.category = mujoco.mjtCatBit.mjCAT_DECOR
 
 
 def _stage_geom(scene: mujoco.MjvScene, kind: int, size: ArrayLike, pos: ArrayLike, mat: ArrayLike,
@@ -710,6 +764,12 @@ class Painter:
         self.terrain = terrain
         self.option = mujoco.MjvOption()  # with a terrain, the model's static geoms are not drawn
         self.option.flags[mujoco.mjtVisFlag.mjVIS_STATIC] = terrain is None
+        self._hidden = np.zeros(model.ngeom, bool)  # model geoms drawn over by the stage, or hidden and not revealed
+        self._hidden[self.stage.floors] = True
+        if len(self.stage.reveal):
+            self.option.geomgroup[3:] = 1
+            self._hidden |= model.geom_group >= 3
+            self._hidden[self.stage.reveal] = False
         self._terrain = [] if terrain is None else terrain_geoms(terrain)
         self.floor: Floor | None = None
         self.fit(tree.qpos0)
@@ -729,6 +789,7 @@ class Painter:
                                f"(now {os.environ.get('MUJOCO_GL')!r})") from None
         finally:
             vis.offwidth, vis.offheight, quality.shadowsize = max(kept[0], width), max(kept[1], height), kept[2]
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = not self.stage.backdrop  # the stage's sky instead
 
     def camera(self, camera: mujoco.MjvCamera | str | None, qs: NDArray[np.float64],
                points: NDArray[np.float64] | None = None) -> mujoco.MjvCamera | int:
@@ -753,7 +814,7 @@ class Painter:
             z = self.terrain.floor
             self.floor = None if z is None else fit_floor(self.tree, qs, self.stage, z)
         elif self.stage.backdrop:
-            self.floor = fit_floor(self.tree, qs, self.stage)
+            self.floor = fit_floor(self.tree, qs, self.stage, self.stage.floor)
 
     def draw(self, q: NDArray[np.float64], camera: mujoco.MjvCamera | int, points: ArrayLike = (),
              trail: NDArray[np.float64] | None = None, overlay: Overlay | None = None,
@@ -765,13 +826,16 @@ class Painter:
         ov = overlay or Overlay()
         r = self.renderer
         data = self.scene.set(q)
-        with _headlight(self.tree.model, self.stage.light):
+        with _headlight(self.tree.model, self.stage.backdrop):
             r.update_scene(data, camera, self.option)
         _planes_cast_no_shadow(r.scene)
+        _hide(r.scene, self._hidden)
         if self.floor is not None:
             _add_floor(r.scene, self.floor, self.width / self.height)
             if self.stage.backdrop:
                 _add_sky(r.scene, self.width / self.height, self.floor)
+            if self.stage.light:
+                _add_top_light(r.scene, self.floor, self.stage.size)
         _add_terrain(r.scene, self._terrain)
         _add_bones(r.scene, data.xpos, self.stage)
         first = r.scene.ngeom

@@ -553,7 +553,7 @@ def test_markers_and_trail_cast_no_shadow():
 
 
 def unexplained_floor_shadow(tree: mjkin.Tree, q: np.ndarray, width: int = 640, height: int = 480) -> tuple[int, int]:
-    """Floor pixels in shadow with no geom straight above them, and all floor pixels in shadow.
+    """Floor pixels (the staged checker) in shadow with no geom straight above them, and all floor pixels in shadow.
 
     The bundled models light the scene from straight above, so a floor point can only be
     shadowed by a geom whose box covers it in x and y (boxes widened by 2 cm: a texel and a pixel).
@@ -573,21 +573,22 @@ def unexplained_floor_shadow(tree: mjkin.Tree, q: np.ndarray, width: int = 640, 
         lit = painter.draw(q, cam).astype(int)
         r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
         unshadowed = r.render().astype(int)
-        r.enable_depth_rendering()
-        depth = r.render().copy()
-        r.disable_depth_rendering()
         r.enable_segmentation_rendering()
         seg = r.render().copy()
         r.disable_segmentation_rendering()
-    floor = (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & (m.geom_type[seg[..., 0]] == mujoco.mjtGeom.mjGEOM_PLANE)
-    floor = binary_erosion(floor, iterations=2)  # not the antialiased pixels at the figure's outline
-    shadow = floor & ((unshadowed - lit).sum(-1) > 30)
+        floor_z = painter.floor.z
     fwd, right, up = render._basis(cam.azimuth, cam.elevation)
     ty = np.tan(np.radians(m.vis.global_.fovy) / 2)
-    ys, xs = np.nonzero(shadow)
+    eye = np.asarray(cam.lookat) - cam.distance * fwd
+    ys, xs = np.mgrid[:height, :width]
     nx, ny = (xs + 0.5) / width * 2 - 1, 1 - (ys + 0.5) / height * 2
-    rays = fwd + (nx * ty * width / height)[:, None] * right + (ny * ty)[:, None] * up
-    points = np.asarray(cam.lookat) - cam.distance * fwd + depth[ys, xs][:, None] * rays  # depth: along fwd
+    rays = fwd + (nx * ty * width / height)[..., None] * right + (ny * ty)[..., None] * up
+    with np.errstate(divide="ignore"):
+        t = (floor_z - eye[2]) / rays[..., 2]  # where each pixel's ray meets the staged floor
+    floor = (seg[..., 0] == -1) & (t > 0)  # the staged checker: no model geom there, and below the horizon
+    floor = binary_erosion(floor, iterations=2)  # not the antialiased pixels at the figure's outline
+    shadow = floor & ((unshadowed - lit).sum(-1) > 30)
+    points = eye + t[shadow][:, None] * rays[shadow]
     under = ((points[:, None, :2] >= lo) & (points[:, None, :2] <= hi)).all(-1).any(-1)
     return int((~under).sum()), int(shadow.sum())
 
@@ -656,12 +657,13 @@ def test_a_renderer_that_cannot_start_says_how_to_get_one(monkeypatch):
 # ------------------------------------------------------------------ stage
 BARE_CHAIN = """<mujoco><worldbody>
 <body name="base" pos="0 0 {z}"><joint name="x" type="slide" axis="1 0 0"/><joint name="yaw" axis="0 0 1"/>
-<geom type="cylinder" size="0.05 0.02" group="3"/>
+<geom type="cylinder" size="0.05 0.02" group="3" rgba="0.2 0.7 0.3 1"/>
 <body name="upper" pos="0 0 0.4"><joint name="shoulder" axis="0 1 0"/>
-<geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" group="3"/>
+<geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" group="3" rgba="0.2 0.7 0.3 1"/>
 <body name="lower" pos="0.3 0 0"><joint name="elbow" axis="0 1 0"/>
 <body name="hand" pos="0.25 0 0"><geom type="sphere" size="0.02" rgba="0.9 0.2 0.2 1"/></body>
-</body></body></body></worldbody></mujoco>"""  # no light, floor or sky; all geoms hidden (group 3) but the hand's
+</body></body></body></worldbody></mujoco>"""  # no light, floor or sky; all geoms hidden (group 3, drawn green: their
+# bodies show nothing else) but the hand's
 NO_GEOMS = re.sub(r"<geom[^>]*/>", '<inertial pos="0 0 0" mass="0.1" diaginertia="1e-4 1e-4 1e-4"/>', BARE_CHAIN)
 POSE = np.array([0.0, 0.4, -0.5, 1.0])  # x, yaw, shoulder, elbow
 
@@ -703,34 +705,39 @@ def test_a_model_without_light_floor_or_sky_is_lit_and_staged():
     assert 0.2 < dark < 0.8 and 0.2 < bright < 0.8  # two colours of squares
 
 
-def test_a_model_without_lights_gets_a_headlight_and_keeps_its_own_settings():
+def test_a_model_without_lights_gets_a_light_from_above_and_keeps_its_own_settings():
     floored = BARE_CHAIN.replace("<worldbody>", '<worldbody><geom type="plane" size="2 2 0.1" rgba="0.8 0.8 0.8 1"/>')
     tree = bare_chain(xml=floored)
     stage = render.Stage.of(tree)
-    assert stage.light and not stage.backdrop  # a floor: no checker and no sky
+    assert stage.light and stage.backdrop and stage.floor == 0.0 and stage.floors.tolist() == [0]
     light = tree.model.vis.headlight
-    kept = light.active, light.ambient.copy(), light.diffuse.copy()
+    kept = light.active, light.ambient.copy(), light.diffuse.copy(), light.specular.copy()
     with render.Painter(tree, **SMALL) as painter:
         cam = painter.camera(None, POSE[None])
         lit = painter.draw(POSE, cam).astype(int)
+        assert painter.renderer.scene.nlight == 2  # the headlight and the light from above
         painter.stage = dataclasses.replace(painter.stage, light=False)
         dim = painter.draw(POSE, cam).astype(int)
-    assert lit.mean() > dim.mean() + 20 and lit.mean() > 60
-    assert (light.active, *light.ambient, *light.diffuse) == (kept[0], *kept[1], *kept[2])
+    assert lit.mean() > dim.mean() + 5 and lit.mean() > 60
+    assert (light.active, *light.ambient, *light.diffuse, *light.specular) == (kept[0], *kept[1], *kept[2], *kept[3])
 
 
 @pytest.mark.parametrize("name", ["arm7", "planar_2link", "primate", "panda"])
-def test_models_with_a_light_and_a_floor_render_as_before(name):
+def test_models_with_their_own_scene_are_staged_in_the_one_look(name):
+    """Each bundled model's own skybox, floor and light made its own look (black sky, white floors): the stage draws
+    its sky and floor over them; ``stage=False`` draws the model as it is.
+    """
     tree = tree_of(name)
     stage = render.Stage.of(tree)
-    assert not stage.light and not stage.backdrop and len(stage.bones) == 0  # nothing to add
+    assert not stage.light and stage.backdrop and len(stage.bones) == 0 and len(stage.floors)  # its own light kept
     q = tree.random_q(np.random.default_rng(0))
     with render.Painter(tree, **SMALL) as staged, render.Painter(tree, **SMALL, stage=False) as plain:
         cam = staged.camera(None, q[None])
-        assert np.array_equal(staged.draw(q, cam), plain.draw(q, cam))
+        assert not np.array_equal(staged.draw(q, cam), plain.draw(q, cam))
+        assert plain.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX]
 
 
-def test_panda_reach_env_renders_lit_and_as_before(monkeypatch):
+def test_panda_reach_env_renders_lit_with_a_sky(monkeypatch):
     def frame():
         env = gym.make("mjkin/PandaReach-v0", render_mode="rgb_array", width=160, height=120)
         env.reset(seed=3)
@@ -740,7 +747,8 @@ def test_panda_reach_env_renders_lit_and_as_before(monkeypatch):
 
     staged = frame()
     monkeypatch.setattr(render.Stage, "of", classmethod(lambda cls, tree: cls()))  # nothing added
-    assert staged.mean() > 40 and np.array_equal(staged, frame())
+    black = (frame().max(-1) < 25).mean()
+    assert staged.mean() > 40 and (staged.max(-1) < 25).mean() < 0.02 < black  # the model alone has a black sky
 
 
 @pytest.mark.parametrize("xml", [BARE_CHAIN, NO_GEOMS], ids=["hidden-geoms", "no-geoms"])
