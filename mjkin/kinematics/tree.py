@@ -25,7 +25,7 @@ from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
-from .frames import Frames, forward
+from .frames import Frames, forward, poses
 from .geoms import Geoms, geom_arrays
 from .jacobian import frame_jacobian_one
 
@@ -274,7 +274,7 @@ class Tree:
                                                np.require(q, requirements=["C", "W"]), T):
                 return T
             T = None
-        return self.kinematics(q).poses() if T is None else T
+        return poses(self, self.check_q(q)) if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""
