@@ -160,7 +160,6 @@ class Problem:
         self._run = self.method.prepare(self)
 
     # ------------------------------------------------------------------ solve
-    @tier.first_use
     def solve(self, q0: ArrayLike | None = None, goals: Goal | Sequence[Goal] | None = None) -> Result:
         """Solve from ``q0`` (default ``qpos0``; ``(nq,)`` or one per target ``(B, nq)``) for ``goals``.
 
@@ -172,7 +171,6 @@ class Problem:
             GoalError: goals of another structure, or malformed targets.
             InputError: a malformed ``q0``.
         """
-        tree = self.tree
         if goals is None:
             given = self.goals
         else:
@@ -184,6 +182,14 @@ class Problem:
                 given = (self.goals[0],) + given
             if self.avoid_collisions:
                 given = given + (self.goals[-1],)
+        return self._solve(q0, given)
+
+    @tier.first_use
+    def _solve(self, q0: ArrayLike | None, given: tuple[Goal, ...]) -> Result:
+        """Solve from ``q0`` for ``given``: the goals as :attr:`goals` holds them (the root's pose goal first, the
+        collision clearance last), of the problem's structure, unchecked (:func:`mjkin.solve` checked them).
+        """  # noqa: D205
+        tree = self.tree
         q_start = tree.qpos0 if q0 is None else q0
         if self.root is not None:
             pose = tree.kinematics(tree.check_q(q_start, "q0")).pose("body", self.root_body)

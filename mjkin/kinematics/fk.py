@@ -258,6 +258,9 @@ def moved(local: Array, offset: Array) -> Array:
     return out
 
 
+FK_ROWS = 64  # configurations fk_poses_kernel computes before copying them into 4x4s (64 x 10 bodies: ~60 KB)
+
+
 @njit
 def poses_kernel(R: Array, x: Array, T: Array) -> None:
     """4x4 poses ``T (N, 4, 4)`` from rotations ``R (N, 3, 3)`` and origins ``x (N, 3)``."""
@@ -268,6 +271,35 @@ def poses_kernel(R: Array, x: Array, T: Array) -> None:
             T[n, i, 3] = x[n, i]
             T[n, 3, i] = 0.0
         T[n, 3, 3] = 1.0
+
+
+@njit
+def fk_poses_kernel(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_start: Index, jnt_count: Index,
+                    jnt_inner: Index, fixed_plain: NDArray[np.bool_], hinge_coord: Index,
+                    anchor_zero: NDArray[np.bool_], jnt_type: Index, jnt_qadr: Index, jnt_axis: Array, jnt_pos: Array,
+                    qpos0: Array, T: Array, inner_rot: Array, inner_pos: Array) -> None:
+    """World poses of all bodies ``T (B, nbody, 4, 4)`` for ``q (B, nq)``: :func:`fk_kernel`, then 4x4s.
+
+    :data:`FK_ROWS` configurations at a time into small rotation and origin arrays, copied into
+    ``T`` while they are still in cache: no ``(B, nbody, 3, 3)`` and ``(B, nbody, 3)`` arrays to
+    allocate and read back. (Writing the kernel's frames into ``T``'s corners as strided views
+    was slower than this copy.)
+    """
+    B, nbody = q.shape[0], T.shape[1]
+    rot, pos = np.empty((FK_ROWS, nbody, 3, 3)), np.empty((FK_ROWS, nbody, 3))
+    for lo in range(0, B, FK_ROWS):
+        hi = min(B, lo + FK_ROWS)
+        fk_kernel(q[lo:hi], parent, fixed_rot, fixed_pos, jnt_start, jnt_count, jnt_inner, fixed_plain, hinge_coord,
+                  anchor_zero, jnt_type, jnt_qadr, jnt_axis, jnt_pos, qpos0, rot, pos, inner_rot[lo:hi],
+                  inner_pos[lo:hi])
+        for b in range(lo, hi):
+            for n in range(nbody):
+                for i in range(3):
+                    for k in range(3):
+                        T[b, n, i, k] = rot[b - lo, n, i, k]
+                    T[b, n, i, 3] = pos[b - lo, n, i]
+                    T[b, n, 3, i] = 0.0
+                T[b, n, 3, 3] = 1.0
 
 
 def to_poses(R: Array, x: Array) -> Array:

@@ -9,10 +9,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..runtime.checks import check_vector
-from .fk import Bodies, fk_kernel, frames_world, moved, to_poses
+from ..runtime.parallel import parallel_chunks
+from .fk import Bodies, fk_kernel, fk_poses_kernel, frames_world, moved, to_poses
 from .jacobian import jacobian_kernel
 
 Array = NDArray[np.float64]
+POSES_CHUNK = 1024  # configurations a thread of poses() takes at least: less costs more to hand over than it saves
 
 
 def forward(tree: Bodies, q: Array) -> Frames:
@@ -29,6 +31,22 @@ def forward(tree: Bodies, q: Array) -> Frames:
     inner_pos = np.empty((B, n_inner, 3))
     fk_kernel(qf, *arrays, rot, pos, inner_rot, inner_pos)  # type: ignore[call-arg]  # the 14 arrays of fk_arrays
     return Frames(tree, batch, rot, pos, inner_rot, inner_pos)
+
+
+def poses(tree: Bodies, q: Array) -> Array:
+    """World pose of every body ``(..., nbody, 4, 4)`` for ``q (..., nq)`` (already validated): :meth:`Tree.fk`'s batch.
+
+    Written straight into the result (:func:`~mjkin.kinematics.fk.fk_poses_kernel`), in chunks over the
+    solver threads (:func:`mjkin.runtime.parallel.parallel_chunks`; the kernel releases the GIL).
+    """
+    batch = q.shape[:-1]
+    qf = np.require(q.reshape(int(np.prod(batch, dtype=np.int64)), q.shape[-1]), requirements=["C", "W"])
+    B, nbody, n_inner = qf.shape[0], len(tree.fk_args[0]), tree.n_inner
+    T = np.empty((B, nbody, 4, 4))
+    inner_rot, inner_pos = np.empty((B, n_inner, 3, 3)), np.empty((B, n_inner, 3))
+    parallel_chunks(lambda lo, hi: fk_poses_kernel(qf[lo:hi], *tree.fk_args, T[lo:hi], inner_rot[lo:hi],
+                                                   inner_pos[lo:hi]), B, POSES_CHUNK)
+    return T.reshape(batch + (nbody, 4, 4))
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,7 +25,7 @@ from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
 from .fk import Kinematics, Plan, kinematic_arrays, moved
-from .frames import Frames, forward
+from .frames import Frames, forward, poses
 from .geoms import Geoms, geom_arrays
 from .jacobian import frame_jacobian_one
 
@@ -47,10 +47,12 @@ class Tree:
     read-only arrays; mjkin's FK and Jacobians use only these. Body 0 is the
     world. Ids equal MuJoCo's, so results index like ``MjData.xpos``.
 
-    One field is a cache: ``chains`` maps a frame ``(name, kind)`` given to
+    Two fields are caches, neither pickled: ``chains`` maps a frame ``(name, kind)`` given to
     :meth:`pose` to the chain of its body's ancestors (:mod:`mjkin.kinematics.chain`),
     made by :meth:`pose` the first time the frame is asked for; only :meth:`pose`
-    writes it, and it is not pickled. Everything else is fixed at construction
+    writes it. ``problems`` holds the :class:`~mjkin.Problem` objects :func:`mjkin.solve`
+    made on this tree, by structure (:mod:`mjkin.ik.solve` alone reads and writes it): kept on
+    the tree, they go with it. Everything else is fixed at construction
     (the chains, like ``bodies_chain``, are left writable only for numba's sake).
     """
 
@@ -77,6 +79,7 @@ class Tree:
     kin: Kinematics = field(init=False, repr=False)  # what the compiled kernels read
     bodies_chain: Array = field(init=False, repr=False)  # every body as one chain: the one-q path of fk
     chains: dict[tuple[str, str | None], Array] = field(init=False, repr=False)  # the one-q path of pose, see below
+    problems: dict = field(init=False, repr=False)  # mjkin.solve's problems by structure (mjkin.ik.solve)
     geoms: Geoms = field(init=False, repr=False)  # the geoms, for the compiled distances
     fk_args: tuple = field(init=False, repr=False)  # fk_kernel's arrays after q, in its order
     n_inner: int = field(init=False, repr=False)  # joints that are not their body's last
@@ -101,6 +104,7 @@ class Tree:
         put("kin", k)
         put("bodies_chain", chain_of(self, list(range(m.nbody)), np.eye(4)))
         put("chains", {})
+        put("problems", {})
         put("geoms", geom_arrays(m))
         put("fk_args", (k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain,
                         k.hinge_coord, k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0))
@@ -112,11 +116,11 @@ class Tree:
         put("frames", frames)
 
     def __getstate__(self) -> dict:
-        """Pickle the tree without its cache :attr:`chains` (it arrives empty)."""
-        return {k: v for k, v in self.__dict__.items() if k != "chains"}
+        """Pickle the tree without its caches :attr:`chains` and :attr:`problems` (they arrive empty)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("chains", "problems")}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, chains={})
+        self.__dict__.update(state, chains={}, problems={})
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> Tree:
@@ -270,7 +274,7 @@ class Tree:
                                                np.require(q, requirements=["C", "W"]), T):
                 return T
             T = None
-        return self.kinematics(q).poses() if T is None else T
+        return poses(self, self.check_q(q)) if T is None else T
 
     def pose(self, q: ArrayLike, name: str, kind: Kind | None = None) -> Array:
         """World pose ``(..., 4, 4)`` of a site or body (``kind=None``: a site of that name first)."""

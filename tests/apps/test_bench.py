@@ -237,6 +237,9 @@ def test_fk_baselines_do_the_same_work_as_mjkin():
     tree = ARM7.tree
     Q = tree.random_q(np.random.default_rng(1), 3)
     np.testing.assert_allclose(bench.mujoco_fk_loop(tree.model, Q)(), tree.fk(Q), atol=1e-10)
+    pos, quat = bench.mujoco_user_loop(tree.model, Q)()  # the user's loop: every body's xpos and xquat
+    np.testing.assert_allclose(pos, tree.fk(Q)[..., :3, 3], atol=1e-10)
+    np.testing.assert_allclose(mjkin.spatial.quat_to_mat(quat), tree.fk(Q)[..., :3, :3], atol=1e-10)
     site = tree.model.nsite - 1
     np.testing.assert_allclose(bench.mujoco_site_pose(tree.model, Q[0], site)(),
                                tree.pose(Q[0], tree.names("site")[site], "site"), atol=1e-10)
@@ -248,7 +251,7 @@ def test_fk_baselines_do_the_same_work_as_mjkin():
     assert [r["batch"] for r in batched] == [2] and single[0]["model"] == "arm7"
     assert [r["library"] for r in single][:3] == ["mjkin", "mjkin without its C call", "mujoco"]
     assert single[0]["ratio"] == 1.0 and "_posecall" in report.settings["tree.pose"]
-    assert all(r["ratio"] > 0 for r in batched + single)
+    assert all(r["ratio"] > 0 for r in batched + single) and all(r["ratio_4x4_loop"] > 0 for r in batched)
 
 
 @pytest.mark.skipif(shared_models_dir() is None, reason="the shared real robot models are not here")

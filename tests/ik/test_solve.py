@@ -774,3 +774,147 @@ def test_any_coordinate_past_1e10_m_is_refused(x: float, axis: int, sign: float,
     with pytest.raises(GoalError, match="within 1e\\+10 m"):
         FAR_GOALS[kind](p).targets()  # checked there, before any solve
     FAR_GOALS[kind]([0.1, 0.2, 1e9]).targets()  # far, yet a target
+
+
+# ------------------------------------------- mjkin.solve keeps its problems
+RESULT_FIELDS = ("q", "success", "error", "iterations", "status", "goal_errors", "restarts", "reason", "binding")
+
+
+def assert_same_result(got, want):
+    """Two results equal bit for bit: every field, the history, the goals' structure as solved."""
+    for name in RESULT_FIELDS:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert got.method == want.method and got.tree is want.tree
+    assert [g.key() for g in got.goals] == [g.key() for g in want.goals]
+    assert (got.history is None) == (want.history is None)
+    if got.history is not None:
+        np.testing.assert_array_equal(got.history.q, want.history.q)
+        np.testing.assert_array_equal(got.history.error, want.history.error)
+
+
+ARM_GOALS = {  # (kind, frame) -> a goal of it at a configuration q, with a weight and a priority
+    ("pose", "ee"): lambda t, q, w, p: G.Pose("ee", T=t.pose(q, "ee"), weight=w, priority=p),
+    ("position", "ee"): lambda t, q, w, p: G.Position("ee", t.pose(q, "ee")[:3, 3], weight=w, priority=p),
+    ("position", "link5"): lambda t, q, w, p: G.Position("link5", t.pose(q, "link5", "body")[:3, 3], kind="body",
+                                                         weight=w, priority=p),
+    ("orientation", "ee"): lambda t, q, w, p: G.Orientation("ee", mjkin.spatial.mat_to_quat(t.pose(q, "ee")[:3, :3]),
+                                                            weight=w, priority=p),
+    ("rest", None): lambda t, q, w, p: G.Rest(q, weight=w, priority=p),
+}
+weights = st.sampled_from([1.0, 0.5, 2.0, 0.0])
+
+
+@st.composite
+def solve_cases(draw):
+    """A goal structure on arm7, options for it, and three target configurations."""
+    method = draw(st.sampled_from(["auto", "lm", "dls", "pinv", "transpose", "ccd"]))
+    if method == "ccd":  # one position goal
+        specs = [(("position", "ee"), draw(weights.filter(bool)), 0)]
+    else:
+        specs = draw(st.lists(st.tuples(st.sampled_from(list(ARM_GOALS)), weights, st.integers(0, 2)),
+                              min_size=1, max_size=3))
+    options = {"method": method, "seed": draw(st.integers(0, 3)), "restarts": draw(st.sampled_from([0, 2])),
+               "max_iters": draw(st.sampled_from([5, 30])), "tol": draw(st.sampled_from([1e-6, 1e-4])),
+               "history": draw(st.booleans())}
+    limit = draw(st.sampled_from([{}, {"joints": ["j2", "j3", "j4", "j5", "j6", "j7"]}, {"base": "link2"}]))
+    seeds = draw(st.lists(st.integers(0, 2**32 - 1), min_size=4, max_size=4))
+    return specs, {**options, **limit}, seeds
+
+
+@settings(max_examples=25, deadline=None)
+@given(case=solve_cases())
+def test_solve_keeps_a_problem_per_structure_and_answers_as_a_new_problem_bit_for_bit(case):
+    """A loop of mjkin.solve calls paid a new Problem each call (4-6x a problem's solve): each tree keeps them by
+    structure and options; a kept one answers new targets and starts exactly as a new problem of those goals does."""
+    specs, options, seeds = case
+    tree = tree_of("arm7")
+    tree.problems.clear()
+
+    def goals_at(seed, specs=specs):
+        q = tree.random_q(np.random.default_rng(seed))
+        return [ARM_GOALS[spec](tree, q, w, p) for spec, w, p in specs]
+
+    def both(goals, seed):
+        q0 = tree.random_q(np.random.default_rng(seed + 1))
+        assert_same_result(mjkin.solve(tree, goals, q0, **options), mjkin.Problem(tree, goals, **options).solve(q0))
+
+    both(goals_at(seeds[0]), seeds[0])
+    assert len(tree.problems) == 1
+    kept = list(tree.problems.values())
+    both(goals_at(seeds[1]), seeds[1])  # the same structure, new targets and start: the kept problem
+    both(goals_at(seeds[1]), seeds[2])  # the same targets again from another start
+    assert list(tree.problems.values()) == kept
+    (spec, w, p), *rest = specs  # another weight, or another frame: another problem
+    other = [((("position", "link5") if spec == ("position", "ee") else ("position", "ee")), w or 1.0, p), *rest]
+    changed = [(spec, 3.0, p), *rest] if spec != ("rest", None) and options["method"] != "ccd" \
+        else other
+    both(goals_at(seeds[3], changed), seeds[3])
+    assert len(tree.problems) == 2 and list(tree.problems.values())[0] is kept[0]
+    both(goals_at(seeds[0]), seeds[3])  # the first structure is still kept
+    assert len(tree.problems) == 2
+
+
+def test_a_changed_model_or_another_tree_never_reuses_a_kept_problem():
+    tree = mjkin.load("arm7")
+    goal = G.Position("ee", (0.3, 0.2, 0.5))
+    q0 = np.full(tree.nq, 0.3)
+    options = {"method": "dls", "max_iters": 30}
+    before = mjkin.solve(tree, goal, q0, **options)
+    tree.model.stat.extent *= 3.0  # dls's damping scales with the model's extent
+    after = mjkin.solve(tree, goal, q0, **options)
+    assert_same_result(after, mjkin.Problem(tree, goal, **options).solve(q0))
+    assert not np.array_equal(after.q, before.q) and len(tree.problems) == 2
+    twin = mjkin.load("arm7")  # the same file, another tree: its own problems
+    on_twin = mjkin.solve(twin, goal, q0, **options)
+    assert on_twin.tree is twin and len(twin.problems) == 1 and len(tree.problems) == 2
+    assert_same_result(on_twin, mjkin.Problem(twin, goal, **options).solve(q0))
+    model = mjkin.load("arm7").model  # the same names, a longer forearm
+    model.body_pos[tree.id("link5", "body"), 2] += 0.1
+    longer = mjkin.load(model)
+    res = mjkin.solve(longer, goal, q0, **options)
+    assert_same_result(res, mjkin.Problem(longer, goal, **options).solve(q0))
+    assert not np.array_equal(res.q, on_twin.q)
+
+
+def test_options_are_told_apart_by_type_and_bad_values_are_still_refused():
+    """``tol=True`` equals ``1.0`` as a dict key: a kept problem must not let it through."""
+    tree = mjkin.load("arm7")
+    goal = G.Position("ee", (0.3, 0.2, 0.5))
+    mjkin.solve(tree, goal, tol=1.0, history=True)
+    with pytest.raises(mjkin.InputError, match="tol must be a finite number > 0"):
+        mjkin.solve(tree, goal, tol=True, history=True)
+    with pytest.raises(mjkin.InputError, match="history must be True or False"):
+        mjkin.solve(tree, goal, tol=1.0, history=1)
+    assert len(tree.problems) == 1
+    mjkin.solve(tree, goal, joints=["j1", "j2"])  # a list option: kept by its items
+    mjkin.solve(tree, goal, joints=["j1", "j2"])
+    mjkin.solve(tree, goal, method=mjkin.ik.LM(restarts=1))  # a method object: by its options
+    mjkin.solve(tree, goal, method=mjkin.ik.LM(restarts=1))
+    assert len(tree.problems) == 3
+
+
+def test_kept_problems_are_bounded_and_go_with_their_tree():
+    import gc
+    import weakref
+
+    from mjkin.ik.solve import KEPT
+
+    tree = mjkin.load("arm7")
+    for k in range(KEPT + 4):
+        mjkin.solve(tree, G.Position("ee", (0.3, 0.2, 0.5), weight=1.0 + k), max_iters=1)
+    assert len(tree.problems) == KEPT
+    assert {p.goals[0].weight for p in tree.problems.values()} == {1.0 + k for k in range(4, KEPT + 4)}
+    assert pickle.loads(pickle.dumps(tree)).problems == {}
+    alive = weakref.ref(tree)
+    del tree
+    gc.collect()
+    assert alive() is None
+
+
+@pytest.mark.parametrize("extra", [{"root": "link2"}, {"avoid_collisions": True}])
+def test_problems_made_from_more_than_the_structure_are_not_kept(extra):
+    tree = mjkin.load("arm7")
+    goal = G.Position("ee", (0.3, 0.2, 0.5))
+    q0 = np.full(tree.nq, 0.2)
+    assert_same_result(mjkin.solve(tree, goal, q0, **extra), mjkin.Problem(tree, goal, **extra).solve(q0))
+    assert tree.problems == {}

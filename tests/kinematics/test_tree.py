@@ -310,3 +310,20 @@ def test_read_only_or_broadcast_arrays_compile_no_second_version_of_a_kernel():
     for kernel in (frame_jacobian_one, fk_kernel, difference_kernel, integrate_kernel):
         assert len(kernel.signatures) == 1, (kernel.__name__, kernel.signatures)
     np.testing.assert_array_equal(tree.jacobian(ro[1], "head"), tree.jacobian(q[1], "head"))
+
+
+@pytest.mark.parametrize("model", ["arm7", "primate", "ball_chain", "planar_prismatic"])
+@pytest.mark.parametrize("n_threads", [1, 2])
+def test_a_batch_fk_is_the_frames_kernel_written_into_4x4s_in_chunks_and_threads(model, n_threads):
+    """tree.fk of a batch writes the poses in blocks of FK_ROWS over the threads: the frames kernel's numbers."""
+    from mjkin.kinematics.fk import FK_ROWS
+    from mjkin.kinematics.frames import POSES_CHUNK, forward
+    from mjkin.runtime.parallel import threads_set
+
+    tree = tree_of(model)
+    Q = tree.random_q(np.random.default_rng(5), 2 * POSES_CHUNK + FK_ROWS + 3)  # several chunks, a short block
+    with threads_set(n_threads):
+        T = tree.fk(Q)
+    np.testing.assert_array_equal(T, forward(tree, Q).poses())
+    np.testing.assert_array_equal(tree.fk(Q.reshape(3, -1, tree.nq)), T.reshape(3, -1, tree.nbody, 4, 4))
+    assert T.shape == (len(Q), tree.nbody, 4, 4) and T.flags.c_contiguous

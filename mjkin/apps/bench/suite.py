@@ -21,6 +21,7 @@ from ...errors import InputError
 from ...kinematics.chain import ancestors, chain_of, pose_numba, pose_of
 from ...kinematics.tree import Tree, load
 from ...runtime.files import check_writable, write_text
+from ...runtime.parallel import threads
 from ...runtime.progress import track
 from . import ALL, FK_MODELS, add_arguments
 from .report import GC_NOTE, Report, Row, format_table, gc_paused, seconds_per_call, shared_model
@@ -44,8 +45,57 @@ def fk_models(names: Sequence[str] | None = None) -> list[tuple[str, Tree]]:
     return out
 
 
+def mujoco_user_loop(model: mujoco.MjModel, Q: np.ndarray) -> Callable[[], tuple[np.ndarray, np.ndarray]]:
+    """The baseline: a user's Python loop of ``mj_kinematics`` reading every body pose as MuJoCo gives it.
+
+    Each call allocates its outputs and returns ``xpos (N, nbody, 3)`` and ``xquat (N, nbody, 4)``:
+    two contiguous row copies per configuration, the cheapest way to hold all the poses (what a user
+    timing ``tree.fk`` against MuJoCo writes; :func:`mujoco_fk_loop` builds ``tree.fk``'s 4x4s instead).
+    """
+    data = mujoco.MjData(model)
+
+    def run() -> tuple[np.ndarray, np.ndarray]:
+        pos, quat = np.empty((len(Q), model.nbody, 3)), np.empty((len(Q), model.nbody, 4))
+        for i, q in enumerate(Q):
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            pos[i] = data.xpos
+            quat[i] = data.xquat
+        return pos, quat
+
+    return run
+
+
+def interleaved(calls: Sequence[Callable[[], object]], min_time: float = 0.2, repeat: int = 5) -> list[float]:
+    """Seconds per call of each of ``calls``: the median of ``repeat`` runs, the calls' runs taking turns.
+
+    Like :func:`~mjkin.apps.bench.report.seconds_per_call`, each run a loop of calls over at least
+    ``min_time`` seconds; taking turns, a change in the machine's load falls on every call alike,
+    so their ratios hold where their times do not.
+    """
+    for fn in calls:
+        fn()  # warm caches
+    runs: list[list[float]] = [[] for _ in calls]
+    with gc_paused():
+        for _ in range(repeat):
+            for fn, out in zip(calls, runs, strict=True):
+                n, start = 0, time.perf_counter()
+                while True:
+                    fn()
+                    n += 1
+                    elapsed = time.perf_counter() - start
+                    if elapsed >= min_time:
+                        break
+                out.append(elapsed / n)
+    return [float(np.median(r)) for r in runs]
+
+
 def mujoco_fk_loop(model: mujoco.MjModel, Q: np.ndarray) -> Callable[[], np.ndarray]:
-    """The baseline: a Python loop of ``mj_kinematics`` copying out every body pose (what ``tree.fk`` returns)."""
+    """A Python loop of ``mj_kinematics`` copying every body pose into ``tree.fk``'s ``(N, nbody, 4, 4)``.
+
+    The output array is made once, outside the timed calls, and each pose goes in as two strided
+    copies (rotation block, origin column): slower per configuration than :func:`mujoco_user_loop`.
+    """
     data = mujoco.MjData(model)
     out = np.empty((len(Q), model.nbody, 4, 4))
     out[..., 3, :] = [0.0, 0.0, 0.0, 1.0]
@@ -145,22 +195,25 @@ def bench_fk(models: Sequence[str] | None = None, sizes: Sequence[int] = (1, 100
     cases = [(n, t, B) for n, t in fk_models(models) for B in sizes]
     for name, tree, B in track(cases, "bench fk"):
         Q = tree.random_q(rng, B)
-        t_mjkin = seconds_per_call(lambda: tree.fk(Q), min_time)  # noqa: B023
-        t_mj = seconds_per_call(mujoco_fk_loop(tree.model, Q), min_time)
+        t_mjkin, t_mj, t_4x4 = interleaved([lambda: tree.fk(Q), mujoco_user_loop(tree.model, Q),  # noqa: B023
+                                            mujoco_fk_loop(tree.model, Q)], min_time)
         batched.append({"model": name, "nbody": tree.nbody, "batch": B, "mjkin_us_per_q": 1e6 * t_mjkin / B,
                         "mujoco_us_per_q": 1e6 * t_mj / B, "mjkin_q_per_s": B / t_mjkin,
-                        "mujoco_q_per_s": B / t_mj, "ratio": t_mj / t_mjkin})
+                        "mujoco_q_per_s": B / t_mj, "ratio": t_mj / t_mjkin, "ratio_4x4_loop": t_4x4 / t_mjkin})
     for name, tree in fk_models(models):
         if tree.model.nsite:
             single += single_pose_rows(name, tree, tree.random_q(rng), min_time, skipped)
-    tables = {"batched FK, every body pose: tree.fk(Q) vs a Python loop of mj_kinematics copying xpos/xmat "
-              "(ratio > 1: mjkin faster)": batched,
+    tables = {"batched FK, every body pose: tree.fk(Q) (4x4s) vs a Python loop of mj_kinematics reading xpos and "
+              "xquat into arrays (ratio > 1: mjkin faster; ratio_4x4_loop: vs the loop copying into tree.fk's "
+              "4x4s)": batched,
               "one site pose for one q, each library's call in a loop (ratio: its time / mjkin's; > 1: mjkin "
               "faster)": single}
     if skipped:
         tables["pinocchio without a row (the reason)"] = skipped
     return Report(tables, {"sizes": list(sizes), "seed": seed,
-                           "timing": f"median of 5 runs of >= {min_time} s of calls each", "gc": GC_NOTE,
+                           "timing": f"median of 5 runs of >= {min_time} s of calls each (batched FK: mjkin's "
+                                     "and the loops' runs taking turns)", "gc": GC_NOTE,
+                           "threads": f"tree.fk of a batch: {threads()} (MJKIN_NUM_THREADS)",
                            "tree.pose": "through the C module _posecall" if pose_of is not pose_numba
                                         else "through numba's entry (the C module _posecall was not built)",
                            "pinocchio": "the chain to the site as a URDF, its FK checked equal to tree.pose to 1e-12 "
