@@ -20,7 +20,11 @@ this process first, as numba does (``wait`` is what tests and benchmarks use: ev
 bits each run). ``MJKIN_COMPILE=interpret`` runs every such call interpreted and
 compiles nothing for them (to debug a kernel in Python). The interpreted answers
 may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
-library calls).
+library calls). With a ``timeout``, an interpreted solve (~100x slower) can meet its
+time limit where the compiled one would not, so ``status``, ``restarts`` and ``q``
+of a target that does not converge may differ beyond the last bits (``timeout``
+after some 135 restarts against ``max_iterations`` after 1 000); see
+docs/concepts/results.md, "Time limits and the first run".
 """
 
 from __future__ import annotations
