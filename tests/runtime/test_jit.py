@@ -321,7 +321,6 @@ def test_a_kernel_another_process_is_compiling_is_waited_for_and_loaded_not_comp
     import subprocess
     import sys
     import time
-    from pathlib import Path
 
     from numba.core.compiler_lock import global_compiler_lock
 
@@ -335,9 +334,11 @@ def test_a_kernel_another_process_is_compiling_is_waited_for_and_loaded_not_comp
             child = subprocess.Popen([sys.executable, "-c", _RUN, str(tmp_path / "src")], env=env, text=True,
                                      stdout=subprocess.PIPE)
             deadline = time.monotonic() + 120
-            while "->" not in Path("/proc/locks").read_text():  # the child is blocked on the lock we hold
+            lock = kernel._cache.lock_path()
+            while not _holds_open(child.pid, lock):  # the child has opened the lock file we hold: it waits on it
                 assert child.poll() is None and time.monotonic() < deadline, "the child did not wait for the lock"
                 time.sleep(0.05)
+            time.sleep(0.5)  # past its first try
             assert kernel(1.0) == 4.0  # compiled here, under the lock, into the cache the child then reads
         out, _ = child.communicate(timeout=120)
     finally:
@@ -361,3 +362,20 @@ def test_numba_outside_the_tested_range_is_refused_in_one_line():
     deps = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]["dependencies"]
     assert f"numba>={low[0]}.{low[1]},<{high[0]}.{high[1]}" in deps  # the package asks for what is tested
     assert any(d.startswith("mujoco>=") and ",<" in d for d in deps)  # an upper bound on mujoco too
+
+
+def _holds_open(pid: int, path: str) -> bool:
+    """Whether process ``pid`` has ``path`` open."""
+    import os
+
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return False
+    for fd in fds:
+        try:
+            if os.readlink(f"/proc/{pid}/fd/{fd}") == path:
+                return True
+        except OSError:
+            pass
+    return False
