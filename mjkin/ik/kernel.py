@@ -213,6 +213,8 @@ def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: 
         den = AAe @ AAe
         x[:] = (alpha if alpha > 0 else ((e @ AAe) / den if den > 1e-300 else 0.0)) * Ae
         return 0
+    if not np.all(np.isfinite(A)):  # rows overflowed by a target ~1e308 m off: no step (the SVD would raise)
+        return 0
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
     cutoff = max(1e-10, 1e-12 * s[0]) if s.shape[0] else 1e-10
     rank = 0

@@ -918,3 +918,14 @@ def test_problems_made_from_more_than_the_structure_are_not_kept(extra):
     q0 = np.full(tree.nq, 0.2)
     assert_same_result(mjkin.solve(tree, goal, q0, **extra), mjkin.Problem(tree, goal, **extra).solve(q0))
     assert tree.problems == {}
+
+
+@pytest.mark.parametrize("goal", ["position", "pose"])
+def test_a_figure_target_at_1e308_with_pinv_is_unmet_not_a_linalg_error(goal: str) -> None:
+    """The primate's foot at 1e308 m with method="pinv": its rows overflowed and numba's SVD raised LinAlgError."""
+    primate = mjkin.load("primate")
+    T = np.eye(4)
+    T[:3, 3] = [0.45, -1e308, -0.56]
+    made = G.Position("left_foot", T[:3, 3]) if goal == "position" else G.Pose("left_foot", T=T)
+    res = mjkin.solve(primate, made, method="pinv", timeout=0.5)
+    assert not res.success and np.all(np.isfinite(res.q)) and np.array_equal(primate.clip(res.q), res.q)
