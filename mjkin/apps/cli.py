@@ -743,6 +743,7 @@ def run(argv: Sequence[str]) -> int:
         print("mjkin: interrupted", file=sys.stderr)
         return 130
     finally:
+        tier.flush()  # a background compile that goes on says so, as the command ends
         progress.enable(False)
 
 

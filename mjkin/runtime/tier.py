@@ -319,6 +319,7 @@ class _Compiler:
 _COMPILER = _Compiler()
 atexit.register(_COMPILER.flush)
 settle = _COMPILER.settle
+flush = _COMPILER.flush  # the CLI calls it as a command ends, while its notices still print
 
 
 def later() -> contextlib.AbstractContextManager[None]:

@@ -404,3 +404,25 @@ def test_numbas_disable_jit_switch_imports_and_solves_as_python():
     np.testing.assert_allclose(F, tree.fk(q), rtol=0, atol=1e-14)
     np.testing.assert_allclose(J, tree.jacobian(q, "flange"), rtol=0, atol=1e-14)
     assert success and status == "converged"
+
+
+_OUTLIVES = textwrap.dedent("""
+    import sys
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    from mjkin.runtime import progress, tier
+    from tiered import triple
+    progress.enable(True)
+    tier.first_use(triple)(np.arange(3.0))  # a child starts compiling it
+    tier.flush()  # as the CLI does when a command ends: the child is still at work
+    progress.enable(False)
+    tier.settle()  # (the child done before the test's cache folder goes)
+""")
+
+
+def test_a_child_that_outlives_its_command_says_so():
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        run = _run_tiered(Path(folder), _OUTLIVES)
+    assert "a background process (pid " in run.stderr and "low priority" in run.stderr
