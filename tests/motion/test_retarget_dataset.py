@@ -30,6 +30,19 @@ from mjkin.motion.retarget import SELF_CLEARANCE, report
 from mjkin.runtime.files import TEMP_MARK
 
 
+def count_solves(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the clips retargeted (solved) in this process from now on."""
+    names: list[str] = []
+    real = dataset.retarget
+
+    def counted(clip: bvh.Clip, *args: object, **kwargs: object) -> Trajectory:
+        names.append(Path(clip.source).name)
+        return real(clip, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(dataset, "retarget", counted)
+    return names
+
+
 @pytest.fixture(scope="module")
 def primate() -> mjkin.Tree:
     return mjkin.load("primate")
@@ -200,14 +213,7 @@ def test_finished_clips_are_skipped_and_overwrite_redoes_them(tmp_path: Path, mo
     out = tmp_path / "out"
     first = retarget_many(src, "primate", out)
     files = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*.npz")}
-    solved: list[str] = []
-    real = dataset.retarget
-
-    def counted(clip: bvh.Clip, *args: object, **kwargs: object) -> Trajectory:
-        solved.append(Path(clip.source).name)
-        return real(clip, *args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(dataset, "retarget", counted)
+    solved = count_solves(monkeypatch)
     again = retarget_many(src, "primate", out)
     assert solved == []  # bad.bvh fails at reading, before a solve; the others are done
     assert {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*.npz")} == files  # not rewritten

@@ -8,28 +8,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_retarget import G1
-from test_retarget_dataset import crouches, rows_of
+from test_retarget_dataset import count_solves, crouches, rows_of
 from test_smpl import motion, shaped_rest, write_body_model, write_clip
 
 import mjkin
 from mjkin.apps.cli import run
 from mjkin.errors import InputError
-from mjkin.motion import Trajectory, bvh, dataset
+from mjkin.motion import Trajectory, dataset
 from mjkin.motion.dataset import REPORT, retarget_many
 
 
 @pytest.fixture
 def solved(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The names of the clips retargeted (solved) in this process from now on."""
-    names: list[str] = []
-    real = dataset.retarget
-
-    def counted(clip: bvh.Clip, *args: object, **kwargs: object) -> Trajectory:
-        names.append(Path(clip.source).name)
-        return real(clip, *args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(dataset, "retarget", counted)
-    return names
+    return count_solves(monkeypatch)
 
 
 def qpos_of(path: Path) -> np.ndarray:

@@ -14,25 +14,11 @@ from pathlib import Path
 
 import numba
 import pytest
+from test_jit import _HELP, _RUN, _package
 
 from mjkin.runtime import cache
 
-# a package of two files: a kernel in kern.py that inlines a helper from help.py (as the IK loop inlines FK)
-_HELP = "from mjkin.runtime.jit import njit_inline\n\n\n@njit_inline\ndef shift(x):\n    return x + {k}\n"
-_KERN = ("from mjkin.runtime.jit import njit\n\nfrom .help import shift\n\n\n"
-         "@njit\ndef kernel(x):\n    return shift(x) * 2.0\n")
-_RUN = ("import sys; sys.path.insert(0, sys.argv[1]); from kpkg.kern import kernel; "
-        "print(kernel(1.0), kernel.stats.cache_hits.get(kernel.signatures[0], 0) if kernel.signatures else 0)")
 NOBODY = 65534
-
-
-def _package(root: Path, k: float = 1.0) -> Path:
-    pkg = root / "kpkg"
-    pkg.mkdir(parents=True, exist_ok=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "help.py").write_text(_HELP.format(k=k))
-    (pkg / "kern.py").write_text(_KERN)
-    return pkg
 
 
 def _run(root: Path, cache_dir: Path | None) -> tuple[float, int]:

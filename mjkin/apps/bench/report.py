@@ -64,19 +64,30 @@ def gc_paused() -> Iterator[None]:
 
 def seconds_per_call(fn: Callable[[], object], min_time: float = 0.2, repeat: int = 5) -> float:
     """Median of ``repeat`` runs of the mean time per call, each a loop of calls over at least ``min_time`` seconds."""
-    fn()  # warm caches
-    runs = []
+    return interleaved([fn], min_time, repeat)[0]
+
+
+def interleaved(calls: Sequence[Callable[[], object]], min_time: float = 0.2, repeat: int = 5) -> list[float]:
+    """Seconds per call of each of ``calls``: the median of ``repeat`` runs, the calls' runs taking turns.
+
+    Each run is a loop of calls over at least ``min_time`` seconds; taking turns, a change in the machine's
+    load falls on every call alike, so their ratios hold where their times do not.
+    """
+    for fn in calls:
+        fn()  # warm caches
+    runs: list[list[float]] = [[] for _ in calls]
     with gc_paused():
         for _ in range(repeat):
-            n, start = 0, time.perf_counter()
-            while True:
-                fn()
-                n += 1
-                elapsed = time.perf_counter() - start
-                if elapsed >= min_time:
-                    break
-            runs.append(elapsed / n)
-    return float(np.median(runs))
+            for fn, out in zip(calls, runs, strict=True):
+                n, start = 0, time.perf_counter()
+                while True:
+                    fn()
+                    n += 1
+                    elapsed = time.perf_counter() - start
+                    if elapsed >= min_time:
+                        break
+                out.append(elapsed / n)
+    return [float(np.median(r)) for r in runs]
 
 
 def shared_models_dir() -> Path | None:

@@ -24,7 +24,7 @@ from ...runtime.files import check_writable, write_text
 from ...runtime.parallel import threads
 from ...runtime.progress import track
 from . import ALL, FK_MODELS, add_arguments
-from .report import GC_NOTE, Report, Row, format_table, gc_paused, seconds_per_call, shared_model
+from .report import GC_NOTE, Report, Row, format_table, gc_paused, interleaved, seconds_per_call, shared_model
 
 FK_BUNDLED = ("arm7", "primate", "panda")
 
@@ -64,30 +64,6 @@ def mujoco_user_loop(model: mujoco.MjModel, Q: np.ndarray) -> Callable[[], tuple
         return pos, quat
 
     return run
-
-
-def interleaved(calls: Sequence[Callable[[], object]], min_time: float = 0.2, repeat: int = 5) -> list[float]:
-    """Seconds per call of each of ``calls``: the median of ``repeat`` runs, the calls' runs taking turns.
-
-    Like :func:`~mjkin.apps.bench.report.seconds_per_call`, each run a loop of calls over at least
-    ``min_time`` seconds; taking turns, a change in the machine's load falls on every call alike,
-    so their ratios hold where their times do not.
-    """
-    for fn in calls:
-        fn()  # warm caches
-    runs: list[list[float]] = [[] for _ in calls]
-    with gc_paused():
-        for _ in range(repeat):
-            for fn, out in zip(calls, runs, strict=True):
-                n, start = 0, time.perf_counter()
-                while True:
-                    fn()
-                    n += 1
-                    elapsed = time.perf_counter() - start
-                    if elapsed >= min_time:
-                        break
-                out.append(elapsed / n)
-    return [float(np.median(r)) for r in runs]
 
 
 def mujoco_fk_loop(model: mujoco.MjModel, Q: np.ndarray) -> Callable[[], np.ndarray]:
