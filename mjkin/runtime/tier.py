@@ -308,9 +308,13 @@ class _Compiler:
     def flush(self) -> None:
         """At exit: start a child for what is still queued (the cache is warm for the next run); say if one goes on."""
         with self.lock:
-            if self.queue:
-                self.child = _spawn([(address, sig) for _, address, sig in self.queue])
+            if self.queue and self.child is not None and self.child.poll() is None:
+                _spawn([(address, sig) for _, address, sig in self.queue])  # beside the one at work: we are ending
                 self.queue = []
+            else:  # as _advance starts one (tracked: a CLI command ends, its process may go on), held or not
+                held, self.held = self.held, 0
+                self._advance()
+                self.held = held
             if self.child is not None and self.child.poll() is None:
                 progress.notice(f"a background process (pid {self.child.pid}, low priority) goes on compiling "
                                 "kernels for later runs")
