@@ -70,6 +70,9 @@ class Judge:
         m = tree.model.__copy__()
         m.geom_margin[:] = margin + 0.01
         m.geom_gap[:] = 0.0
+        # no mid-phase: its bounding volumes were built when the model compiled, without this margin, and dropped
+        # pairs apart by less than it (the Panda's link0-link1, 8 mm, among three spheres in the world body)
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_MIDPHASE)
         self.model, self.data, self.margin = m, mujoco.MjData(m), margin
         self.fromto = np.zeros(6)
 
