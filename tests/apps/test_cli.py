@@ -257,6 +257,33 @@ def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys
         one_line_exit_2(argv, f"{what} {str(odd)!r} {told}", capsys, tmp_path, keep=["a.bvh", "odd.json"])
 
 
+@pytest.mark.parametrize("kind", ["/dev/zero", "fifo"])
+@pytest.mark.parametrize("given", ["ik model", "retarget --model", "retarget --scene"])
+def test_a_model_or_scene_that_is_no_regular_file_is_one_line(given, kind, capsys, tmp_path, monkeypatch):
+    """A FIFO as the model or the scene was said to be "not found" (MuJoCo, which reads it, would wait for ever)."""
+    monkeypatch.chdir(tmp_path)
+    clip = tmp_path / "a.bvh"
+    from test_retarget import crouch_bvh
+
+    clip.write_text(crouch_bvh(4))
+    odd = tmp_path / "odd.xml"
+    if kind == "fifo":
+        os.mkfifo(odd)
+    else:
+        odd.symlink_to("/dev/zero")
+    argv, what, hint = {
+        "ik model": (["ik", str(odd), "--frame", "ee", "--pos", "0.3,0,0.5"], "model file",
+                     "give the MJCF/URDF file itself"),
+        "retarget --model": (["retarget", str(clip), "--model", str(odd), "-o", "a.json"], "model file",
+                             "give the MJCF/URDF file itself"),
+        "retarget --scene": (["retarget", str(clip), "--model", "primate", "--scene", str(odd), "-o", "a.json"],
+                             "scene file", "give an MJCF file whose world geoms are the ground")}[given]
+    told = {"/dev/zero": "a character device", "fifo": "a FIFO (named pipe)"}[kind]
+    with no_hang(60):
+        one_line_exit_2(argv, f"{what} {str(odd)!r} is {told}, not a regular file; {hint}", capsys, tmp_path,
+                        keep=["a.bvh", "odd.xml"])
+
+
 def test_script_with_the_format_but_no_keys(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "t.json").write_text('{"format": "mjkin-trajectory"}')
