@@ -21,6 +21,7 @@ from ..runtime import files, tier
 from ..runtime.checks import check_array, check_vector
 from . import chain as chains
 from . import qspace
+from .assets import check_named_files
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
@@ -446,6 +447,7 @@ def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:
             hint = ", ".join(bundled_models())
             raise MjkinIOError(f"model file not found: {text!r} (give an MJCF/URDF path or one of: {hint})")
         files.check_input(path, "model file", files.LIMITS["model"], hint="give the MJCF/URDF file itself")
+        check_named_files(path)
         return Tree.from_model(mujoco.MjModel.from_xml_path(str(path)))
     except (ValueError, mujoco.FatalError) as e:
         msg = " ".join(str(e).split())

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError, ModelError
+from ..kinematics.assets import check_named_files
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, MESH, PLANE, SPHERE
 from ..kinematics.tree import Tree
 from ..runtime import files
@@ -82,6 +83,7 @@ class Terrain:
             return _build(_strip(_spec(text)), TEXT_SOURCE)
         files.check_input(text, "scene file", files.LIMITS["model"],
                           hint="give an MJCF file whose world geoms are the ground")
+        check_named_files(text, "scene file")
         return _load_file(text)
 
     def _over(self, lo: Array, hi: Array) -> NDArray[np.bool_]:

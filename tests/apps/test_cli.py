@@ -284,6 +284,30 @@ def test_a_model_or_scene_that_is_no_regular_file_is_one_line(given, kind, capsy
                         keep=["a.bvh", "odd.xml"])
 
 
+@pytest.mark.parametrize("named", ["mesh", "include"])
+@pytest.mark.parametrize("given", ["model", "scene"])
+def test_a_file_a_model_names_that_is_a_fifo_is_one_line(given, named, capsys, tmp_path, monkeypatch):
+    """MuJoCo reads a model's meshes and includes itself: a FIFO among them hung it for ever."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "parts").mkdir()
+    os.mkfifo(tmp_path / "parts" / "odd")
+    inside = ('<asset><mesh name="m" file="odd"/></asset><worldbody><geom type="mesh" mesh="m"/></worldbody>'
+              if named == "mesh" else '<include file="parts/odd"/><worldbody/>')
+    compiler = '<compiler meshdir="parts"/>' if named == "mesh" else ""
+    (tmp_path / "m.xml").write_text(f"<mujoco>{compiler}{inside}</mujoco>")
+    argv = ["info", "m.xml"] if given == "model" else \
+        ["retarget", "a.bvh", "--model", "primate", "--scene", "m.xml", "-o", "a.json"]
+    if given == "scene":
+        from test_retarget import crouch_bvh
+
+        (tmp_path / "a.bvh").write_text(crouch_bvh(4))
+    name = "odd" if named == "mesh" else "parts/odd"
+    with no_hang(60):
+        one_line_exit_2(argv, f"{given} file 'm.xml' names {name!r} ({named}), which is a FIFO (named pipe), not a "
+                        "regular file; give the file itself", capsys, tmp_path,
+                        keep=["m.xml", "parts"] + (["a.bvh"] if given == "scene" else []))
+
+
 def test_script_with_the_format_but_no_keys(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "t.json").write_text('{"format": "mjkin-trajectory"}')
