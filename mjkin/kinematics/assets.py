@@ -29,7 +29,8 @@ def check_named_files(path: str | os.PathLike[str], what: str = "model file") ->
     """
     main = Path(path)
     home = main.parent
-    todo, seen = [main], set()
+    todo: list[Path] = [main]
+    seen: set[Path] = set()
     while todo and len(seen) < MAX_INCLUDES:
         current = todo.pop()
         if current in seen:
