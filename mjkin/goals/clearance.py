@@ -74,9 +74,14 @@ class Clearance(Goal):
         if self.pairs is not None and not _pairs_given(self.pairs):
             raise GoalError("Clearance pairs must be None or (geom1, geom2) pairs of geom names or ids")
 
-    def key(self) -> tuple:  # noqa: D102
-        pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
-        return super().key() + (pairs, int(self.closest))
+    def key(self) -> tuple:
+        """The structure key, made once (a solve per frame asks for it, and the G1's 579 pairs took 0.3 ms)."""
+        cached = self.__dict__.get("_key")
+        if cached is None:
+            pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
+            cached = super().key() + (pairs, int(self.closest))
+            object.__setattr__(self, "_key", cached)
+        return cached
 
     def geom_pairs(self, tree: Tree) -> Index:
         """The geom pairs ``(P, 2)`` this goal keeps apart, checked against ``tree``.
