@@ -74,9 +74,14 @@ class Clearance(Goal):
         if self.pairs is not None and not _pairs_given(self.pairs):
             raise GoalError("Clearance pairs must be None or (geom1, geom2) pairs of geom names or ids")
 
-    def key(self) -> tuple:  # noqa: D102
-        pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
-        return super().key() + (pairs, int(self.closest))
+    def key(self) -> tuple:
+        """The structure key, made once (a solve per frame asks for it, and the G1's 579 pairs took 0.3 ms)."""
+        cached = self.__dict__.get("_key")
+        if cached is None:
+            pairs = None if self.pairs is None else tuple(tuple(p) for p in self.pairs)
+            cached = super().key() + (pairs, int(self.closest))
+            object.__setattr__(self, "_key", cached)
+        return cached
 
     def geom_pairs(self, tree: Tree) -> Index:
         """The geom pairs ``(P, 2)`` this goal keeps apart, checked against ``tree``.
@@ -152,8 +157,9 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
 
     ``pairs (P, 4)``: ``[geom1, geom2, goal, bounded]``, each goal's contiguous; a pair marked
     ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
-    ``reach - margin`` with a zero gradient. Each pair is measured once: the ``k`` closest
-    keep their witness points and normal for their gradients.
+    ``reach - margin`` with a zero gradient, and so does a pair found farther than ``reach`` (its measure
+    stops there). Each pair is measured once: the ``k`` closest keep their witness points and normal for
+    their gradients.
     """
     lo, hi = owned(pairs[:, 2], i)
     near = np.empty(hi - lo, dtype=np.int64)
@@ -166,8 +172,8 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
     for c in range(n):
         p = lo + near[c]
         d = pair_distance_normal(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1],
-                                 unshared(here, 0, (3,)), unshared(here, 3, (3,)), unshared(here, 6, (3,)))
-        if d < best[k - 1, 0]:
+                                 unshared(here, 0, (3,)), unshared(here, 3, (3,)), unshared(here, 6, (3,)), reach)
+        if d <= reach and d < best[k - 1, 0]:
             j = k - 1
             while j > 0 and best[j - 1, 0] > d:
                 for x in range(KEPT):

@@ -403,8 +403,12 @@ def _core(kind: int, size: Array, R: Array, c: Array, a: Array, u: Array) -> flo
 
 @njit
 def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int, p1: Array, p2: Array,
-                         n: Array) -> float:
-    """:func:`pair_distance`, also writing the unit normal ``n (3,)`` from geom 1 to geom 2 (``p2 - p1 = d n``)."""
+                         n: Array, cutoff: float) -> float:
+    """:func:`pair_distance`, also writing the unit normal ``n (3,)`` from geom 1 to geom 2 (``p2 - p1 = d n``).
+
+    A pair measured by :func:`~mjkin.kinematics.gjk.gjk` and found farther apart than ``cutoff`` (m; ``np.inf``:
+    never) reads a lower bound of its distance above ``cutoff``, its points and normal unwritten.
+    """
     # views without reference counts (mjkin.jit): each counted view or array passed on cost two atomic updates,
     # and a sphere pair took 0.4 µs, nearly all of it counting
     geoms, rot, pos, p1, p2, n = borrowed((geoms, rot, pos, p1, p2, n))
@@ -436,11 +440,15 @@ def pair_distance_normal(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int,
     elif tb == MESH and (ta == SPHERE or ta == CAPSULE):  # the core against the hull, less the radius
         core = unshared(S, 27, (3,))
         core[0], core[1], core[2] = 0.0, sa[1] if ta == CAPSULE else 0.0, 0.0
-        d = gjk(CAPSULE, core, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb) - sa[0]
+        d = gjk(CAPSULE, core, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb, cutoff + sa[0]) - sa[0]
+        if d > cutoff:
+            return d
         for i in range(3):
             qa[i] += sa[0] * n[i]
     elif ta == ELLIPSOID or tb == ELLIPSOID or ta == CYLINDER or tb == MESH:  # cylinder-cylinder, cylinder-box
-        d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb)
+        d = gjk(ta, sa, Ra, ca, tb, sb, Rb, cb, qa, qb, n, geoms, ga, gb, cutoff)
+        if d > cutoff:
+            return d
     else:  # a sphere or capsule against a sphere, capsule, cylinder or box
         a, u = unshared(S, 27, (3,)), unshared(S, 30, (3,))
         ra = _core(ta, sa, Ra, ca, a, u)
@@ -480,7 +488,7 @@ def pair_distance(geoms: Geoms, rot: Array, pos: Array, g1: int, g2: int, p1: Ar
     Writes the witness points ``p1 (3,)`` on ``g1`` and ``p2 (3,)`` on ``g2`` (world);
     NaN everywhere for a pair it does not compute (see :func:`native`).
     """
-    return pair_distance_normal(geoms, rot, pos, g1, g2, p1, p2, on_stack(3))
+    return pair_distance_normal(geoms, rot, pos, g1, g2, p1, p2, on_stack(3), np.inf)
 
 
 @njit_inline
@@ -522,7 +530,7 @@ def pair_distance_jacobian(kin: Kinematics, geoms: Geoms, rot: Array, pos: Array
     """
     S = on_stack(9)
     P1, P2, n = unshared(S, 0, (1, 3)), unshared(S, 3, (1, 3)), unshared(S, 6, (3,))
-    d = pair_distance_normal(geoms, rot, pos, g1, g2, P1[0], P2[0], n)
+    d = pair_distance_normal(geoms, rot, pos, g1, g2, P1[0], P2[0], n, np.inf)
     if np.isnan(d):
         for k in range(out.shape[0]):
             out[k] = 0.0

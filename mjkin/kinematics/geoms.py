@@ -47,6 +47,8 @@ class Geoms(NamedTuple):
     hull_vert: Array  # (H, 3) hull vertices, each in its geom's frame
     hull_nbr_adr: Index  # (H + 1,) vertex v's neighbours on its hull: hull_nbr[hull_nbr_adr[v]:hull_nbr_adr[v + 1]]
     hull_nbr: Index  # (E,) vertex ids into hull_vert; a hull without them is searched vertex by vertex
+    hull_dir: Index  # (ngeom, DIRS) geom g's hull vertex (an id into hull_vert) farthest along each of
+    # :func:`direction_cell`'s cells' centres, in its own frame: a climb to the farthest along v starts there
 
 
 def geom_arrays(model: mujoco.MjModel) -> Geoms:
@@ -90,52 +92,70 @@ def _mesh_hull(model: mujoco.MjModel, mesh: int) -> tuple[Array, Index, Index]:
     return vert[ids], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), nbr
 
 
-SEEDS = 14  # a hull's first vertices: its farthest along the 6 axis and 8 diagonal directions (a climb starts there)
+CELLS = 8  # a cube face's cells along each side: DIRS = 6 CELLS² directions a hull's farthest vertex is kept for
+DIRS = 6 * CELLS * CELLS
 
 
-def _seeded(vert: Array, adr: Index, nbr: Index) -> tuple[Array, Index, Index]:
-    """A hull (as :func:`_mesh_hull`) with its vertices reordered so that its :data:`SEEDS` first are the farthest
-    along the axes and diagonals (fewer when they repeat), its neighbour lists moved and renumbered to match.
+@njit_inline
+def direction_cell(x: float, y: float, z: float) -> int:
+    """The cell (``0 .. DIRS - 1``) of the direction ``(x, y, z)`` (any length, not 0) on the cube about the origin:
+    its face (the axis of its largest part, signed), then its place on the face in a ``CELLS x CELLS`` grid.
     """  # noqa: D205
-    dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
-                     *([x, y, z] for x in (1, -1) for y in (1, -1) for z in (1, -1))], dtype=np.float64)
-    first = np.array(list(dict.fromkeys(np.argmax(vert @ dirs.T, axis=0).tolist())), dtype=np.int64)
-    rest = np.ones(len(vert), dtype=bool)
-    rest[first] = False
-    order = np.concatenate([first, np.flatnonzero(rest)])
-    new = np.empty(len(vert), dtype=np.int64)
-    new[order] = np.arange(len(vert))
-    count = np.diff(adr)[order]
-    pick = np.repeat(adr[:-1][order], count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
-    return vert[order], np.concatenate([[0], np.cumsum(count)]).astype(np.int64), new[nbr[pick]]
+    ax, ay, az = abs(x), abs(y), abs(z)
+    if ax >= ay and ax >= az:
+        face, m, s, t = 0 if x >= 0.0 else 1, ax, y, z
+    elif ay >= az:
+        face, m, s, t = 2 if y >= 0.0 else 3, ay, z, x
+    else:
+        face, m, s, t = 4 if z >= 0.0 else 5, az, x, y
+    i = min(int((s / m + 1.0) * (0.5 * CELLS)), CELLS - 1)
+    j = min(int((t / m + 1.0) * (0.5 * CELLS)), CELLS - 1)
+    return (face * CELLS + i) * CELLS + j
 
 
-def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index]:
+def cell_centres() -> Array:
+    """The unit directions ``(DIRS, 3)`` through the centres of :func:`direction_cell`'s cells, in its order."""
+    mid = -1.0 + (np.arange(CELLS) + 0.5) * (2.0 / CELLS)
+    s, t = (a.ravel() for a in np.meshgrid(mid, mid, indexing="ij"))
+    one = np.ones(CELLS * CELLS)
+    faces = []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            d = np.empty((CELLS * CELLS, 3))
+            d[:, axis], d[:, (axis + 1) % 3], d[:, (axis + 2) % 3] = sign * one, s, t
+            faces.append(d)
+    d = np.concatenate(faces)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def hulls(model: mujoco.MjModel) -> tuple[Index, Index, Array, Index, Index, Index]:
     """The mesh geoms' convex hulls as :class:`Geoms` keeps them: ``hull_adr``, ``hull_num``, ``hull_vert``,
-    ``hull_nbr_adr``, ``hull_nbr`` (each mesh's hull once, shared by its geoms).
+    ``hull_nbr_adr``, ``hull_nbr``, ``hull_dir`` (each mesh's hull once, shared by its geoms).
     """  # noqa: D205
     n = model.ngeom
     adr, num = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     verts: list[Array] = [np.zeros((0, 3))]
     counts: list[Index] = [np.zeros(0, dtype=np.int64)]
     nbrs: list[Index] = [np.zeros(0, dtype=np.int64)]
-    done: dict[int, tuple[int, int]] = {}
+    done: dict[int, tuple[int, int, Index]] = {}  # mesh: its hull's first vertex, count, farthest along the cells
+    far = np.zeros((n, DIRS), dtype=np.int64)
+    centres = cell_centres()
     total = 0
     for g in range(n):
         mesh = int(model.geom_dataid[g])
         if model.geom_type[g] != MESH or mesh < 0:
             continue
         if mesh not in done:
-            v, a, nb = _seeded(*_mesh_hull(model, mesh))
-            done[mesh] = (total, len(v))
+            v, a, nb = _mesh_hull(model, mesh)
+            done[mesh] = (total, len(v), total + np.argmax(v @ centres.T, axis=0))
             verts.append(v)
             counts.append(np.diff(a))
             nbrs.append(nb + total)
             total += len(v)
-        adr[g], num[g] = done[mesh]
+        adr[g], num[g], far[g] = done[mesh]
     nbr_adr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
     return (adr, num, np.ascontiguousarray(np.concatenate(verts)), nbr_adr,
-            np.ascontiguousarray(np.concatenate(nbrs), dtype=np.int64))
+            np.ascontiguousarray(np.concatenate(nbrs), dtype=np.int64), far)
 
 
 def contact_pairs(tree: Bodies) -> Index:

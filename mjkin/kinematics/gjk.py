@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..runtime.jit import njit, on_stack, unshared, unshared_int64
-from .geoms import BOX, CAPSULE, CYLINDER, MESH, SEEDS, SPHERE, Geoms
+from .geoms import BOX, CAPSULE, CYLINDER, MESH, SPHERE, Geoms, direction_cell
 
 Array = NDArray[np.float64]
 
@@ -65,23 +65,23 @@ def support(kind: int, size: Array, R: Array, c: Array, v: Array, z: Array) -> N
 def hull_support(geoms: Geoms, g: int, R: Array, c: Array, v: Array, z: Array, start: int) -> int:
     """The vertex ``z`` (world) of mesh geom ``g``'s convex hull farthest along ``v`` (world); returns its id.
 
-    Climbs the hull's vertex graph from vertex ``start`` (an id in ``g``'s hull; -1: the farthest of its
-    :data:`~mjkin.kinematics.geoms.SEEDS` first, the farthest along the axes and diagonals) to a vertex no
-    neighbour of which is farther: on a convex hull that is the farthest (a hull without a graph is searched
-    vertex by vertex). Start from the last answer for a direction that changed little.
+    Climbs the hull's vertex graph to a vertex no neighbour of which is farther: on a convex hull that is the
+    farthest (a hull without a graph is searched vertex by vertex). The climb starts from the farther of
+    vertex ``start`` (an id in ``g``'s hull, e.g. the last answer for a direction that changed little; -1:
+    none) and the hull's farthest along the centre of ``v``'s direction cell
+    (:data:`~mjkin.kinematics.geoms.Geoms.hull_dir`), a few edges from the answer.
     """
     lv0 = R[0, 0] * v[0] + R[1, 0] * v[1] + R[2, 0] * v[2]  # v in the geom's frame
     lv1 = R[0, 1] * v[0] + R[1, 1] * v[1] + R[2, 1] * v[2]
     lv2 = R[0, 2] * v[0] + R[1, 2] * v[1] + R[2, 2] * v[2]
     a, n = geoms.hull_adr[g], geoms.hull_num[g]
     V, adr, nbr = geoms.hull_vert, geoms.hull_nbr_adr, geoms.hull_nbr
-    best = start if a <= start < a + n else a
+    best = geoms.hull_dir[g, direction_cell(lv0, lv1, lv2)]
     top = V[best, 0] * lv0 + V[best, 1] * lv1 + V[best, 2] * lv2
-    if best != start:
-        for k in range(a + 1, a + min(n, SEEDS)):
-            x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
-            if x > top:
-                best, top = k, x
+    if a <= start < a + n:
+        x = V[start, 0] * lv0 + V[start, 1] * lv1 + V[start, 2] * lv2
+        if x > top:
+            best, top = start, x
     if adr[a + n] == adr[a]:  # no graph: every vertex
         for k in range(a, a + n):
             x = V[k, 0] * lv0 + V[k, 1] * lv1 + V[k, 2] * lv2
@@ -248,13 +248,15 @@ def _overlap(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: A
 
 @njit
 def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array, cb: Array, p1: Array, p2: Array,
-        n: Array, geoms: Geoms, ga: int, gb: int) -> float:
+        n: Array, geoms: Geoms, ga: int, gb: int, cutoff: float) -> float:
     """Signed distance of two convex geoms (sphere, capsule, ellipsoid, cylinder, box, mesh) by their support points.
 
     Gilbert–Johnson–Keerthi on the Minkowski difference: separated geoms get their distance
     (to :data:`GJK_TOL`) with the closest points ``p1``, ``p2``; overlapping ones
-    :func:`_overlap`'s estimate. ``geoms``, ``ga``, ``gb``: where a mesh's hull is (read for
-    ``ta`` or ``tb`` :data:`MESH` only).
+    :func:`_overlap`'s estimate. Geoms found farther apart than ``cutoff`` (m; ``np.inf``:
+    never) stop there: the value is then a lower bound of the distance above ``cutoff``,
+    ``p1``, ``p2`` and ``n`` are not written. ``geoms``, ``ga``, ``gb``: where a mesh's hull is
+    (read for ``ta`` or ``tb`` :data:`MESH` only).
     """
     S = on_stack(49)
     W, A, B = unshared(S, 0, (4, 3)), unshared(S, 12, (4, 3)), unshared(S, 24, (4, 3))
@@ -276,6 +278,8 @@ def gjk(ta: int, sa: Array, Ra: Array, ca: Array, tb: int, sb: Array, Rb: Array,
         for i in range(3):
             W[k, i] = A[k, i] - B[k, i]
             vw += v[i] * W[k, i]
+        if vw > cutoff * norm:  # the geoms are apart along v by more than the cutoff: a lower bound
+            return vw / norm
         if k > 0 and vv - vw <= GJK_TOL * norm:  # the support no nearer: |v| is within GJK_TOL of the distance
             break
         k = _simplex_closest(W, A, B, lam, k + 1, v)
