@@ -18,8 +18,7 @@ from .kinematics.tree import Tree, bundled_models, load
 from .motion.dataset import retarget_many
 from .motion.retarget import retarget
 from .runtime.parallel import set_threads, threads
-
-__version__ = "0.1.0"
+from .version import __version__ as __version__  # mjkin.__version__
 
 __all__ = [
     "GoalError",

@@ -17,10 +17,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import spatial
 from ..errors import InputError, MjkinIOError, ModelError, UnknownNameError
-from ..runtime import tier
+from ..runtime import files, tier
 from ..runtime.checks import check_array, check_vector
 from . import chain as chains
 from . import qspace
+from .assets import check_named_files
 from .chain import ancestors, chain_of, chain_pose, pose_of, poses_of
 from .com import com_many
 from .distance import distances
@@ -438,13 +439,15 @@ def load(src: str | os.PathLike[str] | mujoco.MjModel | mujoco.MjSpec) -> Tree:
         path = Path(text)
         if not path.exists() and path.suffix == "" and text in bundled_models():
             path = bundled_models()[text]
-        if path.is_dir():
+        if os.path.isdir(path):
             found = sorted(p.name for p in path.glob("*.xml"))[:8]
             raise MjkinIOError(f"{text!r} is a folder, not a model file: give the MJCF/URDF file in it"
                                + (f" ({', '.join(found)})" if found else ""))
-        if not path.is_file():
+        if not os.path.lexists(path):
             hint = ", ".join(bundled_models())
             raise MjkinIOError(f"model file not found: {text!r} (give an MJCF/URDF path or one of: {hint})")
+        files.check_input(path, "model file", files.LIMITS["model"], hint="give the MJCF/URDF file itself")
+        check_named_files(path)
         return Tree.from_model(mujoco.MjModel.from_xml_path(str(path)))
     except (ValueError, mujoco.FatalError) as e:
         msg = " ".join(str(e).split())

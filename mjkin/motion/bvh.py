@@ -17,6 +17,7 @@ units and axes (usually y up).
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,7 @@ Array = NDArray[np.float64]
 CHANNELS = ("xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation")
 END = "_End"  # an End Site is named after its joint with this suffix
 MAX_FRAMES = 100_000_000  # frames a file may hold (over a day at 1000 Hz; 'Frames: 1e300' ended in StopIteration)
+CHUNK = 4096  # frames whose transforms Clip.positions makes at once (16 MB for 30 joints)
 FRAME_TIME = (1e-4, 10.0)  # the Frame Time: a file may give, seconds (10000 to 0.1 frames per second)
 
 
@@ -119,8 +121,17 @@ class Clip:
         return T
 
     def positions(self, frames: slice | NDArray[np.int64] | None = None, rest: bool = False) -> Array:
-        """World positions ``(F, J, 3)`` of every joint and End Site (file units and axes)."""
-        return self.world(frames, rest)[..., :3, 3]
+        """World positions ``(F, J, 3)`` of every joint and End Site (file units and axes).
+
+        Made :data:`CHUNK` frames at a time: every frame's transforms at once took 15x the room of the positions.
+        """
+        if rest:
+            return self.world(rest=True)[..., :3, 3].copy()
+        which = np.arange(self.frames)[slice(None) if frames is None else frames]
+        out = np.empty((*which.shape, len(self.names), 3))
+        for a in range(0, len(which), CHUNK):
+            out[a:a + CHUNK] = self.world(which[a:a + CHUNK])[..., :3, 3]
+        return out
 
 
 def read(path: str | os.PathLike[str]) -> Clip:
@@ -145,20 +156,36 @@ def shown(token: str) -> str:
     return repr(token if len(token) <= SHOWN else token[:SHOWN] + "...")
 
 
+_TOKEN = re.compile(r"\S+")  # whitespace as str.split's
+_BREAK = re.compile(r"\r\n|[\n\r\v\f\x1c-\x1e\x85\u2028\u2029]")  # line breaks as str.splitlines's
+
+
+def _line(text: str, at: int) -> int:
+    """The line number (from 1) of character ``at`` of ``text``."""
+    return 1 + sum(1 for _ in _BREAK.finditer(text, 0, at))
+
+
 class _Tokens:
-    """Whitespace tokens of the text, each with its line number."""
+    """The whitespace tokens of the text, read one at a time (the motion block is never split into tokens)."""
 
     def __init__(self, text: str, source: str) -> None:
-        self.items = [(tok, n) for n, line in enumerate(text.splitlines(), 1) for tok in line.split()]
-        self.i = 0
+        self.text = text
         self.source = source
+        self._tokens = _TOKEN.finditer(text)
+        self._next = next(self._tokens, None)
+        self._last: re.Match[str] | None = None  # the token taken last
+
+    @property
+    def end(self) -> int:
+        """Where the last token taken ends in the text (0 before any)."""
+        return self._last.end() if self._last else 0
 
     def error(self, what: str) -> BvhError:
-        line = self.items[min(self.i, len(self.items) - 1)][1] if self.items else 1
-        return BvhError(f"BVH {self.source!r} line {line}: {what}")
+        at = self._next or self._last
+        return BvhError(f"BVH {self.source!r} line {_line(self.text, at.start()) if at else 1}: {what}")
 
     def peek(self) -> str | None:
-        return self.items[self.i][0] if self.i < len(self.items) else None
+        return self._next.group() if self._next else None
 
     def take(self, expected: str | None = None, what: str = "more") -> str:
         """The next token; with ``expected``, it must be that word (any case)."""
@@ -167,39 +194,36 @@ class _Tokens:
             raise self.error(f"file ends early; expected {expected or what}")
         if expected is not None and tok.upper() != expected.upper():
             raise self.error(f"expected {expected!r}, got {shown(tok)}")
-        self.i += 1
+        self._last, self._next = self._next, next(self._tokens, None)
         return tok
 
     def rest_of_line(self, what: str) -> str:
         """The tokens left on the current token's line, joined by spaces (a name may hold spaces), without ``{``."""
-        if self.i >= len(self.items):
+        if self._next is None:
             raise self.error(f"file ends early; expected {what}")
-        line = self.items[self.i][1]
-        words = []
-        while self.i < len(self.items) and self.items[self.i][1] == line and self.items[self.i][0] != "{":
-            words.append(self.items[self.i][0])
-            self.i += 1
+        words = [self.take()] if self._next.group() != "{" else []
+        while (self._next is not None and self._next.group() != "{" and words
+               and not _BREAK.search(self.text, self.end, self._next.start())):
+            words.append(self.take())
         if not words:
             raise self.error(f"expected {what}")
         return " ".join(words)
 
     def number(self, what: str, between: tuple[float, float] | None = None, unit: str = "") -> float:
         """The next token as a finite number; with ``between``, one in that closed range (of ``unit``)."""
-        if self.peek() is None:
+        tok = self.peek()
+        if tok is None:
             raise self.error(f"file ends early; expected {what}")
-        tok = self.take()
         try:
             value = float(tok)
         except ValueError:
-            self.i -= 1
             raise self.error(f"expected a number ({what}), got {shown(tok)}") from None
         if between is not None and not between[0] <= value <= between[1]:  # nan and inf fail too
-            self.i -= 1
             raise self.error(f"{what} must be a finite number of {unit} from {between[0]:g} to {between[1]:g}, "
                              f"got {shown(tok)}")
         if not np.isfinite(value):
-            self.i -= 1
             raise self.error(f"{what} must be finite, got {shown(tok)}")
+        self.take()
         return value
 
 
@@ -274,20 +298,7 @@ def parse(text: str, source: str = "<string>") -> Clip:
     frame_time = tk.number("Frame Time:", FRAME_TIME, "seconds")
     counts = np.array([len(c) for c in channels], dtype=np.int64)
     n_cols = int(counts.sum())
-    data = [t for t, _ in tk.items[tk.i:]]
-    F = int(n_frames)
-    if len(data) < F * n_cols:
-        have = len(data) // n_cols if n_cols else 0
-        raise BvhError(f"BVH {source!r}: 'Frames: {F}' with {n_cols} channels needs {F * n_cols} numbers, "
-                       f"found {len(data)} (about {have} frames)")
-    try:
-        values = np.array(data[: F * n_cols], dtype=np.float64).reshape(F, n_cols)
-    except ValueError:
-        bad = next((t for t in data if not _is_number(t)), None)
-        if bad is None:
-            raise BvhError(f"BVH {source!r}: cannot read {F} frames of {n_cols} channel values") from None
-        tk.i += data.index(bad)
-        raise tk.error(f"expected a channel value (a number), got {shown(bad)}") from None
+    values = _values(text, tk.end, int(n_frames), n_cols, source)
     if not np.isfinite(values).all():
         raise BvhError(f"BVH {source!r}: channel values must be finite numbers (found nan or inf)")
     columns = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
@@ -296,12 +307,57 @@ def parse(text: str, source: str = "<string>") -> Clip:
                 ends=np.array(ends, dtype=np.bool_), source=source)
 
 
-def _is_number(token: str) -> bool:
+_LINE = re.compile(r"[^\n\r\v\f\x1c-\x1e\x85\u2028\u2029]+")  # a line's text, as str.splitlines's
+
+
+def _values(text: str, start: int, F: int, n_cols: int, source: str) -> Array:
+    """The channel values ``(F, n_cols)``: the first ``F * n_cols`` numbers of ``text`` from character ``start``.
+
+    Parsed in bulk by numpy (8 bytes a value beside the text); a block numpy cannot read whole (a word that is
+    no number, non-ASCII spaces, words after the last frame) is read again a line at a time, to its first word
+    that is no number (named with its line) or its last value needed.
+
+    Raises:
+        BvhError: fewer numbers than needed, or a word that is no number among them.
+    """
+    need = F * n_cols
     try:
-        float(token)
+        flat = np.fromstring(text[start:], sep=" ")
+    except ValueError:
+        flat = _values_by_line(text, start, need, source)
+    if flat.size < need:
+        have = flat.size // n_cols if n_cols else 0
+        raise BvhError(f"BVH {source!r}: 'Frames: {F}' with {n_cols} channels needs {need} numbers, "
+                       f"found {flat.size} (about {have} frames)")
+    return (flat if flat.size == need else flat[:need].copy()).reshape(F, n_cols)
+
+
+def _values_by_line(text: str, start: int, need: int, source: str) -> Array:
+    """:func:`_values`'s numbers from ``start``, read a line (or else a word) at a time, at most ``need``."""
+    parts, have = [], 0
+    for line in _LINE.finditer(text, start):
+        if have >= need:
+            break
+        try:
+            part = np.fromstring(line.group(), sep=" ")
+        except ValueError:
+            words = list(_TOKEN.finditer(line.group()))
+            bad = next((w for w in words if not _is_number(w.group())), None)
+            if bad is not None and have + words.index(bad) < need:
+                raise BvhError(f"BVH {source!r} line {_line(text, line.start())}: expected a channel value (a "
+                               f"number), got {shown(bad.group())}") from None
+            part = np.array([float(w.group()) for w in words[: words.index(bad) if bad else None]])
+        parts.append(part)
+        have += part.size
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _is_number(token: str) -> bool:
+    """Whether ``token`` is one number as the channel values are read (numpy's; not Python's ``1_0``)."""
+    try:
+        return np.fromstring(token, sep=" ").size == 1
     except ValueError:
         return False
-    return True
 
 
 UNITS = ((0.5, 3.0, 1.0, "m"), (3.0, 40.0, 1.0 / 12.0, "ft"), (40.0, 110.0, 0.0254, "in"),

@@ -63,6 +63,7 @@ from ..runtime.checks import check_choice, check_count
 from ..runtime.files import LIMITS, as_path, kind_of, read_input_text, remove_stale_temps, write_text, write_with
 from ..runtime.parallel import set_threads
 from ..runtime.progress import track
+from ..version import __version__
 from . import bvh
 from .clips import CLIP_SUFFIXES, read_clip
 from .retarget import MAX_ERROR, check_max_error, read_mapping, report, retarget, verdict
@@ -164,8 +165,6 @@ def made_from(tree: Tree, options: dict[str, Any], body_model: str | None) -> di
     filled in, as JSON with sorted keys (a scene by its compiled model's digest, an ``.npz`` clip's body model by
     its file's; not those of :data:`NOT_MADE_FROM`), and ``mjkin_version``.
     """
-    from .. import __version__
-
     bound = OPTIONS.bind(None, tree, **options)
     bound.apply_defaults()
     made = {k: v for k, v in bound.arguments.items() if k not in NOT_MADE_FROM}

@@ -68,6 +68,9 @@ Array = NDArray[np.float64]
 KEYS = ("pelvis", "head", "left_wrist", "right_wrist", "left_ankle", "right_ankle")  # in Trajectory.targets
 SCALE = (1e-6, 1e6)  # metres per BVH unit a clip may be given (micrometres to thousands of kilometres)
 MAX_SPEED = 10.0  # rad/s (m/s) per dof when the caller gives none: MJCF has no joint speed limits
+# The most frames of a clip retargeted at once: every frame's targets and goals are held (~20 kB a frame, 2 GB here;
+# a 1e6-frame clip, 13 MB of BVH, ran out of memory). 14 minutes at 120 Hz; AMASS's longest clips are far shorter.
+MAX_FRAMES = 100_000
 # Each frame is one warm-started solve of MAX_ITERS iterations at most, all goals in one priority level (a second
 # level costs a projection per iteration: 1.7-2x the time), the feet's toe and heel points weighted FOOT_WEIGHT
 # against the body's goals (they slide a few micrometres per frame), REST_WEIGHT toward the previous frame's pose
@@ -520,10 +523,14 @@ def retarget(source: str | os.PathLike[str] | bvh.Clip, tree: Tree,
         key-point targets (:data:`KEYS`; the feet's as held).
 
     Raises:
-        MjkinIOError, InputError: unreadable clip, body model or scene, roles that cannot be mapped, bad options.
+        MjkinIOError, InputError: unreadable clip, body model or scene, roles that cannot be mapped, bad options,
+            a clip of over :data:`MAX_FRAMES` frames.
         ModelError: a scene MuJoCo cannot compile.
     """
     clip = source if isinstance(source, bvh.Clip) else read_clip(source, body_model)
+    if clip.frames > MAX_FRAMES:
+        raise InputError(f"clip {clip.source!r} has {clip.frames:,} frames; mjkin retargets at most {MAX_FRAMES:,} "
+                         "frames of a clip (each frame's targets are held in memory): cut it into shorter clips")
     if mapping is not None and not isinstance(mapping, dict):
         mapping = read_mapping(mapping)
     try:

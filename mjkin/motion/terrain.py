@@ -21,13 +21,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InputError, MjkinIOError, ModelError
+from ..errors import InputError, ModelError
+from ..kinematics.assets import check_named_files
 from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, MESH, PLANE, SPHERE
 from ..kinematics.tree import Tree
 from ..runtime import files
@@ -81,10 +81,10 @@ class Terrain:
         text = os.fspath(source)
         if text.lstrip().startswith("<"):
             return _build(_strip(_spec(text)), TEXT_SOURCE)
-        path = Path(text)
-        if not path.is_file():
-            raise MjkinIOError(f"scene file not found: {text!r} (give an MJCF file whose world geoms are the ground)")
-        return _load_file(path)
+        files.check_input(text, "scene file", files.LIMITS["model"],
+                          hint="give an MJCF file whose world geoms are the ground")
+        check_named_files(text, "scene file")
+        return _load_file(text)
 
     def _over(self, lo: Array, hi: Array) -> NDArray[np.bool_]:
         """``(N, G)``: which ground geoms' world boxes overlap the boxes from ``lo (N, 2)`` to ``hi (N, 2)`` across."""

@@ -206,6 +206,7 @@ LIMITS = {
     "json": 256 * MB,  # trajectories, journals, poses
     "mapping": 1 * MB,  # a few dozen names
     "report": 256 * MB,  # report.csv: ~0.5 kB a clip
+    "model": 256 * MB,  # an MJCF/URDF file (MuJoCo reads it): a few kB, more with meshes written inline
 }
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
@@ -269,6 +270,19 @@ def open_input(path: str | os.PathLike[str], what: str, limit: int, error: type[
         yield f
 
 
+def check_input(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,
+                hint: str = "give the file itself") -> None:
+    """Check that ``path`` is a regular file of at most ``limit`` bytes that can be read, reading none of it.
+
+    For a file another library reads itself (MuJoCo a model or a scene): a FIFO given there would hang it.
+
+    Raises:
+        error: (a :class:`MjkinIOError`) as :func:`open_input`'s.
+    """
+    with open_input(path, what, limit, error, hint):
+        pass
+
+
 def read_input(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,
                hint: str = "give the file itself") -> bytes:
     """The bytes of the regular file at ``path``, at most ``limit`` (see :func:`open_input`).
@@ -281,12 +295,26 @@ def read_input(path: str | os.PathLike[str], what: str, limit: int, error: type[
     """
     with open_input(path, what, limit, error, hint) as f:
         try:
-            data = f.read(limit + 1)
+            data = _read_at_most(f, limit + 1, os.fstat(f.fileno()).st_size)
         except OSError as e:
             raise error(f"cannot read {what} {os.fspath(path)!r}: {e.strerror or e}") from None
     if len(data) > limit:
         raise error(_too_big(what, repr(os.fspath(path)), limit, hint))
     return data
+
+
+def _read_at_most(f: io.BufferedReader, most: int, size: int) -> bytes:
+    """Up to ``most`` bytes of ``f``, a file that says it holds ``size`` (a guess: /proc's say 0, a file may grow).
+
+    Read in one piece of ``size`` and a byte when that is right: a buffer of ``most`` bytes would be allocated
+    whole, however small the file.
+    """
+    chunks = [f.read(min(size + 1, most))]
+    have = len(chunks[0])
+    while chunks[-1] and have < most:
+        chunks.append(f.read(min(MB, most - have)))
+        have += len(chunks[-1])
+    return chunks[0] if len(chunks) <= 2 and not chunks[-1] else b"".join(chunks)
 
 
 def read_input_text(path: str | os.PathLike[str], what: str, limit: int, error: type[MjkinIOError] = MjkinIOError,

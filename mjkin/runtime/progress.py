@@ -3,11 +3,13 @@
 The first run compiles mjkin's kernels (minutes on a small machine; later
 runs load them from the disk cache). numba announces every real compilation
 (a cache miss, never a cache hit) as a ``"numba:compile"`` event; the first such
-event prints :data:`COMPILING` once on stderr, on a terminal or not, so a run
+event prints :data:`COMPILING` on stderr, on a terminal or not, so a run
 that sits still for minutes (in CI, or piped into ``tee``) is explained: from the
 CLI as ``mjkin: ...``, from Python through the ``mjkin`` logger (a warning, which
-Python prints on stderr unless logging is set up otherwise). On a terminal, a
-compile that lasts over 5 s shows its seconds as it goes. Bars show no rate or
+Python prints on stderr unless logging is set up otherwise). A compile that starts
+:data:`QUIET` seconds or more after that line says so again (a script's second
+long step compiles kernels of its own). On a terminal, from the CLI or from Python,
+a compile that lasts over 5 s shows its seconds as it goes. Bars show no rate or
 ETA until their first item is done, since that item may include the compilation
 and would make the estimate for the rest hours long; then the clock starts afresh.
 """
@@ -15,6 +17,7 @@ and would make the estimate for the rest hours long; then the clock starts afres
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import threading
 import time
@@ -25,6 +28,7 @@ T = TypeVar("T")
 
 COMPILING = "compiling kernels this run needs now (cached for later runs; a minute or two)..."
 TICK = 5.0  # seconds of compiling after which a terminal shows the time it has taken
+QUIET = 60.0  # seconds after the compile notice past which a compile that starts says so again
 
 _enabled = False
 _said: set[str] = set()  # the notices printed in this process
@@ -33,6 +37,11 @@ _said: set[str] = set()  # the notices printed in this process
 def shown() -> bool:
     """Progress is enabled (the CLI) and stderr is a terminal."""
     return _enabled and sys.stderr.isatty()
+
+
+def _ticking() -> bool:
+    """A long compile shows its seconds: stderr is a terminal, and the CLI or the ``mjkin`` logger speaks there."""
+    return sys.stderr.isatty() and (_enabled or logging.getLogger("mjkin").isEnabledFor(logging.WARNING))
 
 
 def notice(text: str) -> bool:
@@ -72,6 +81,7 @@ class _CompileListener:
     def __init__(self) -> None:
         self.depth = 0
         self.stop: threading.Event | None = None
+        self.said = -math.inf  # time.monotonic() of the last notice
 
     def on_start(self, fn: Any) -> None:
         if (getattr(fn, "__module__", "") or "").startswith("numba"):  # not numba's own helpers (0.1 s, warm too)
@@ -79,8 +89,11 @@ class _CompileListener:
         self.depth += 1
         if self.depth > 1:
             return
-        warn(COMPILING)
-        if shown():
+        if COMPILING not in _said or time.monotonic() - self.said >= QUIET:
+            self.said = time.monotonic()
+            _said.discard(COMPILING)
+            warn(COMPILING)
+        if _ticking():
             self.stop = threading.Event()
             threading.Thread(target=_ticker, args=(self.stop, getattr(fn, "__name__", "")), daemon=True).start()
 

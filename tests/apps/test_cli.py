@@ -257,6 +257,57 @@ def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys
         one_line_exit_2(argv, f"{what} {str(odd)!r} {told}", capsys, tmp_path, keep=["a.bvh", "odd.json"])
 
 
+@pytest.mark.parametrize("kind", ["/dev/zero", "fifo"])
+@pytest.mark.parametrize("given", ["ik model", "retarget --model", "retarget --scene"])
+def test_a_model_or_scene_that_is_no_regular_file_is_one_line(given, kind, capsys, tmp_path, monkeypatch):
+    """A FIFO as the model or the scene was said to be "not found" (MuJoCo, which reads it, would wait for ever)."""
+    monkeypatch.chdir(tmp_path)
+    clip = tmp_path / "a.bvh"
+    from test_retarget import crouch_bvh
+
+    clip.write_text(crouch_bvh(4))
+    odd = tmp_path / "odd.xml"
+    if kind == "fifo":
+        os.mkfifo(odd)
+    else:
+        odd.symlink_to("/dev/zero")
+    argv, what, hint = {
+        "ik model": (["ik", str(odd), "--frame", "ee", "--pos", "0.3,0,0.5"], "model file",
+                     "give the MJCF/URDF file itself"),
+        "retarget --model": (["retarget", str(clip), "--model", str(odd), "-o", "a.json"], "model file",
+                             "give the MJCF/URDF file itself"),
+        "retarget --scene": (["retarget", str(clip), "--model", "primate", "--scene", str(odd), "-o", "a.json"],
+                             "scene file", "give an MJCF file whose world geoms are the ground")}[given]
+    told = {"/dev/zero": "a character device", "fifo": "a FIFO (named pipe)"}[kind]
+    with no_hang(60):
+        one_line_exit_2(argv, f"{what} {str(odd)!r} is {told}, not a regular file; {hint}", capsys, tmp_path,
+                        keep=["a.bvh", "odd.xml"])
+
+
+@pytest.mark.parametrize("named", ["mesh", "include"])
+@pytest.mark.parametrize("given", ["model", "scene"])
+def test_a_file_a_model_names_that_is_a_fifo_is_one_line(given, named, capsys, tmp_path, monkeypatch):
+    """MuJoCo reads a model's meshes and includes itself: a FIFO among them hung it for ever."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "parts").mkdir()
+    os.mkfifo(tmp_path / "parts" / "odd")
+    inside = ('<asset><mesh name="m" file="odd"/></asset><worldbody><geom type="mesh" mesh="m"/></worldbody>'
+              if named == "mesh" else '<include file="parts/odd"/><worldbody/>')
+    compiler = '<compiler meshdir="parts"/>' if named == "mesh" else ""
+    (tmp_path / "m.xml").write_text(f"<mujoco>{compiler}{inside}</mujoco>")
+    argv = ["info", "m.xml"] if given == "model" else \
+        ["retarget", "a.bvh", "--model", "primate", "--scene", "m.xml", "-o", "a.json"]
+    if given == "scene":
+        from test_retarget import crouch_bvh
+
+        (tmp_path / "a.bvh").write_text(crouch_bvh(4))
+    name = "odd" if named == "mesh" else "parts/odd"
+    with no_hang(60):
+        one_line_exit_2(argv, f"{given} file 'm.xml' names {name!r} ({named}), which is a FIFO (named pipe), not a "
+                        "regular file; give the file itself", capsys, tmp_path,
+                        keep=["m.xml", "parts"] + (["a.bvh"] if given == "scene" else []))
+
+
 def test_script_with_the_format_but_no_keys(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "t.json").write_text('{"format": "mjkin-trajectory"}')

@@ -4,6 +4,7 @@ units, one-line errors; the two shared clips."""
 from __future__ import annotations
 
 import os
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +112,54 @@ def test_malformed_files_are_one_line_errors(edit: tuple[str, str], message: str
         bvh.parse(small().replace(*edit), "bad.bvh")
     assert "\n" not in str(e.value) and "bad.bvh" in str(e.value)
     assert isinstance(e.value, MjkinError)
+
+
+def test_a_bad_channel_value_names_its_line() -> None:
+    text = small().replace("1 2 3 90 0 0 90 0 0", "1 2 3 90 0 0 90 1.5.5 0")
+    with pytest.raises(bvh.BvhError) as e:
+        bvh.parse(text, "bad.bvh")
+    assert str(e.value) == "BVH 'bad.bvh' line 20: expected a channel value (a number), got '1.5.5'"
+
+
+def test_odd_spaces_line_ends_and_words_after_the_last_frame_read_as_before() -> None:
+    """The values are read in bulk, and again a line at a time when the bulk read stops: the same numbers."""
+    text = small().replace("1 2 3 90 0 0 90 0 0", "1\u00a02 3 90 0 0\r\n90\u20030 0").rstrip() + " end of clip\n"
+    clip = bvh.parse(text)
+    np.testing.assert_array_equal(clip.values, [[1, 2, 3, 0, 0, 0, 0, 0, 0], [1, 2, 3, 90, 0, 0, 90, 0, 0]])
+
+
+def test_parsing_takes_a_few_times_the_files_size(tmp_path: Path) -> None:
+    """Each value was a Python float in a list of tokens: ~30x the file's size in memory; now they are read in bulk."""
+    values = np.round(np.random.default_rng(0).uniform(-180, 180, (20_000, 9)), 4)
+    path = tmp_path / "long.bvh"
+    path.write_text(small().split("MOTION")[0] + "MOTION\nFrames: 20000\nFrame Time: 0.01\n"
+                    + "\n".join(" ".join(f"{v:.4f}" for v in row) for row in values) + "\n")
+    tracemalloc.start()
+    try:
+        clip = bvh.read(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(clip.values, values)
+    assert peak < 5 * path.stat().st_size  # the text, its motion block, the values (main: 27x)
+
+
+def test_positions_of_a_long_clip_take_little_more_room_than_themselves(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every frame's (J, 4, 4) transforms were made at once: 15x the room of the positions (1.3 GB for 160k frames)."""
+    monkeypatch.setattr(bvh, "CHUNK", 256, raising=False)  # this clip is as long as 80 of them
+    F = 80 * 256 + 5
+    angles = np.random.default_rng(1).uniform(-90, 90, (F, 9))
+    clip = bvh.parse(small().split("MOTION")[0] + f"MOTION\nFrames: {F}\nFrame Time: 0.01\n"
+                     + "\n".join(" ".join(map(str, row)) for row in angles))
+    tracemalloc.start()
+    try:
+        p = clip.positions()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 * p.nbytes
+    np.testing.assert_array_equal(p, clip.world()[..., :3, 3])
+    np.testing.assert_array_equal(clip.positions(np.array([7, 3])), p[[7, 3]])
 
 
 @pytest.mark.parametrize("bad", ["0", "-0.0083333", "nan", "inf", "1e-320", "11"])

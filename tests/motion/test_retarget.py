@@ -4,6 +4,7 @@ a crouch written here (feet fixed by construction), the shared clips, the comman
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from mjkin.apps.cli import run
 from mjkin.errors import InputError
 from mjkin.goals import HalfSpace
 from mjkin.motion import Trajectory, bvh
-from mjkin.motion.retarget import plan, report, source_mapping
+from mjkin.motion.retarget import MAX_FRAMES, plan, report, source_mapping
 
 MOCAP = mocap_dir() or Path("../shared/mocap")  # found as the benchmarks find them (also from a worktree)
 G1 = (shared_models_dir() or Path("../shared/models")) / "unitree_g1" / "g1.xml"
@@ -205,6 +206,24 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
 
 
 @need_mocap
+def test_a_clip_of_over_max_frames_is_refused_before_any_work(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 1e6-frame clip (13 MB of BVH) raised MemoryError while its targets were laid out."""
+    hierarchy = crouch_bvh(2).split("MOTION")[0].replace("CHANNELS 3 Zrotation Xrotation Yrotation", "CHANNELS 0")
+    path = tmp_path / "long.bvh"
+    frames = MAX_FRAMES + 1
+    path.write_text(hierarchy + f"MOTION\nFrames: {frames}\nFrame Time: 0.0083333\n" + "0 96 0 0 0 0\n" * frames)
+    monkeypatch.setattr("mjkin.motion.retarget.plan", lambda *a, **k: pytest.fail("planned before the check"))
+    told = f"clip {str(path)!r} has {frames:,} frames; mjkin retargets at most {MAX_FRAMES:,} frames of a clip"
+    with pytest.raises(InputError, match="^" + re.escape(told)):
+        mjkin.retarget(path, mjkin.load("primate"))
+    assert run(["retarget", str(path), "--model", "primate", "-o", str(tmp_path / "long.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"mjkin: error: {told}") and err.count("\n") == 1
+    [row] = mjkin.retarget_many([path], "primate", tmp_path / "out")
+    assert row["status"].startswith(told)
+
+
 def test_command_line_scale_moves_the_root_proportionally(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     travel, said = {}, {}
     for scale in ("0.01", "0.005"):

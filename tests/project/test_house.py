@@ -194,3 +194,25 @@ def test_no_module_imports_another_modules_private_names():
                           if alias.name.startswith("_") and not (ROOT / (node.module or "").replace(".", "/")
                                                                   / alias.name).with_suffix(".pyi").exists()]
     assert not found, found
+
+
+def test_no_module_imports_the_package_root():
+    """``mjkin/__init__.py`` imports the whole library: a module that imports a name from it runs back up (issue 54:
+    ``motion.dataset`` took ``__version__`` from it; it lives in ``mjkin/version.py``). Submodules may be named.
+    """  # noqa: D205
+    found = []
+    for path in sorted((ROOT / "mjkin").rglob("*.py")):
+        package = list(path.relative_to(ROOT).parts[:-1])
+        if path == ROOT / "mjkin" / "__init__.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                found += [f"{path.relative_to(ROOT)}: import mjkin" for a in node.names if a.name == "mjkin"]
+            elif isinstance(node, ast.ImportFrom):
+                base = package[: len(package) - node.level + 1] if node.level else []
+                if ".".join(base + ([node.module] if node.module else [])) == "mjkin":
+                    found += [f"{path.relative_to(ROOT)}: {a.name} from mjkin" for a in node.names
+                              if not ((ROOT / "mjkin" / a.name).with_suffix(".py").exists()
+                                      or (ROOT / "mjkin" / a.name).is_dir())]
+    assert not found, found
+    assert mjkin.__version__ == mjkin.version.__version__

@@ -65,8 +65,11 @@ def test_numbas_own_helpers_compiling_give_no_notice(terminal):
     """numba compiles small helpers of its own in a warm run (an array view, 0.1 s): not "compiling kernels"."""
     terminal = terminal()
     for module in ("numba.np.arrayobj", "mjkin.kinematics.fk"):
-        progress.compile_started(type("F", (), {"__module__": module}))  # as numba_private calls it
+        helper = type("F", (), {"__module__": module})
+        progress.compile_started(helper)  # as numba_private calls it
         assert terminal.getvalue().count(progress.COMPILING) == (module == "mjkin.kinematics.fk")
+        progress.compile_ended(helper)
+    assert progress._listener.stop is None  # no ticker left counting into the next test's stderr
 
 
 def test_the_notice_prints_off_a_terminal_too_but_no_bar(terminal, monkeypatch):
@@ -103,6 +106,48 @@ def test_from_python_the_notice_goes_to_the_mjkin_logger_once_and_no_bar_is_draw
     assert terminal.getvalue() == ""
     assert list(progress.track(range(4), "quiet")) == [0, 1, 2, 3]
     assert terminal.getvalue() == ""
+
+
+def test_a_compile_a_minute_after_the_notice_says_so_again(terminal, caplog, monkeypatch):
+    """The retargeting guide's retarget_many block compiled for minutes in silence: its first block had said so once."""
+    terminal = terminal()
+    progress.enable(False)
+    now = [1000.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(progress._listener, "said", -float("inf"))
+    with caplog.at_level("WARNING", logger="mjkin"):
+        fresh_kernel()(1)
+        now[0] += progress.QUIET / 2
+        fresh_kernel()(2)  # the same stretch of compiling: no second line
+        now[0] += progress.QUIET
+        fresh_kernel()(3)
+    assert [r.getMessage() for r in caplog.records if r.name == "mjkin"] == [f"mjkin: {progress.COMPILING}"] * 2
+
+
+def test_a_cold_cache_says_it_compiles_from_a_plain_script_too(tmp_path):
+    """A script's compile here (retarget_many's; MJKIN_COMPILE=wait) prints the line with no logging set up."""
+    from mjkin.apps.bench.startup import fresh_copy
+
+    root = fresh_copy(tmp_path)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(PYTHONPATH=str(root), XDG_CACHE_HOME=str(tmp_path / "xdg"), MJKIN_COMPILE="wait")
+    script = "import mjkin; print(mjkin.load('planar_2link').pose([0.1, 0.2], 'tip')[0, 3])"
+    cold = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, cwd=root)
+    assert cold.returncode == 0 and cold.stderr.startswith(f"mjkin: {progress.COMPILING}\n"), cold.stderr
+
+
+def test_from_python_a_long_compile_shows_its_seconds_on_a_terminal(terminal, monkeypatch):
+    """The CLI showed a long compile's seconds on a terminal; a script in a terminal sat silent."""
+    from types import SimpleNamespace
+
+    terminal = terminal()
+    progress.enable(False)
+    monkeypatch.setattr(progress, "TICK", 0.0)
+    solve = SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve")
+    progress.compile_started(solve)  # as numba_private calls it
+    stop = progress._listener.stop
+    progress.compile_ended(solve)
+    assert stop is not None and stop.is_set()
 
 
 def test_a_long_compile_shows_its_seconds_on_a_terminal(terminal, monkeypatch):
