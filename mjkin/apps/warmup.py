@@ -20,13 +20,12 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
-from numba.core.dispatcher import Dispatcher
 
 from .. import goals as G
 from ..ik import solve
 from ..ik.compiled import PREFIX
 from ..kinematics.tree import Tree, load
-from ..runtime import progress
+from ..runtime import numba_private, progress
 
 
 def _kinematics(chain: Tree, figure: Tree) -> None:
@@ -71,7 +70,7 @@ def compilations() -> int:
     return sum(sum(kernel.stats.cache_misses.values())
                for name, module in list(sys.modules.items())
                if name == "mjkin" or name.startswith(("mjkin.", PREFIX))
-               for kernel in vars(module).values() if isinstance(kernel, Dispatcher))
+               for kernel in vars(module).values() if numba_private.is_kernel(kernel))
 
 
 def run_group(name: str) -> int:

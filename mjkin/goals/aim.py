@@ -9,7 +9,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import GoalError
-from ..runtime.jit import matvec3, njit_ir_inline
+from ..kinematics.mat3 import matvec3
+from ..runtime.jit import njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, point, unit
 from .compiled import skew_times
 

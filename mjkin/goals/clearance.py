@@ -22,7 +22,8 @@ from ..kinematics.geoms import (
     near_pairs,
 )
 from ..runtime.checks import check_count
-from ..runtime.jit import njit, njit_ir_inline, on_stack, unshared
+from ..runtime.jit import njit, njit_ir_inline
+from ..runtime.numba_ext import on_stack, unshared
 from .base import METRES, Array, Goal, Units, number
 from .compiled import owned
 

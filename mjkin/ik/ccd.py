@@ -25,10 +25,12 @@ from numpy.typing import NDArray
 from ..errors import GoalError
 from ..goals import Position, Program
 from ..kinematics.fk import fk_scratch
+from ..kinematics.mat3 import matvec3
 from ..kinematics.qspace import BALL, HINGE, SLIDE, quat_angle_clip, quat_turn
 from ..kinematics.tree import Tree
 from ..runtime.checks import check_count
-from ..runtime.jit import matvec3, monotonic_ns, njit
+from ..runtime.jit import njit
+from ..runtime.numba_ext import monotonic_ns
 from ..runtime.parallel import parallel_chunks
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, fk_into

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..runtime import tier
 from ..runtime.checks import check_count, check_flag, check_number
-from ..runtime.jit import entry
+from ..runtime.numba_private import entry
 from ..runtime.parallel import parallel_chunks
 from . import kernel
 from .compiled import kernels

@@ -50,7 +50,8 @@ from mjkin.ik.loop_shared import correct_hard, inward, loop_scratch, stack_activ
 from mjkin.ik.packed import Packed
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
-from mjkin.runtime.jit import borrowed, borrowed_fields, keep_alive, monotonic_ns, njit, njit_inline, njit_ir_inline
+from mjkin.runtime.jit import njit, njit_inline, njit_ir_inline
+from mjkin.runtime.numba_ext import borrowed, borrowed_fields, keep_alive, monotonic_ns
 
 if TYPE_CHECKING:
     from mjkin.goals.program import Program

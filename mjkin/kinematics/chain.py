@@ -47,7 +47,9 @@ from numba import carray, types
 from numpy.typing import NDArray
 
 from ..runtime import tier
-from ..runtime.jit import cfunc, entry, njit_gil, njit_inline, on_stack, unshared, unshared_int64
+from ..runtime.jit import cfunc, njit_gil, njit_inline
+from ..runtime.numba_ext import on_stack, unshared, unshared_int64
+from ..runtime.numba_private import entry
 from .fk import Bodies, fk_kernel_in, frame_world, poses_kernel
 
 Array = NDArray[np.float64]

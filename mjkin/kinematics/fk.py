@@ -24,7 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..runtime import tier
-from ..runtime.jit import axis_angle, njit, njit_inline, quat_to_mat
+from ..runtime.jit import njit, njit_inline
+from .mat3 import axis_angle, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE, Joints
 
 Array = NDArray[np.float64]

@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..runtime.jit import borrowed, njit, njit_inline, on_stack, unshared
+from ..runtime.jit import njit, njit_inline
+from ..runtime.numba_ext import borrowed, on_stack, unshared
 
 if TYPE_CHECKING:
     from .fk import Bodies

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..runtime.jit import njit, on_stack, unshared, unshared_int64
+from ..runtime.jit import njit
+from ..runtime.numba_ext import on_stack, unshared, unshared_int64
 from .geoms import BOX, CAPSULE, CYLINDER, MESH, SPHERE, Geoms, direction_cell
 
 Array = NDArray[np.float64]

@@ -22,9 +22,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sized
-from typing import TypeVar
-
-from numba.core import event
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -65,16 +63,27 @@ def compiling_notice() -> bool:
     return notice(COMPILING)
 
 
-class _CompileListener(event.Listener):
-    """Says that numba compiles (once), and on a terminal how long the outermost compile has taken so far."""
+def warn(text: str) -> None:
+    """:func:`notice` of ``text``, or a warning of the ``mjkin`` logger where notices are off (used from Python).
+
+    Once per process either way.
+    """
+    if _enabled:
+        notice(text)
+    elif text not in _said:
+        _said.add(text)
+        logging.getLogger("mjkin").warning("mjkin: %s", text)
+
+
+class _CompileListener:
+    """Says that numba compiles (once), and on a terminal how long the outermost compile of ``fn`` has taken."""
 
     def __init__(self) -> None:
         self.depth = 0
         self.stop: threading.Event | None = None
         self.said = -math.inf  # time.monotonic() of the last notice
 
-    def on_start(self, event: event.Event) -> None:
-        fn = getattr(event.data.get("dispatcher"), "py_func", None)
+    def on_start(self, fn: Any) -> None:
         if (getattr(fn, "__module__", "") or "").startswith("numba"):  # not numba's own helpers (0.1 s, warm too)
             return
         self.depth += 1
@@ -83,17 +92,12 @@ class _CompileListener(event.Listener):
         if COMPILING not in _said or time.monotonic() - self.said >= QUIET:
             self.said = time.monotonic()
             _said.discard(COMPILING)
-            if _enabled:
-                compiling_notice()
-            else:
-                _said.add(COMPILING)
-                logging.getLogger("mjkin").warning("mjkin: %s", COMPILING)
+            warn(COMPILING)
         if _ticking():
             self.stop = threading.Event()
             threading.Thread(target=_ticker, args=(self.stop, getattr(fn, "__name__", "")), daemon=True).start()
 
-    def on_end(self, event: event.Event) -> None:
-        fn = getattr(event.data.get("dispatcher"), "py_func", None)
+    def on_end(self, fn: Any) -> None:
         if (getattr(fn, "__module__", "") or "").startswith("numba") or not self.depth:
             return
         self.depth -= 1
@@ -116,7 +120,7 @@ def _ticker(stop: threading.Event, name: str) -> None:
 
 
 _listener = _CompileListener()
-event.register("numba:compile", _listener)
+compile_started, compile_ended = _listener.on_start, _listener.on_end  # numba_private calls them around compiles
 
 
 def enable(on: bool = True) -> None:

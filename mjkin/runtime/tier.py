@@ -1,30 +1,22 @@
 """Interpreted first, compiled behind: a cold kernel's first small calls run as Python while a child compiles it.
 
-From an empty cache numba spends ~50 s on the IK loop before a first solve on 2
-cores. With ``MJKIN_COMPILE=background`` (the default) a small first call
-(:func:`first_use`: a solve of a few targets, a one-q pose) whose kernel is
-neither compiled nor on disk runs the kernel's own Python source at once
-(:func:`interpreted`: no compile at all; an easy 7-DoF solve takes ~10-100 ms
-so), and a child process compiles the kernel into the disk cache. The first call
-after the child is done loads it from there (0.1-0.4 s) and from then on
-every call is compiled. The child outlives this process, so a short script still
-leaves the cache warm for the next run. Within :func:`later` (``mjkin demo``) no
-child starts until its end. The hottest kernels whose source loops over array
-entries (the IK step, the frame rows, FK, the Jacobian) run as numpy stand-ins
-(:func:`python_version`) when interpreted.
+From an empty cache numba spends ~50 s on the IK loop before a first solve on 2 cores. With
+``MJKIN_COMPILE=background`` (the default) a small call within :func:`first_use` (a solve of a few
+targets, a one-q pose) of a kernel neither in memory nor on disk runs the kernel's own Python source
+(:func:`interpreted`; an easy 7-DoF solve takes ~10-100 ms so), and a child process compiles the
+kernel into the disk cache; the first call after the child is done loads it (0.1-0.4 s). The child
+outlives this process, so a short script still leaves the cache warm. Within :func:`later`
+(``mjkin demo``) no child starts until its end. Kernels whose source loops over array entries may
+name a numpy stand-in for interpreted runs (:func:`python_version`).
 
-Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another
-process is compiling it: its small calls go on interpreted until that one is done), one a
-child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile in
-this process first, as numba does (``wait`` is what tests and benchmarks use: every call compiled, the same
-bits each run). ``MJKIN_COMPILE=interpret`` runs every such call interpreted and
-compiles nothing for them (to debug a kernel in Python). The interpreted answers
-may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
-library calls). With a ``timeout``, an interpreted solve (~100x slower) can meet its
-time limit where the compiled one would not, so ``status``, ``restarts`` and ``q``
-of a target that does not converge may differ beyond the last bits (``timeout``
-after some 135 restarts against ``max_iterations`` after 1 000); see
-docs/concepts/results.md, "Time limits and the first run".
+Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another process is
+compiling it), one a child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile
+in this process first, as numba does (``wait``: what tests and benchmarks use, the same bits each run).
+``MJKIN_COMPILE=interpret`` compiles nothing for those calls (to debug a kernel in Python). The
+interpreted answers may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
+library calls); with a ``timeout``, an interpreted solve (~100x slower) can meet its time limit where the
+compiled one would not, so ``status``, ``restarts`` and ``q`` of a target that does not converge may
+differ more (docs/concepts/results.md, "Time limits and the first run").
 """
 
 from __future__ import annotations
@@ -44,19 +36,13 @@ import types as pytypes
 from collections.abc import Callable, Iterator
 from typing import Any, ParamSpec, TypeVar
 
-import numba
 import numpy as np
-from numba.core import sigutils
-from numba.core.compiler_lock import global_compiler_lock
-from numba.core.dispatcher import Dispatcher
-from numba.core.registry import CPUDispatcher
 
 from ..errors import InputError
-from . import progress
-from .cache import PACKAGE, KernelCache, LazyCache
+from . import numba_private, progress
+from .cache import PACKAGE
 
 MODES = ("background", "wait", "interpret")
-_NO_JIT = bool(getattr(numba.config, "DISABLE_JIT", False))  # numba's switch for debuggers and coverage
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
 SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
 # seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here: many small
@@ -77,7 +63,7 @@ def mode() -> str:
     value = os.environ.get("MJKIN_COMPILE", "background")
     if value not in MODES:
         raise InputError(f"MJKIN_COMPILE must be one of {', '.join(MODES)}, got {value!r}")
-    return "interpret" if _NO_JIT else value
+    return "interpret" if numba_private.DISABLE_JIT else value
 
 
 @contextlib.contextmanager
@@ -135,43 +121,25 @@ def python_version(obj: Any, stand_in: Any) -> None:
     PYTHON[id(obj)] = stand_in
 
 
-class Plain:
-    """A kernel under ``NUMBA_DISABLE_JIT=1`` (numba's switch for debuggers and coverage): its source run as Python."""
-
-    def __init__(self, fn: Callable) -> None:
-        self.py_func = self.__wrapped__ = fn
-        functools.update_wrapper(self, fn)
-
-    def __call__(self, *args: Any) -> Any:
-        """The kernel's source run as Python, kernels it calls too (:func:`interpreted_call`)."""
-        return interpreted_call(self, *args)
-
-
 def _stand_in(value: Any) -> Any:
     if id(value) in PYTHON:
         return PYTHON[id(value)]
-    if isinstance(value, (Dispatcher, Plain)):
-        return interpreted(value)
-    return value
+    return interpreted(value) if numba_private.is_kernel(value) else value
 
 
-def _globals(namespace: dict) -> dict:
-    """A copy of a module's globals with every kernel in it interpreted (made once per module, filled lazily)."""
-    out = _GLOBALS.get(id(namespace))
-    if out is None:
-        out = _GLOBALS[id(namespace)] = {}
-        out.update({k: _stand_in(v) for k, v in namespace.items()})
-    return out
+def interpreted(kernel: Any) -> Callable:
+    """``kernel``'s Python source as a function whose calls of other kernels are interpreted too (nothing compiles).
 
-
-def interpreted(kernel: Dispatcher | Plain) -> Callable:
-    """``kernel``'s Python source as a function whose calls of other kernels are interpreted too (nothing compiles)."""
+    Its globals are a copy of its module's with every kernel in it interpreted (made once per module, filled lazily).
+    """
     twin = _TWINS.get(id(kernel))
     if twin is None:
         fn = kernel.py_func
+        if (names := _GLOBALS.get(id(fn.__globals__))) is None:
+            names = _GLOBALS[id(fn.__globals__)] = {}
+            names.update({k: _stand_in(v) for k, v in fn.__globals__.items()})
         closure = fn.__closure__ and tuple(pytypes.CellType(_stand_in(c.cell_contents)) for c in fn.__closure__)
-        twin = _TWINS[id(kernel)] = pytypes.FunctionType(fn.__code__, _globals(fn.__globals__), fn.__name__,
-                                                          fn.__defaults__, closure)
+        twin = _TWINS[id(kernel)] = pytypes.FunctionType(fn.__code__, names, fn.__name__, fn.__defaults__, closure)
         twin.__kwdefaults__ = fn.__kwdefaults__
     return twin
 
@@ -185,11 +153,10 @@ def interpreted_call(kernel: Any, *args: Any) -> Any:
 # ---- the child that compiles
 
 
-def _address(kernel: Dispatcher) -> tuple[str, str, str] | None:
+def _address(kernel: Any) -> tuple[str, str, str] | None:
     """(module name, file, qualified name) by which a child process finds ``kernel``; None if it cannot."""
     fn = kernel.py_func
-    module = sys.modules.get(fn.__module__)
-    path = getattr(module, "__file__", None)
+    path = getattr(sys.modules.get(fn.__module__), "__file__", None)
     if fn.__module__ == "__main__" or path is None or "<locals>" in fn.__qualname__:
         return None
     return fn.__module__, str(path), fn.__qualname__
@@ -205,54 +172,40 @@ class _Compiler:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, elsewhere, done, failed
+        self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, done, failed
         self.queue: list[tuple] = []  # (key, address, signature)
         self.child: subprocess.Popen | None = None
         self.running: list[tuple] = []  # the child's (key, address, signature)
-        self.elsewhere: dict[tuple, tuple] = {}  # key -> (kernel, signature) another process compiles
         self.retried = False  # whether a child that died was started again
         self.since: float | None = None  # when the first child started
         self.took: float | None = None  # seconds from then until the last child finished
         self.held = 0  # open :func:`later` blocks: no child starts while > 0
-        self.told = False  # whether the notice of this process's first queued kernel was given
 
-    def status(self, jobs: list[tuple[Dispatcher, tuple]], submit: bool = True) -> str:
+    def status(self, jobs: list[tuple[Any, tuple]], submit: bool = True) -> str:
         """The least advanced state of ``jobs`` (kernel, argument types), asked for in a child if ``submit``.
 
-        ``failed`` where a child cannot find a kernel (one defined in ``__main__``) or its child failed;
+        ``elsewhere`` where another process is compiling a kernel (it holds its compile lock): not asked for while it
+        does; ``failed`` where a child cannot find a kernel (one defined in ``__main__``) or its child failed;
         ``unknown`` where one was never asked for.
         """
         with self.lock:
             for kernel, sig in jobs if submit else ():
                 key = (id(kernel), sig)
-                if key in self.state:
-                    continue
-                address = _address(kernel)
-                if address is None:
-                    self.state[key] = "failed"
-                elif isinstance(cache := getattr(kernel, "_cache", None), KernelCache) and cache.busy():
-                    self.state[key], self.elsewhere[key] = "elsewhere", (kernel, sig)
-                    progress.notice(ELSEWHERE)
-                else:
-                    self.state[key] = "queued"
-                    self.queue.append((key, address, sig))
-                    if not self.told:
-                        self.told = True
+                if key not in self.state and not numba_private.busy(kernel):
+                    address = _address(kernel)
+                    self.state[key] = "failed" if address is None else "queued"
+                    if address is not None:
+                        self.queue.append((key, address, sig))
                         progress.notice(LATER if self.held else BACKGROUND)
             self._advance()
-            states = {self.state.get((id(k), s), "unknown") for k, s in jobs}
+            states = {self.state.get((id(k), s)) or ("elsewhere" if numba_private.busy(k) else "unknown")
+                      for k, s in jobs}
+        if "elsewhere" in states:
+            progress.notice(ELSEWHERE)
         return next((s for s in ("failed", "unknown", "queued", "elsewhere", "running") if s in states), "done")
 
     def _advance(self) -> None:
-        """Note what a finished child, or another process, did, and start a child for the queue if none runs."""
-        for key, (kernel, sig) in list(self.elsewhere.items()):
-            if not kernel._cache.busy():
-                del self.elsewhere[key]
-                if _load(kernel, sig):
-                    self.state[key] = "done"
-                else:  # that process stopped before it wrote this version: ours to ask for
-                    self.state[key] = "queued"
-                    self.queue.append((key, _address(kernel), sig))
+        """Note what a finished child did, and start a child for the queue if none runs."""
         if self.child is not None:
             if self.child.poll() is None:
                 return
@@ -267,10 +220,8 @@ class _Compiler:
                 self.took = time.monotonic() - self.since
                 progress.notice(f"kernels compiled in the background in {self.took:.0f} s")
         if self.queue and not self.held:
-            if self.since is None:
-                self.since = time.monotonic()
-            self.child = _spawn([(address, sig) for _, address, sig in self.queue])
-            self.running, self.queue = self.queue, []
+            self.since = self.since or time.monotonic()
+            self.child, self.running, self.queue = _spawn([(a, s) for _, a, s in self.queue]), self.queue, []
             for key, _, _ in self.running:
                 self.state[key] = "running"
             threading.Thread(target=self._reap, args=(self.child,), daemon=True).start()
@@ -330,32 +281,25 @@ def later() -> contextlib.AbstractContextManager[None]:
     """Within it, no child starts: small calls of cold kernels run interpreted, and a child compiles them at its end.
 
     For a job that keeps every core busy (``mjkin demo`` renders with Mesa's threads), where a child compiling
-    beside it would slow it more than interpreted calls do. The child started at the end outlives the process,
-    so the next run is compiled. Large calls, and kernels past their :data:`BUDGET`, still compile here meanwhile.
+    beside it would slow it more than interpreted calls do. Large calls, and kernels past their :data:`BUDGET`,
+    still compile here meanwhile.
     """
     return _COMPILER.hold()
 
 
-def _implicit_path() -> str | None:
-    """The entry Python put first on ``sys.path`` by itself: the script's folder, or the working folder."""
-    argv = getattr(sys, "orig_argv", [])
-    if sys.flags.safe_path:
-        return None
-    if "-c" in argv or len(sys.argv) < 1 or not sys.argv[0]:
-        return ""
-    if "-m" in argv:
-        return os.getcwd()
-    return os.path.dirname(os.path.realpath(sys.argv[0]))
-
-
 def _child_path() -> list[str]:
-    """This process's ``sys.path`` (absolute) but for the entry Python added by itself, unless mjkin comes from it."""
-    implicit, out = _implicit_path(), []
+    """This process's ``sys.path`` (absolute) but for the entry Python put first by itself, unless mjkin is there.
+
+    That entry is the script's folder, or the working folder (``-c``, ``-m``).
+    """
+    argv = getattr(sys, "orig_argv", [])
+    implicit = (None if sys.flags.safe_path else "" if "-c" in argv or not sys.argv or not sys.argv[0] else
+                os.getcwd() if "-m" in argv else os.path.dirname(os.path.realpath(sys.argv[0])))
+    out = []
     for entry in sys.path:
         if implicit is not None and entry == implicit and os.path.realpath(entry or ".") != str(PACKAGE.parent):
             implicit = None  # its first occurrence only: the same folder added on purpose later stays
-            continue
-        if entry:
+        elif entry:
             out.append(os.path.abspath(entry))
     return out
 
@@ -393,79 +337,56 @@ LATER = ("this first run runs kernels interpreted where it can (slower); a backg
 ELSEWHERE = "another mjkin process is compiling kernels this run needs; running them interpreted until it is done..."
 
 
-def _load(kernel: Any, sig: tuple) -> bool:
-    """Whether ``kernel`` has a version for ``sig`` in memory, after loading it from the disk cache if it is there."""
-    if sig in kernel.overloads:
-        return True
-    cres = kernel._cache.load_overload(sig, kernel.targetctx)
-    if cres is None:
-        return False
-    kernel._cache_hits[sig] += 1
-    kernel.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
-    kernel.add_overload(cres)
-    return True
-
-
-def compiled(jobs: list[tuple[Dispatcher, tuple]], small: bool, patient: bool = False) -> bool:
+def compiled(jobs: list[tuple[Any, tuple]], small: bool, patient: bool = False) -> bool:
     """Whether the caller should call ``jobs``' kernels compiled (True) or :func:`interpreted` (False).
 
     Each job is a kernel and the numba types of its arguments. True when all are in memory or on
     disk (loaded so), or else once they are compiled here, as numba would, when the call is not
-    ``small`` or the mode is ``wait`` (not waited for from a child: its queue may hold minutes of
-    other kernels first). False when a child is compiling them (started if need be) for a small
-    call in ``background`` mode, and for a ``patient`` one (small arguments, past its :data:`BUDGET`)
-    while another process compiles one of them (another run's child): waiting for its lock could
-    take that process's whole compile, and the call after it ends loads what it wrote.
+    ``small`` or the mode is ``wait``. False when a child is compiling them (started if need be) for a
+    small call in ``background`` mode, and for a ``patient`` one (small arguments, past its :data:`BUDGET`)
+    while another process compiles one of them: waiting for its lock could take that process's whole
+    compile, and the call after it ends loads what it wrote.
     """
     if mode() == "interpret":
         return False
-    if all(_load(k, s) for k, s in jobs):
+    if all(numba_private.load(k, s) for k, s in jobs):
         return True
     if small and mode() == "background":
         state = _COMPILER.status(jobs)
         if state in ("queued", "elsewhere", "running"):
             return False
-        if state == "done" and all(_load(k, s) for k, s in jobs):  # else the child could not write the cache
+        if state == "done" and all(numba_private.load(k, s) for k, s in jobs):  # else the child could not save
             return True
-    if patient and mode() == "background" and any(
-            isinstance(cache := getattr(k, "_cache", None), KernelCache) and cache.busy() for k, _ in jobs):
+    if patient and mode() == "background" and any(numba_private.busy(k) for k, _ in jobs):
         return False
     for kernel, sig in jobs:
         kernel.compile(sig)
     return True
 
 
-class Kernel(LazyCache, CPUDispatcher):
-    """numba's dispatcher, but a small call of a version not yet compiled runs interpreted within :func:`first_use`."""
+def on_miss(kernel: Any, args: tuple) -> Callable | None:
+    """What a kernel's call runs instead of a version not in memory: interpreted (see :func:`compiled`), or None.
 
-    def _compile_for_args(self, *args: Any, **kws: Any) -> Any:
-        if getattr(_local, "depth", 0) and not kws:
-            little = all(_small(a) for a in args)
-            small = little and _SPENT.get(id(self), 0.0) < BUDGET
-            if not compiled([(self, tuple(self.typeof_pyval(a) for a in args))], small, patient=little):
-                return lambda *a: self._interpreted(*a)
-        return super()._compile_for_args(*args, **kws)  # type: ignore[misc]  # numba's, not in its stubs
+    Under ``NUMBA_DISABLE_JIT=1`` (numba's switch for debuggers and coverage) every call runs interpreted.
+    """
+    if numba_private.DISABLE_JIT:
+        return functools.partial(interpreted_call, kernel)
+    if not getattr(_local, "depth", 0):
+        return None
+    little = all(_small(a) for a in args)
+    small = little and _SPENT.get(id(kernel), 0.0) < BUDGET
+    if compiled([(kernel, numba_private.argument_types(kernel, args))], small, patient=little):
+        return None
+    return functools.partial(_interpreted, kernel)
 
-    def compile(self, sig: Any) -> Any:
-        """Numba's compile, under the kernel's compile lock when it is not in memory yet (:mod:`.cache`).
 
-        numba's own (in-process) compiler lock is taken first, so a thread never holds the file lock while
-        it waits for numba's; kernels lock their callees only, so two processes never wait on each other.
-        """
-        args, _ = sigutils.normalize_signature(sig)
-        cache = getattr(self, "_cache", None)  # set by mjkin.runtime.jit on every kernel
-        if tuple(args) in self.overloads or not isinstance(cache, KernelCache):
-            return super().compile(sig)
-        with global_compiler_lock, cache.compiling():
-            return super().compile(sig)
-
-    def _interpreted(self, *args: Any) -> Any:
-        """:func:`interpreted_call`, its seconds counted against :data:`BUDGET`."""
-        start = time.perf_counter()
-        try:
-            return interpreted_call(self, *args)
-        finally:
-            _SPENT[id(self)] = _SPENT.get(id(self), 0.0) + time.perf_counter() - start
+def _interpreted(kernel: Any, *args: Any) -> Any:
+    """:func:`interpreted_call`, its seconds counted against :data:`BUDGET`."""
+    start = time.perf_counter()
+    try:
+        return interpreted_call(kernel, *args)
+    finally:
+        _SPENT[id(kernel)] = _SPENT.get(id(kernel), 0.0) + time.perf_counter() - start
 
 
 def _main(jobs: list[tuple]) -> None:
@@ -475,29 +396,21 @@ def _main(jobs: list[tuple]) -> None:
     child rather than start its own; a kernel another process holds already is left to that process.
     """
     os.nice(10)  # in the background: the process that runs interpreted meanwhile comes first
-    kernels = []
+    claimed = []
     for (name, path, qualname), sig in jobs:
         try:
             module = importlib.import_module(name)
         except ImportError:
             spec = importlib.util.spec_from_file_location(name, path)
             assert spec is not None and spec.loader is not None
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[name] = module
+            module = sys.modules[name] = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(module)
-        kernel: Any = module
-        for part in qualname.split("."):
-            kernel = getattr(kernel, part)
-        kernels.append((kernel, sig))
-    claimed = []
-    for kernel, sig in kernels:
+        kernel: Any = functools.reduce(getattr, qualname.split("."), module)
         claim = contextlib.ExitStack()
-        cache = getattr(kernel, "_cache", None)
-        if not isinstance(cache, KernelCache) or claim.enter_context(cache.compiling(wait=False)):
+        if claim.enter_context(numba_private.compiling(kernel, wait=False)):
             claimed.append((kernel, sig, claim))
         else:  # another process compiles it
             claim.close()
     for kernel, sig, claim in claimed:
         with claim:  # given back as soon as it is compiled: a process waiting for it loads it then
             kernel.compile(sig)
-

@@ -63,14 +63,12 @@ def test_no_notice_without_compiling(terminal, monkeypatch):
 
 def test_numbas_own_helpers_compiling_give_no_notice(terminal):
     """numba compiles small helpers of its own in a warm run (an array view, 0.1 s): not "compiling kernels"."""
-    from numba.core import event as ev
-
     terminal = terminal()
     for module in ("numba.np.arrayobj", "mjkin.kinematics.fk"):
-        helper = type("Dispatcher", (), {"py_func": type("F", (), {"__module__": module})})()
-        progress._listener.on_start(ev.Event("numba:compile", ev.EventStatus.START, data={"dispatcher": helper}))
+        helper = type("F", (), {"__module__": module})
+        progress.compile_started(helper)  # as numba_private calls it
         assert terminal.getvalue().count(progress.COMPILING) == (module == "mjkin.kinematics.fk")
-        progress._listener.on_end(ev.Event("numba:compile", ev.EventStatus.END, data={"dispatcher": helper}))
+        progress.compile_ended(helper)
     assert progress._listener.stop is None  # no ticker left counting into the next test's stderr
 
 
@@ -142,36 +140,30 @@ def test_from_python_a_long_compile_shows_its_seconds_on_a_terminal(terminal, mo
     """The CLI showed a long compile's seconds on a terminal; a script in a terminal sat silent."""
     from types import SimpleNamespace
 
-    from numba.core import event as ev
-
     terminal = terminal()
     progress.enable(False)
     monkeypatch.setattr(progress, "TICK", 0.0)
-    kernel = SimpleNamespace(py_func=SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve"))
-    progress._listener.on_start(ev.Event("numba:compile", ev.EventStatus.START, data={"dispatcher": kernel}))
+    solve = SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve")
+    progress.compile_started(solve)  # as numba_private calls it
     stop = progress._listener.stop
-    progress._listener.on_end(ev.Event("numba:compile", ev.EventStatus.END, data={"dispatcher": kernel}))
+    progress.compile_ended(solve)
     assert stop is not None and stop.is_set()
 
 
 def test_a_long_compile_shows_its_seconds_on_a_terminal(terminal, monkeypatch):
     """mjkin demo sat 81 s without a sign of life on a terminal while it compiled."""
     import time
-
-    from numba.core import event as ev
+    from types import SimpleNamespace
 
     terminal = terminal()
     monkeypatch.setattr(progress, "TICK", 0.2)
-    from types import SimpleNamespace
-
-    kernel = SimpleNamespace(py_func=SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve"))
-    start, end = ev.EventStatus.START, ev.EventStatus.END
-    progress._listener.on_start(ev.Event("numba:compile", start, data={"dispatcher": kernel}))
-    progress._listener.on_start(ev.Event("numba:compile", start, data={"dispatcher": kernel}))  # nested: one line
+    solve = SimpleNamespace(__module__="mjkin.ik.loop", __name__="solve")
+    progress.compile_started(solve)
+    progress.compile_started(solve)  # nested: one line
     time.sleep(1.6)
-    progress._listener.on_end(ev.Event("numba:compile", end, data={"dispatcher": kernel}))
+    progress.compile_ended(solve)
     assert progress._listener.depth == 1 and progress._listener.stop is not None
-    progress._listener.on_end(ev.Event("numba:compile", end, data={"dispatcher": kernel}))
+    progress.compile_ended(solve)
     time.sleep(0.3)
     text = terminal.getvalue()
     assert "mjkin: compiling solve: 1 s" in text and progress._listener.stop is None

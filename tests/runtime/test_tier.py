@@ -285,7 +285,7 @@ _ELSEWHERE = textwrap.dedent("""
     first = tier.first_use(triple)(x)  # interpreted meanwhile
     other.kill(); other.wait()  # it stopped before writing this version: ours to ask for now
     deadline = time.monotonic() + 240
-    while tier._COMPILER.status([(triple, sig)], submit=False) != "done" and time.monotonic() < deadline:
+    while tier._COMPILER.status([(triple, sig)]) != "done" and time.monotonic() < deadline:
         time.sleep(0.1)
     print(state, no_child, first.tolist(), tier._COMPILER.status([(triple, sig)], submit=False))
 """)

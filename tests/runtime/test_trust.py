@@ -2,6 +2,8 @@
 can write is loaded, an install warmed by root serves every user without writing, and an edit made while a kernel
 compiles never stores the old code under the new source's stamp."""
 
+import contextlib
+import errno
 import os
 import pickle
 import py_compile
@@ -17,6 +19,7 @@ import pytest
 from test_jit import _HELP, _RUN, _package
 
 from mjkin.runtime import cache
+from mjkin.runtime.progress import COMPILING
 
 NOBODY = 65534
 
@@ -273,3 +276,83 @@ def test_an_install_warmed_by_root_serves_another_user_without_writing():
         assert sorted(str(p) for p in root.rglob("*")) == files  # nothing written by the other user
     finally:
         shutil.rmtree(root, ignore_errors=True)
+
+
+# ---- a full disk: the kernels stay compiled in memory, and one line says what could not be saved, and where
+
+_FULL = textwrap.dedent("""
+    import builtins, io, os, sys
+    cache_dir, code, src = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+    real_open, real_os_open = builtins.open, os.open
+
+    def refuse(path, mode):
+        if str(os.fspath(path)).startswith(cache_dir) and any(c in mode for c in "wax+"):
+            raise OSError(code, os.strerror(code), path)
+
+    def full_open(file, mode="r", *args, **kwargs):
+        if isinstance(file, (str, os.PathLike)):
+            refuse(file, mode)
+        return real_open(file, mode, *args, **kwargs)
+
+    def full_os_open(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT:
+            refuse(path, "w")
+        return real_os_open(path, flags, *args, **kwargs)
+
+    if code:  # else the disk is full for real (a small tmpfs)
+        builtins.open = io.open = full_open
+        os.open = full_os_open
+    sys.path.insert(0, src)
+    from kpkg.kern import kernel
+    import mjkin, mjkin.goals as G
+    from mjkin.runtime import cache
+    cache.PACKAGE = cache.Path(cache_dir) / "package"  # the install's own generated loops: not found there
+    answer = kernel(1.0)  # compiled here, not saved
+    os.environ["MJKIN_COMPILE"] = "interpret"  # the generated loop module and the stored starts of a solve
+    tree = mjkin.load("arm7")
+    res = mjkin.solve(tree, G.Position("ee", tree.pose(tree.qpos0 + 0.1, "ee")[:3, 3]), seed=190734)
+    print(answer, bool(res.success))
+""")
+
+
+def _full_disk(tmp_path: Path, cache_dir: Path, code: int) -> list[str]:
+    _package(tmp_path / "src")
+    env = {**os.environ, "MJKIN_COMPILE": "wait", "NUMBA_CACHE_DIR": str(cache_dir),
+           "XDG_CACHE_HOME": str(cache_dir / "xdg")}
+    run = subprocess.run([sys.executable, "-c", _FULL, str(cache_dir), str(code), str(tmp_path / "src")],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr[-3000:]
+    assert run.stdout.split() == ["4.0", "True"]
+    return run.stderr.splitlines()
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EDQUOT, errno.EROFS], ids=["ENOSPC", "EDQUOT", "EROFS"])
+def test_a_cache_that_cannot_be_written_costs_one_line_not_the_answer(tmp_path, code):
+    """numba's cache save, the generated loop module, the compile lock and the stored starts each fail to write
+    (``OSError: [Errno 28]``, 25 frames, before): the answers come, and each folder is named once."""
+    cache_dir = tmp_path / "cache"
+    lines = _full_disk(tmp_path, cache_dir, code)
+    said = [line for line in lines if "could not save" in line]
+    assert any("kpkg" in line for line in said)  # the kernel's cache folder
+    assert any("generated" in line for line in said)  # the generated loop's: it went to a temporary folder
+    assert all(str(cache_dir) in line and os.strerror(code) in line for line in said)
+    assert len(said) == len(set(said)), lines
+    assert all(line in said or line == f"mjkin: {COMPILING}" for line in lines), lines  # nothing else is said
+
+
+def test_a_full_tmpfs_costs_one_line_not_the_answer(tmp_path):
+    """The same on a real full file system: a tmpfs of 64 KB, filled (as root; else skipped)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mount = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True,
+                           text=True) if os.getuid() == 0 and shutil.which("mount") else None
+    if mount is None or mount.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here ({mount.stderr.strip() if mount else 'needs root'})")
+    try:
+        with open(disk / "filler", "wb") as f:
+            with contextlib.suppress(OSError):
+                f.write(b"\0" * (1 << 20))
+        lines = _full_disk(tmp_path, disk, 0)
+        assert any("could not save" in line and "kpkg" in line for line in lines), lines
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)

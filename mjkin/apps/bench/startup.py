@@ -27,21 +27,18 @@ from .report import Report, Row
 _CHILD = r'''
 import json, resource, sys, time
 from collections import Counter
-from numba.core import event
 compiled, depth = Counter(), []
-class Listener(event.Listener):
-    def on_start(self, e):
-        depth.append(time.perf_counter())
-    def on_end(self, e):
-        seconds = time.perf_counter() - depth.pop()
-        if not depth:  # a top-level compile: the seconds of what it compiled in too
-            f = getattr(e.data.get("dispatcher"), "py_func", None)
-            compiled[f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', '?')}"] += seconds
-event.register("numba:compile", Listener())
+def start(f):
+    depth.append(time.perf_counter())
+def end(f):
+    seconds = time.perf_counter() - depth.pop()
+    if not depth:  # a top-level compile: the seconds of what it compiled in too
+        compiled[f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', '?')}"] += seconds
 t0 = time.perf_counter()
 import mjkin
 import mjkin.runtime.tier
 imported = time.perf_counter() - t0
+mjkin.runtime.numba_private.on_compile(start, end)  # nothing compiles at import
 import numpy as np
 from mjkin import goals as G
 entry = sys.argv[1]
