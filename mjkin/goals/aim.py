@@ -11,11 +11,11 @@ from numpy.typing import ArrayLike
 from ..errors import GoalError
 from ..runtime.jit import matvec3, njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, point, unit
-from .compiled import skew_times
+from .residuals import skew_times
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

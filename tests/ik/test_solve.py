@@ -18,8 +18,8 @@ from mjkin import goals as G
 from mjkin.errors import GoalError
 from mjkin.goals.program import compile_goals
 from mjkin.ik import kernel
-from mjkin.ik.compiled import kernels
 from mjkin.ik.lm import AUTO_RESTARTS
+from mjkin.ik.loop import solve_packed
 
 
 def pose_targets(tree, site, rng, n):
@@ -538,13 +538,12 @@ def test_batch_sizes_share_one_compiled_kernel(rng):
     tree = tree_of("arm7")
     T = pose_targets(tree, "ee", rng, 70)
     mjkin.solve(tree, G.Pose("ee", T=T))
-    loop = kernels((G.Pose.code,)).solve_packed
-    before = len(loop.signatures)
+    before = len(solve_packed.signatures)
     assert before >= 1
     for goal in (G.Pose("ee", T=T[0]), G.Pose("ee", T=T[:1]), G.Pose("ee", T=T[:5])):
         mjkin.solve(tree, goal)
     mjkin.solve(tree, G.Pose("ee", T=T[0]), restarts=0)
-    assert len(loop.signatures) == before
+    assert len(solve_packed.signatures) == before
 
 
 def test_a_problem_solves_new_targets_of_its_structure_as_solve_does(rng):
