@@ -164,7 +164,8 @@ class Auto(LM):
         return TIMED_RESTARTS if timed else AUTO_RESTARTS
 
 
-_LOADED: set[Callable] = set()  # the loops' solve_packed kernels loaded in this process (Loop.compiled)
+# the loops' solve_packed kernels loaded in this process (Loop.compiled), with whether for goals of common kinds only
+_LOADED: set[tuple[Callable, bool]] = set()
 
 
 class Loop:
@@ -228,14 +229,16 @@ class Loop:
     def compiled(self, prog: Program, arrays: tuple) -> bool:
         """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`).
 
-        Every problem packs the same types, so a loop loaded once in this process is loaded for every later
-        problem of its kinds: the check (numba typing the 18 packed fields, ~1 ms) runs once per loop, not per
+        Every problem packs the same types but for the goal arrays' (with the geoms, or without them for common
+        kinds only), so a loop loaded once in this process is loaded for every later problem of its kinds: the
+        check (numba typing the 18 packed fields, ~1 ms) runs once per loop and such type, not per
         :func:`mjkin.solve` call.
         """
-        if self.loop in _LOADED and tier.mode() != "interpret":
+        key = (self.loop, self.problem.structure.common)
+        if key in _LOADED and tier.mode() != "interpret":
             return True
         if tier.compiled(packed_kernels(self.loop, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
-            _LOADED.add(self.loop)
+            _LOADED.add(key)
             return True
         return False
 

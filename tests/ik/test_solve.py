@@ -520,6 +520,20 @@ def test_a_loop_is_checked_for_compiled_once_per_process_not_per_solve(rng, monk
     assert interpreted
 
 
+def test_the_loop_loaded_for_common_kinds_is_checked_again_for_the_others(rng, monkeypatch):
+    """One solve_packed serves both: loaded for a Pose problem, it is not taken as loaded for a Clearance problem,
+    whose goal arrays (with the geoms) are another compiled version, to be loaded or compiled through the tier."""
+    from mjkin.ik import lm
+
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 2)
+    mjkin.solve(tree, G.Pose("ee", T=T[0]))
+    calls, checked = [], lm.packed_kernels
+    monkeypatch.setattr(lm, "packed_kernels", lambda *a: calls.append(a) or checked(*a))
+    mjkin.solve(tree, G.Pose("ee", T=T[1]), avoid_collisions=True)
+    assert len(calls) == 1 and calls[0][1][1].geoms is tree.geoms
+
+
 @given(st.integers(0, 100_000), st.integers(1, 64), st.integers(1, 256))
 def test_chunks_cover_the_batch_once_and_shrink(n, workers, min_chunk):
     from mjkin.runtime.parallel import chunk_edges
