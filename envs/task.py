@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 import mjkin
 from mjkin import goals as G
 from mjkin import spatial
-from mjkin.kinematics.frames import Frames
+from mjkin.kinematics.frames import Frames, forward
 from mjkin.kinematics.tree import bundled_models
 from mjkin.motion.follow import speed_step
 from mjkin.runtime.checks import check_choice, check_flag, check_number, shown
@@ -238,7 +238,7 @@ class ReachTask:
         The rotation is computed for pose goals only (cartesian pose actions and the quaternion need it);
         the frames serve the contact check.
         """
-        frames = self.tree.kinematics(q)
+        frames = forward(self.tree, q)  # q is valid: the env made it, or checked it
         body, r, o = self.site_local
         p = np.empty((len(q), 3))
         site_points(frames.rot, frames.pos, body, o, p)
@@ -439,15 +439,17 @@ class ReachTask:
 
 def check_action(action: Any, space: spaces.Space[Any], what: str) -> Array:
     """``action`` as a finite float64 array of ``space``'s shape; else a one-line error naming ``what``, the space."""
-    want = f"{what} must be an array of numbers of shape {space.shape}, dtype {space.dtype} (the action space)"
+    def want() -> str:  # made only for an error: str(dtype) alone costs more than the checks (~10 µs)
+        return f"{what} must be an array of numbers of shape {space.shape}, dtype {space.dtype} (the action space)"
+
     try:
         raw = np.asarray(action)
     except (TypeError, ValueError):  # ragged nested lists
-        raise mjkin.InputError(f"{want}, got {shown(action)}") from None
+        raise mjkin.InputError(f"{want()}, got {shown(action)}") from None
     if raw.dtype.kind not in "biuf":  # strings, None, objects: numpy would parse "1" as 1 or fail with its own error
-        raise mjkin.InputError(f"{want}, got {shown(action)}")
+        raise mjkin.InputError(f"{want()}, got {shown(action)}")
     if raw.shape != space.shape:
-        raise mjkin.InputError(f"{want}, got shape {raw.shape}")
+        raise mjkin.InputError(f"{want()}, got shape {raw.shape}")
     a = raw.astype(np.float64)
     if not np.isfinite(a).all():
         raise mjkin.InputError(f"{what} must be finite; it contains NaN or inf")

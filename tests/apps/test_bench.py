@@ -56,12 +56,13 @@ def test_bench_ik_rows_name_every_solver_with_the_json_columns():
     report = bench_ik(["arm7"], targets=6, peers=())
     (rows,) = report.tables.values()
     by = {r["solver"]: r for r in rows}
-    assert set(by) == {"mjkin", "mjkin-single-start", "mujoco-dls"}
+    assert set(by) == {"mjkin", "mjkin.solve", "mjkin-single-start", "mujoco-dls"}
     for r in rows:
         assert r["model"] == "arm7"
         assert {"success", "median_ms", "p95_ms", "iterations_mean", "restarts_mean", "batched_per_s"} <= set(r)
         assert 0.0 <= r["success"] <= 100.0 and r["median_ms"] > 0 and r["p95_ms"] >= r["median_ms"]
-    assert by["mjkin"]["success"] == by["mjkin"]["batched_success"] == 100.0
+    assert by["mjkin"]["success"] == by["mjkin"]["batched_success"] == by["mjkin.solve"]["success"] == 100.0
+    assert by["mjkin.solve"]["iterations_mean"] == by["mjkin"]["iterations_mean"]  # the same solves, another entry
     assert by["mjkin-single-start"]["restarts_mean"] == 0.0
     assert by["mujoco-dls"]["batched_per_s"] is None and by["mjkin"]["batched_per_s"] > 0
     assert report.settings["iters"] == 200 and report.settings["targets"] == 6
@@ -71,7 +72,7 @@ def test_single_start_rows_keep_the_iteration_budget():
     report = bench_ik(["arm7"], targets=5, iters=3, peers=())
     (rows,) = report.tables.values()
     for r in rows:
-        if r["solver"] != "mjkin":
+        if r["solver"] not in ("mjkin", "mjkin.solve"):
             assert r["iterations_mean"] <= 3, r
             assert r["restarts_mean"] == 0.0
 
@@ -459,14 +460,14 @@ def test_peers_that_are_not_installed_get_a_reason_instead_of_a_row(monkeypatch,
     no_peers(monkeypatch)
     report = bench_ik(["panda"], targets=2)
     rows = next(iter(report.tables.values()))
-    assert [r["solver"] for r in rows] == ["mjkin", "mjkin-single-start", "mujoco-dls"]
+    assert [r["solver"] for r in rows] == ["mjkin", "mjkin.solve", "mjkin-single-start", "mujoco-dls"]
     skipped = report.extra["skipped"]
     assert [(r["model"], r["solver"]) for r in skipped] == [("panda", "mink"), ("panda", "rtb-ik_LM"),
                                                             ("panda", "trac-ik")]
     for r, package in zip(skipped, ("mink", "roboticstoolbox-python", "pytracik"), strict=True):
         assert r["reason"].startswith(f"{package} is not installed (pip install 'mjkin[bench]')")
     doc = report.as_json()
-    assert doc["skipped"] == skipped and len(doc["rows"]) == 3  # reasons are kept apart from the measured rows
+    assert doc["skipped"] == skipped and len(doc["rows"]) == 4  # reasons are kept apart from the measured rows
     out = tmp_path / "ik.json"
     assert cli.main(["bench", "ik", "--protocol", "trac-ik", "--models", "panda", "--targets", "2",
                      "--json", str(out)]) == 0

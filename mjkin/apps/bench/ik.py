@@ -173,21 +173,25 @@ def past_limits(tree: Tree, qs: Array) -> Array:
     return np.maximum(np.maximum(lo - q, q - hi), 0.0).max(axis=-1, initial=0.0)
 
 
-def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, **options: Any) -> Run:
+def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float, functional: bool = False,
+                 **options: Any) -> Run:
     """One ``problem.solve`` per target, each timed on its own (the goal built inside the timed call, as a user does).
 
-    The :class:`mjkin.Problem` is made once beforehand, as a peer's solver object is (TRAC-IK's, rtb's robot).
+    The :class:`mjkin.Problem` is made once beforehand, as a peer's solver object is (TRAC-IK's, rtb's robot);
+    ``functional``: one :func:`mjkin.solve` per target instead (the README's first example), nothing made beforehand.
     """
     tree, frame, kind = arm.tree, arm.frame, arm.kind
     problem = Problem(tree, G.Pose(frame, T=targets[0], kind=kind), tol=tol, rot_tol=rot_tol, **options)
     problem.solve(q0)  # compile
+    call = (lambda goal: solve(tree, goal, q0=q0, tol=tol, rot_tol=rot_tol, **options)) if functional else \
+        (lambda goal: problem.solve(q0, [goal]))
     N = len(targets)
     q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
     iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")
     with gc_paused():
         for k in range(N):
             start, start_cpu = time.perf_counter(), time.thread_time()
-            res = problem.solve(q0, [G.Pose(frame, T=targets[k], kind=kind)])
+            res = call(G.Pose(frame, T=targets[k], kind=kind))
             seconds[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
             q[k], iters[k], used[k], status[k] = res.q, res.iterations, res.restarts, res.status
     return Run(q, seconds, iters, used, N / seconds.sum(), cpu, status)
@@ -484,8 +488,9 @@ def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: floa
     for arm in track(arms(models), "bench ik"):
         T, q0 = targets_for(arm, targets, seed), arm.home
         auto = mjkin_single(arm, T, q0, tol, rot_tol)
-        mine = [row(arm, "mjkin", auto, T, tol, rot_tol, mjkin_batched(arm, T, q0, tol, rot_tol))]
-        one = {"restarts": 0, "max_iters": iters}
+        mine = [row(arm, "mjkin", auto, T, tol, rot_tol, mjkin_batched(arm, T, q0, tol, rot_tol)),
+                row(arm, "mjkin.solve", mjkin_single(arm, T, q0, tol, rot_tol, functional=True), T, tol, rot_tol)]
+        one: dict[str, Any] = {"restarts": 0, "max_iters": iters}
         mine.append(row(arm, "mjkin-single-start", mjkin_single(arm, T, q0, tol, rot_tol, **one), T, tol, rot_tol,
                         mjkin_batched(arm, T, q0, tol, rot_tol, **one)))
         mine.append(row(arm, "mujoco-dls", mujoco_dls(arm, T, q0, tol, rot_tol, iters), T, tol, rot_tol))
@@ -493,6 +498,7 @@ def bench_ik(models: Sequence[str] | None = None, targets: int = 1000, tol: floa
     settings = {"targets": targets, "tol_m": tol, "rot_tol_rad": rot_tol, "iters": iters, "seed": seed,
                 "start": "home keyframe (else qpos0)", "success": "% of targets within both tolerances, "
                 "re-checked by mujoco.mj_kinematics", "mjkin": "method auto: up to 50 iterations x (1 + 24 restarts)",
+                "mjkin.solve": "mjkin's row through the functional entry, one mjkin.solve(tree, goal, ...) per target",
                 "single-start budget": f"{iters} iterations, no restart (mjkin-single-start, mujoco-dls, mink)",
                 "rtb-ik_LM budget": f"{RTB_ILIMIT} iterations x {1 + AUTO_RESTARTS} searches, as mjkin's",
                 "trac-ik budget": f"its own time limit, {time_limit:g} s", **PEER_NOTES,
