@@ -527,6 +527,7 @@ def test_the_loop_loaded_for_common_kinds_is_checked_again_for_the_others(rng, m
 
     tree = tree_of("arm7")
     T = pose_targets(tree, "ee", rng, 2)
+    monkeypatch.setattr(lm, "_LOADED", set())  # as in a new process: nothing loaded yet
     mjkin.solve(tree, G.Pose("ee", T=T[0]))
     calls, checked = [], lm.packed_kernels
     monkeypatch.setattr(lm, "packed_kernels", lambda *a: calls.append(a) or checked(*a))
