@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import goals as G
 from ..ik import solve
-from ..ik.compiled import PREFIX
+from ..ik.generated import PREFIX
 from ..kinematics.tree import Tree, load
 from ..runtime import numba_private, progress
 
@@ -49,7 +49,7 @@ def _ccd(chain: Tree, figure: Tree) -> None:
 
 
 def _grouped(chain: Tree, figure: Tree) -> None:
-    """The loop with clearance and balance (one loop for all grouped kinds: :func:`mjkin.ik.compiled.loop_kinds`)."""
+    """The loop with clearance and balance (:func:`mjkin.ik.loop.other_goal`)."""
     T = chain.pose(chain.random_q(np.random.default_rng(0), 1), "ee")
     solve(chain, G.Pose("ee", T=T[0]), avoid_collisions=True)
     goals: list = [G.Position("left_hand", (0.2, 0.3, 1.2)), G.CenterOfMass(xyz=(0.0, 0.0, 0.5), weight=0.1),

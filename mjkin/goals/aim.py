@@ -12,11 +12,11 @@ from ..errors import GoalError
 from ..kinematics.mat3 import matvec3
 from ..runtime.jit import njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, point, unit
-from .compiled import skew_times
+from .residuals import skew_times
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

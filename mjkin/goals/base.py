@@ -162,8 +162,7 @@ class Goal:
     counted: ClassVar[bool] = True  # counts for success (a rest pose does not)
     hard: ClassVar[bool] = False  # a constraint: its rows are values s (unweighted, want s >= 0) and ds/dv
     joint_target: ClassVar[bool] = False  # encodes a configuration (a rest pose) as its target
-    common: ClassVar[bool] = False  # compiled into the IK loop every problem shares (see mjkin.ik.compiled)
-    grouped: ClassVar[bool] = False  # compiled with the other grouped kinds: one loop for problems holding any
+    common: ClassVar[bool] = False  # cheap: a problem of common kinds only compiles no other (mjkin.ik.loop)
     _batched: ClassVar[tuple[str, ...]] = ()  # fields that may carry the leading batch axis
     _cores: ClassVar[tuple[int, ...]] = ()  # number of non-batch axes of each target of targets()
 

@@ -25,12 +25,12 @@ from ..runtime.checks import check_count
 from ..runtime.jit import njit, njit_ir_inline
 from ..runtime.numba_ext import on_stack, unshared
 from .base import METRES, Array, Goal, Units, number
-from .compiled import owned
+from .residuals import owned
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 Index = np.ndarray
 KEPT = 11  # numbers kept of each of the closest pairs: distance, pair, two witness points, normal
@@ -63,7 +63,6 @@ class Clearance(Goal):
     rows: ClassVar[int] = -1
     units: ClassVar[Units] = METRES
     hard: ClassVar[bool] = True
-    grouped: ClassVar[bool] = True  # one loop with the balance kinds (mjkin.ik.compiled)
     REACH: ClassVar[float] = 0.1  # m past the margin that a pair must come within to be measured
 
     def __post_init__(self) -> None:

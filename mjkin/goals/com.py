@@ -21,12 +21,12 @@ from ..kinematics.geoms import BOX, CAPSULE, CYLINDER, ELLIPSOID, PLANE, SPHERE
 from ..kinematics.jacobian import jacobian_kernel
 from ..runtime.jit import njit, njit_ir_inline
 from .base import METRES, Array, Goal, Units, array, number, point
-from .compiled import owned
+from .residuals import owned
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 Support = Sequence[str | tuple[str, ArrayLike]]
 INERT = 1.0  # m: the value of a spare balance row (with a zero gradient)
@@ -42,7 +42,6 @@ class ComTarget(Goal):
     xyz: ArrayLike = (0.0, 0.0, 0.0)
     rows: ClassVar[int] = 3
     units: ClassVar[Units] = METRES
-    grouped: ClassVar[bool] = True  # one loop with Balance and Clearance (mjkin.ik.compiled)
     _batched: ClassVar[tuple[str, ...]] = ("xyz",)
     _cores: ClassVar[tuple[int, ...]] = (1,)
 
@@ -73,7 +72,6 @@ class Balance(Goal):
 
     support: Support = ()
     margin: float = 0.0
-    grouped: ClassVar[bool] = True  # one loop with ComTarget and Clearance (mjkin.ik.compiled)
     rows: ClassVar[int] = -1
     units: ClassVar[Units] = METRES
     hard: ClassVar[bool] = True

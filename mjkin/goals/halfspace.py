@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING, ClassVar
 
 from ..runtime.jit import njit_ir_inline
 from .base import Array
-from .compiled import HARD_TOL
 from .plane import Plane, signed_distance
+from .residuals import HARD_TOL
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from .base import METRES, Array, FrameGoal, Units, point, unit
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

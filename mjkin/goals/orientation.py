@@ -11,12 +11,12 @@ from numpy.typing import ArrayLike
 from ..errors import GoalError
 from ..runtime.jit import njit_ir_inline
 from .base import RADIANS, Array, FrameGoal, Units, rotation
-from .compiled import orientation_rows, skew_times
+from .residuals import orientation_rows, skew_times
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 AXES = {"x": 0, "y": 1, "z": 2}
 

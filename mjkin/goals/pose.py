@@ -11,12 +11,12 @@ from numpy.typing import ArrayLike
 from .. import spatial
 from ..runtime.jit import njit_ir_inline
 from .base import METRES_AND_RADIANS, Array, FrameGoal, Units, array, rotation_matrix
-from .compiled import orientation_rows, position_rows
+from .residuals import orientation_rows, position_rows
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

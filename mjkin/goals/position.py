@@ -9,12 +9,12 @@ from numpy.typing import ArrayLike
 
 from ..runtime.jit import njit_ir_inline
 from .base import METRES, Array, FrameGoal, Units, array
-from .compiled import position_rows
+from .residuals import position_rows
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

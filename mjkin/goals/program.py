@@ -12,9 +12,10 @@ from numpy.typing import NDArray
 
 from ..errors import GoalError
 from ..kinematics.geoms import Geoms, native_pairs
+from . import registry
 from .base import DATA, Array, Goal, broadcast
 from .clearance import bounded_geoms
-from .compiled import GoalArrays
+from .residuals import GoalArrays
 
 if TYPE_CHECKING:
     from ..kinematics.tree import Tree
@@ -32,7 +33,7 @@ class Structure:
 
     key: tuple
     order: tuple[int, ...]
-    kind: NDArray[np.int64]
+    code: NDArray[np.int64]  # (G,) each goal's kind, by its registry code
     body: NDArray[np.int64]
     lrot: Array
     lpos: Array
@@ -51,9 +52,16 @@ class Structure:
     joint_targets: bool  # some goal has a joint-space target (a rest pose)
 
     @cached_property
-    def kinds(self) -> tuple[int, ...]:
-        """The registry codes of the goal kinds present, ascending: the IK loop is compiled for these."""
-        return tuple(sorted(set(self.kind.tolist())))
+    def codes(self) -> tuple[int, ...]:
+        """The registry codes of the goal kinds present, ascending."""
+        return tuple(sorted(set(self.code.tolist())))
+
+    @cached_property
+    def common(self) -> bool:
+        """Whether every goal is of a :attr:`~mjkin.goals.Goal.common` kind: the goal arrays then carry no geoms,
+        pairs or support points, and the IK loop compiles no code for them (:func:`mjkin.ik.loop.other_goal`).
+        """  # noqa: D205
+        return all(registry.KINDS[c].common for c in self.codes)
 
 
 @dataclass(frozen=True, eq=False, init=False)
@@ -80,7 +88,11 @@ class Program:
     def arrays(self) -> GoalArrays:
         """The compiled evaluator's arrays (made when first asked for: a single solve copies only the targets)."""
         st = self.structure
-        return GoalArrays(st.kind, st.body, st.lrot, st.lpos, self.data, st.aux, st.column, st.sqrt_w, st.row,
+        if st.common:
+            return GoalArrays(st.code, st.body, st.lrot, st.lpos, self.data, st.aux, st.column, st.sqrt_w, st.row,
+                              self.rest_q, st.joint_row, st.level_rows, st.counted, st.hard, None, None, None, None,
+                              None)
+        return GoalArrays(st.code, st.body, st.lrot, st.lpos, self.data, st.aux, st.column, st.sqrt_w, st.row,
                           self.rest_q, st.joint_row, st.level_rows, st.counted, st.hard, self.geoms, st.bounded,
                           st.pairs, st.support, st.support_pos)
 
@@ -158,7 +170,7 @@ def structure(tree: Tree, goals: Goal | Sequence[Goal]) -> Structure:
     level_rows = np.array([row[i] for k, i in enumerate(soft) if k == 0 or gs[i].priority != gs[soft[k - 1]].priority]
                           + [row[-1]], dtype=np.int64)
     return Structure(
-        key=key_of(given), order=order, kind=np.array([g.code for g in gs], dtype=np.int64), body=body, lrot=lrot,
+        key=key_of(given), order=order, code=np.array([g.code for g in gs], dtype=np.int64), body=body, lrot=lrot,
         lpos=lpos, aux=aux, column=np.array([g.column(tree) for g in gs], dtype=np.int64),
         sqrt_w=np.sqrt([float(g.weight) for g in gs]), row=row, joint_row=joint_row, level_rows=level_rows,
         counted=np.array([g.weight > 0 and g.counted and not g.hard for g in gs]),

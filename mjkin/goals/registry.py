@@ -2,7 +2,7 @@
 
 A new kind is one module (a :class:`~mjkin.goals.base.Goal` subclass and a
 ``residual`` compiled with :data:`mjkin.runtime.jit.njit_ir_inline`, see
-:mod:`mjkin.goals.compiled` for its signature) and one call of :func:`register`.
+:mod:`mjkin.goals.residuals` for its signature) and one call of :func:`register`.
 The IK loop calls each residual at one place, so numba inlines it there: it is
 typed once, as a function of its own would be, and not compiled on its own too.
 """

@@ -12,12 +12,12 @@ from ..errors import GoalError, MjkinError
 from ..kinematics.qspace import BALL, FREE, difference_kernel
 from ..runtime.jit import njit_ir_inline
 from .base import JOINT_UNITS, Array, Goal, Units, array, numbers
-from .compiled import left_jacobian_inverse
+from .residuals import left_jacobian_inverse
 
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

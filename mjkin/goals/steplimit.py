@@ -16,7 +16,7 @@ from .base import JOINT_UNITS, Array, Goal, Units, numbers
 if TYPE_CHECKING:
     from ..kinematics.fk import Kinematics
     from ..kinematics.tree import Tree
-    from .compiled import GoalArrays
+    from .residuals import GoalArrays
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from ..kinematics.qspace import HINGE
 from ..kinematics.tree import Tree
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE
-from .method import Method, Problem
+from .method import Method, ProblemView
 from .result import Result, package
 
 Array = NDArray[np.float64]
@@ -66,7 +66,7 @@ class Planar2:
     @classmethod
     def of(cls, tree: Tree, prog: Program, q_ref: Array) -> Planar2:
         """Read the chain moving the goal's body; raises GoalError unless it is a planar two-hinge chain."""
-        if len(prog.goals) != 1 or prog.kind[0] != Position.code:
+        if len(prog.goals) != 1 or prog.code[0] != Position.code:
             raise GoalError("method 'analytic2' solves one Position goal on a two-link planar chain")
         body = int(prog.body[0])
         joints = np.unique(tree.plan.dof_jnt[tree.body_dofs[body]])
@@ -150,7 +150,7 @@ class Analytic2(Method):
             raise _closed_form(list(options))
         return cls()
 
-    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
+    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
         """Refuse what a closed form cannot honour (a subset of joints, a planted root, a history)."""
         bad = ["restarts"] if self.restarts else []
         bad += [k for k in ("base", "joints", "root") if getattr(problem, k) is not None]
@@ -159,7 +159,7 @@ class Analytic2(Method):
             raise _closed_form(bad)
         return super().prepare(problem)
 
-    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return replace(solve_analytic2(problem.tree, prog, q, problem.tol), tree=problem.tree)
 
 

@@ -34,7 +34,7 @@ from ..runtime.numba_ext import monotonic_ns
 from ..runtime.parallel import parallel_chunks
 from . import kernel
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, Kinematics, fk_into
-from .method import MAX_ITERS, Method, Problem
+from .method import MAX_ITERS, Method, ProblemView
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
@@ -178,7 +178,7 @@ def solve_ccd(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float, s
               active: NDArray[np.bool_], history: bool, starts: Array, restart_q: NDArray[np.bool_],
               patience: int = 10, timeout: float | None = None) -> Result:
     """CCD on one position goal (see :func:`mjkin.solve`); ``timeout`` in seconds per target (None: none)."""
-    if len(prog.goals) != 1 or prog.kind[0] != Position.code:
+    if len(prog.goals) != 1 or prog.code[0] != Position.code:
         raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
     body = int(prog.body[0])
     dof_jnt = tree.plan.dof_jnt
@@ -232,13 +232,13 @@ class CCD(Method):
             warnings.warn(f"sweep={self.sweep!r} is now sweep={SWEEPS[self.sweep]!r}", DeprecationWarning,
                           stacklevel=3)
 
-    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:  # noqa: D102
+    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:  # noqa: D102
         prog = problem.structure
-        if len(prog.kind) != 1 or prog.kind[0] != Position.code:
+        if len(prog.code) != 1 or prog.code[0] != Position.code:
             raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
         return super().prepare(problem)
 
-    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return solve_ccd(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters),
                          SWEEPS[self.sweep], problem.active, problem.history, problem.starts, problem.restart_q,
                          int(self.patience), problem.time_limit)

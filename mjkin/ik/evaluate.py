@@ -9,7 +9,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..goals import Goal, Program, compile_goals
 from ..kinematics.tree import Tree, check_tree
-from .compiled import kernels
+from .generated import loop_for
 
 Array = NDArray[np.float64]
 
@@ -17,7 +17,7 @@ Array = NDArray[np.float64]
 def evaluate_program(tree: Tree, prog: Program, q: Array) -> tuple[Array, Array, Array]:
     """Residuals ``(B, m)``, Jacobians ``(B, m, nv)`` and errors ``(B, G, 2)`` at ``q (B, nq)``."""
     q = np.require(q, np.float64, ["C", "W"])  # one signature: a read-only q compiled the kernel again (a minute)
-    return kernels(prog.structure.kinds).evaluate_program(tree, prog, q)
+    return loop_for(prog.structure.codes).evaluate_program(tree, prog, q)
 
 
 def evaluate(tree: Tree, goals: Goal | Sequence[Goal], q: ArrayLike) -> tuple[Array, Array, Array]:

@@ -1,7 +1,6 @@
 """The compiled IK core's parts: one step, the costs and tests a solve loop makes, and the settings.
 
-The loop itself (:mod:`mjkin.ik.loop`) is compiled with the goal kinds of the
-registry (:mod:`mjkin.ik.compiled`). Each iteration (the damped least-squares and
+The loop itself is :mod:`mjkin.ik.loop`, with a branch for each goal kind. Each iteration (the damped least-squares and
 pseudoinverse updates of the lecture notes, with the Finnish thesis's priorities):
 
 1. forward kinematics at ``q`` and every goal's weighted residual ``g`` and
@@ -47,9 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ..goals.compiled import HARD_TOL
+from ..goals.residuals import HARD_TOL
 from ..kinematics.fk import Kinematics, fk_kernel_in
-from ..runtime import tier
 from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
@@ -171,24 +169,6 @@ def damped_solve(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) 
             x[c] = acc
 
 
-def _damped_solve_numpy(A: Array, e: Array, lam2: float, x: Array, M: Array, b: Array) -> None:
-    """:func:`damped_solve` interpreted (:mod:`mjkin.runtime.tier`): LAPACK's Cholesky, not a Python loop per entry."""
-    from scipy.linalg import cho_factor, cho_solve
-
-    tall = A.shape[0] > A.shape[1]
-    G = A.T @ A if tall else A @ A.T
-    G[np.diag_indices_from(G)] += lam2
-    try:
-        y = cho_solve(cho_factor(G, lower=True), A.T @ e if tall else e)
-    except np.linalg.LinAlgError:  # not positive definite to LAPACK (λ = 0, rank-deficient): the kernel's own clamp
-        damped_solve.py_func(A, e, lam2, x, M, b)
-        return
-    x[:] = y if tall else A.T @ y
-
-
-tier.python_version(damped_solve, _damped_solve_numpy)
-
-
 @njit_inline
 def _solve_level(A: Array, e: Array, method: int, lam2: float, alpha: float, x: Array, basis: Array,
                  need_basis: bool) -> int:
@@ -308,46 +288,6 @@ def priority_step(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool
             dq += P @ x
         for r in range(rank):
             P -= np.outer(basis[r], basis[r])
-
-
-def _priority_step_numpy(J: Array, g: Array, level_rows: Index, locked: NDArray[np.bool_], method: int,
-                         lam2: Array, alpha: float, scale: float, clamp: float, ws: tuple, dq: Array,
-                         hard_level: bool) -> None:
-    """:func:`priority_step` interpreted (:mod:`mjkin.runtime.tier`): whole rows and products by numpy.
-
-    The first run's IK spends a third of its time in the step's loops over the Jacobian's entries as
-    Python; this takes them to numpy (the same step to the last bits or so: numpy's sums).
-    """
-    P, x, basis, e_all, A_all = ws
-    free = ~locked
-    levels = level_rows.shape[0] - 1
-    solve_level = tier.interpreted(_solve_level)
-    if levels > 1:
-        P[:] = np.diag(free.astype(np.float64))
-    dq[:] = 0.0
-    for lv in range(levels):
-        r0, r1 = level_rows[lv], level_rows[lv + 1]
-        Jl, gl = J[r0:r1], g[r0:r1]
-        e = e_all[:r1 - r0]
-        e[:] = -tier.interpreted(aim_scale)(gl, scale, clamp) * gl
-        if lv > 0:
-            e -= Jl @ dq
-            A = Jl @ P
-        elif free.all():
-            A = Jl
-        else:
-            A = A_all[:r1 - r0]
-            A[:] = Jl * free
-        rank = solve_level(A, e, LM if hard_level and lv == 0 else method, lam2[lv], alpha, x, basis,
-                           lv < levels - 1)
-        if lv == 0:
-            dq[free] += x[free]
-        else:
-            dq += P @ x
-        P -= basis[:rank].T @ basis[:rank]
-
-
-tier.python_version(priority_step, _priority_step_numpy)
 
 
 # ----------------------------------------------------------------------- solve

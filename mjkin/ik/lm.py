@@ -21,8 +21,8 @@ from ..runtime.checks import check_count, check_flag, check_number
 from ..runtime.numba_private import entry
 from ..runtime.parallel import parallel_chunks
 from . import kernel
-from .compiled import kernels
-from .method import MAX_ITERS, Array, Method, Problem
+from .generated import loop_for
+from .method import MAX_ITERS, Array, Method, ProblemView
 from .packed import Packed, pack, packed_kernels
 from .result import History, Result, result_of
 
@@ -31,15 +31,12 @@ if TYPE_CHECKING:
 
 AUTO_RESTARTS = 24  # many short runs beat few long ones on hard targets (see mjkin bench ik)
 TIMED_RESTARTS = 1000  # with a timeout, auto restarts until the time runs out (as TRAC-IK does)
-# lm's initial μ (λ² = λ_min² + μ·cost) and largest joint step per iteration: on the TRAC-IK protocol
-# (3000 targets, mid-range start, 1e-5) 0.1 / 1.0 cut mean iterations against 0.01 / 0.5 on every real arm
-# (Panda 26.5 -> 21.4, UR5e 27.5 -> 19.0, iiwa14 10.8 -> 8.8, Gen3 11.1 -> 8.9, xArm7 15.4 -> 14.8), success 100 %
+# lm's initial μ (λ² = λ_min² + μ·cost) and largest joint step per iteration: on the TRAC-IK protocol they took
+# fewer iterations than 0.01 / 0.5 on every real arm (docs/benchmarks.md)
 LM_MU, LM_MAX_STEP = 0.1, 1.0
 # lm's stall test: a run in which no unmet goal's error has fallen by LM_PROGRESS (10 %) within LM_PATIENCE
 # iterations restarts. A converging run falls fast; one creeping along a joint limit was kept alive by any gain
 # of the merit at all (patience 6, 1e-9). The last run (no restart left) goes on while any error falls.
-# Same protocol: mean iterations Panda 20.1 -> 13.4, UR5e 21.0 -> 15.3, xArm7 14.4 -> 10.9, batched solves/s
-# x1.4-1.5, success 100 %; from `home` at 1e-4 likewise.
 LM_PATIENCE, LM_PROGRESS = 4, 0.1
 MAX_HISTORY = 100_000  # iterations per run at most with history=True: every iterate is kept, (targets, iters, nq)
 
@@ -81,7 +78,7 @@ class Jacobian(Method):
         check_number(self.max_step, "max_step", 0, strict=True, infinite=True)
         check_number(self.goal_step, "goal_step", 0, strict=True, infinite=True)
 
-    def settings(self, problem: Problem) -> kernel.Settings:
+    def settings(self, problem: ProblemView) -> kernel.Settings:
         """The compiled loop's settings for this problem."""
         extent = float(problem.tree.model.stat.extent) or 1.0
         damping = self.relative_damping * extent if self.damping is None else self.damping
@@ -93,7 +90,7 @@ class Jacobian(Method):
         """The transpose's step size (0 = Buss's), 0 for the others."""
         return 0.0
 
-    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
+    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
         """The compiled loop with this problem's settings, made once.
 
         Raises:
@@ -167,7 +164,8 @@ class Auto(LM):
         return TIMED_RESTARTS if timed else AUTO_RESTARTS
 
 
-_LOADED: set[Callable] = set()  # the loops' solve_packed kernels loaded in this process (Loop.compiled)
+# the loops' solve_packed kernels loaded in this process (Loop.compiled), with whether for goals of common kinds only
+_LOADED: set[tuple[Callable, bool]] = set()
 
 
 class Loop:
@@ -180,7 +178,7 @@ class Loop:
     one packs its own).
     """
 
-    def __init__(self, problem: Problem, code: int, st: kernel.Settings, max_iters: int) -> None:
+    def __init__(self, problem: ProblemView, code: int, st: kernel.Settings, max_iters: int) -> None:
         self.problem, self.code, self.st, self.max_iters = problem, code, st, max_iters
         self.H = max_iters + 1 if problem.history else 0
         self.one: tuple | None = None  # (packed, its arrays) of single targets
@@ -225,20 +223,22 @@ class Loop:
 
     @cached_property
     def loop(self) -> Callable:
-        """``solve_packed`` of the loop compiled for the problem's goal kinds (:func:`mjkin.ik.compiled.kernels`)."""
-        return kernels(self.problem.structure.kinds).solve_packed
+        """:func:`mjkin.ik.loop.solve_packed` (of the loop's copy for a kind the user registered: :mod:`.generated`)."""
+        return loop_for(self.problem.structure.codes).solve_packed
 
     def compiled(self, prog: Program, arrays: tuple) -> bool:
         """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`).
 
-        Every problem packs the same types, so a loop loaded once in this process is loaded for every later
-        problem of its kinds: the check (numba typing the 18 packed fields, ~1 ms) runs once per loop, not per
+        Every problem packs the same types but for the goal arrays' (with the geoms, or without them for common
+        kinds only), so a loop loaded once in this process is loaded for every later problem of its kinds: the
+        check (numba typing the 18 packed fields, ~1 ms) runs once per loop and such type, not per
         :func:`mjkin.solve` call.
         """
-        if self.loop in _LOADED and tier.mode() != "interpret":
+        key = (self.loop, self.problem.structure.common)
+        if key in _LOADED and tier.mode() != "interpret":
             return True
         if tier.compiled(packed_kernels(self.loop, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
-            _LOADED.add(self.loop)
+            _LOADED.add(key)
             return True
         return False
 

@@ -1,14 +1,20 @@
-"""The IK loop, compiled with a problem's goal kinds: whole solves of targets, and goal evaluation.
+"""The IK loop: whole solves of targets, and goal evaluation, for every built-in goal kind.
 
-This file is a template: :mod:`mjkin.ik.compiled` writes a copy with
-:func:`evaluate_goals` dispatching to the goal kinds of a problem (codes of
-:mod:`mjkin.goals.registry`) and imports that copy, so a Pose-only problem compiles
-no distance or balance code. A solve of one target runs entirely inside
-:func:`solve_one`; :func:`solve_batch` runs a range of targets (the caller splits
-large batches across threads: the compiled code releases the GIL). Python calls
-:func:`solve_packed`, which takes all the arrays as one packed argument
-(:mod:`mjkin.ik.packed`); the other two are inlined into it by numba (one call site
-each), the kernels they call by LLVM (:data:`mjkin.runtime.jit.njit_inline`).
+:func:`evaluate_goals` has a branch for each built-in kind (:mod:`mjkin.goals`).
+The ten :attr:`~mjkin.goals.Goal.common` ones are compiled into every problem's loop;
+the others (Clearance, the centre of mass's two) sit in :func:`other_goal`, which
+numba compiles to nothing for goal arrays that do not carry their arrays (a problem
+of common kinds only: :attr:`mjkin.goals.Program.arrays`). So a Pose problem compiles
+no distance or balance code, and the two loops are two specialisations of the same
+compiled, cached functions. A kind the user registers runs in a copy of this file
+with a branch for it (:mod:`mjkin.ik.generated`).
+
+A solve of one target runs entirely inside :func:`solve_one`; :func:`solve_batch`
+runs a range of targets (the caller splits large batches across threads: the
+compiled code releases the GIL). Python calls :func:`solve_packed`, which takes all
+the arrays as one packed argument (:mod:`mjkin.ik.packed`); the other two are
+inlined into it by numba (one call site each), the kernels they call by LLVM
+(:data:`mjkin.runtime.jit.njit_inline`).
 """
 
 from __future__ import annotations
@@ -18,7 +24,35 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from mjkin.goals.compiled import GoalArrays, goal_frame, hard_error, scratch
+from mjkin.goals import (
+    Aim,
+    Balance,
+    Clearance,
+    ComTarget,
+    Coupling,
+    HalfSpace,
+    Line,
+    Orientation,
+    Plane,
+    Pose,
+    Position,
+    Rest,
+    StepLimit,
+)
+from mjkin.goals.aim import residual as aim_residual
+from mjkin.goals.clearance import residual as clearance_residual
+from mjkin.goals.com import balance_residual
+from mjkin.goals.com import residual as com_residual
+from mjkin.goals.coupling import residual as coupling_residual
+from mjkin.goals.halfspace import residual as halfspace_residual
+from mjkin.goals.line import residual as line_residual
+from mjkin.goals.orientation import residual as orientation_residual
+from mjkin.goals.plane import residual as plane_residual
+from mjkin.goals.pose import residual as pose_residual
+from mjkin.goals.position import residual as position_residual
+from mjkin.goals.residuals import GoalArrays, goal_frame, hard_error, scratch
+from mjkin.goals.rest import residual as rest_residual
+from mjkin.goals.steplimit import residual as steplimit_residual
 from mjkin.ik.kernel import (
     BINDING,
     CONSTRAINT,
@@ -49,6 +83,7 @@ from mjkin.ik.kernel import (
 from mjkin.ik.loop_shared import correct_hard, inward, loop_scratch, stack_active, to_first_limit
 from mjkin.ik.packed import Packed
 from mjkin.kinematics.fk import Kinematics, fk_scratch
+from mjkin.kinematics.geoms import Geoms
 from mjkin.kinematics.qspace import HINGE, SLIDE, clip_kernel, integrate_kernel
 from mjkin.runtime.jit import njit, njit_inline, njit_ir_inline
 from mjkin.runtime.numba_ext import borrowed, borrowed_fields, keep_alive, monotonic_ns
@@ -61,24 +96,73 @@ Array = NDArray[np.float64]
 Index = NDArray[np.int64]
 
 
-# BEGIN evaluate_goals (generated: one branch per registered kind)
+# the built-in kinds' registry codes (mjkin.goals registers them first, in this order): constants to numba
+POSITION, ORIENTATION, POSE, AIM, LINE, PLANE, HALF_SPACE, REST, COUPLING, STEP_LIMIT = (
+    Position.code, Orientation.code, Pose.code, Aim.code, Line.code, Plane.code, HalfSpace.code, Rest.code,
+    Coupling.code, StepLimit.code)
+CLEARANCE, COM_TARGET, BALANCE = Clearance.code, ComTarget.code, Balance.code
+BUILT_IN = BALANCE + 1  # kinds registered later (codes from here on) run in a copy of this file (mjkin.ik.generated)
+
+
 @njit_inline
 def evaluate_goals(kin: Kinematics, ga: GoalArrays, ws: tuple, b: int, q: Array, rot: Array, pos: Array,
                    irot: Array, ipos: Array, g: Array, J: Array, err: Array) -> None:
     """Weighted residuals ``g (m,)``, Jacobians ``J (m, nv)``, errors ``err (G, 2)`` at ``q (1, nq)``.
 
     ``rot``/``pos``/``irot``/``ipos`` hold FK at ``q``; ``b`` selects the target; ``ws``
-    comes from :func:`mjkin.goals.compiled.scratch`. A hard goal's error is its violation.
+    comes from :func:`mjkin.goals.residuals.scratch`. A hard goal's error is its violation.
+    Each kind's residual is inlined here by numba (one call site each).
     """
-    for i in range(ga.kind.shape[0]):
+    for i in range(ga.code.shape[0]):
         err[i, 0] = 0.0
         err[i, 1] = 0.0
         if ga.body[i] >= 0:
             goal_frame(kin, ga, i, rot, pos, irot, ipos, ws)
-        pass  # DISPATCH: mjkin.ik.compiled puts one branch per registered kind here
+        code, r0 = ga.code[i], ga.row[i]
+        if code == POSITION:
+            position_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == ORIENTATION:
+            orientation_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == POSE:
+            pose_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == AIM:
+            aim_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == LINE:
+            line_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == PLANE:
+            plane_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == HALF_SPACE:
+            halfspace_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == REST:
+            rest_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == COUPLING:
+            coupling_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        elif code == STEP_LIMIT:
+            steplimit_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+        # REGISTERED KINDS: mjkin.ik.generated adds a branch here for each kind registered after these
+        else:
+            other_goal(kin, ga, ga.geoms, ws, rot, pos, irot, ipos, code, i, b, q, g, J, r0, err)
         if ga.hard[i]:
             hard_error(ga, i, g, err)
-# END evaluate_goals
+
+
+@njit_inline
+def other_goal(kin: Kinematics, ga: GoalArrays, geoms: Geoms | None, ws: tuple, rot: Array, pos: Array, irot: Array,
+               ipos: Array, code: int, i: int, b: int, q: Array, g: Array, J: Array, r0: int, err: Array) -> None:
+    """Goal ``i``'s rows when its kind is a built-in one that is not common: Clearance, the centre of mass's two.
+
+    ``geoms`` is ``ga.geoms``: None in a problem of common kinds only, whose goal arrays carry no
+    geoms, pairs or support points (:attr:`mjkin.goals.Program.arrays`). numba prunes a branch on an
+    argument that is None by its type, so for such a problem this compiles to nothing.
+    """
+    if geoms is None:
+        return
+    if code == CLEARANCE:
+        clearance_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+    elif code == COM_TARGET:
+        com_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
+    elif code == BALANCE:
+        balance_residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err)
 
 
 @njit_ir_inline
@@ -106,9 +190,9 @@ def solve_one(kin: Kinematics, ga: GoalArrays, b: int, q: Array, method: int, st
     halving, patience, goal_step = st.halving, st.patience, st.goal_step
     nv = kin.dof_body.shape[0]
     level_rows, counted, hard = ga.level_rows, ga.counted, ga.hard
-    m, G, L = ga.row[-1], ga.kind.shape[0], level_rows.shape[0] - 1
+    m, G, L = ga.row[-1], ga.code.shape[0], level_rows.shape[0] - 1
     lo, hi, dof_q, dof_j = kin.jnt_lo, kin.jnt_hi, kin.dof_qadr, kin.dof_jnt
-    # from here on, arrays without reference counts (mjkin.runtime.jit.borrowed): the caller owns them all
+    # from here on, arrays without reference counts (mjkin.runtime.numba_ext.borrowed): the caller owns them all
     kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err = borrowed(
         (kin, ga, q, restarts, restart_q, active, err_out, hist_q, hist_err))
     level_rows, counted, hard, lo, hi, dof_q, dof_j = borrowed((level_rows, counted, hard, lo, hi, dof_q, dof_j))
@@ -323,8 +407,6 @@ def solve_packed(pk: Packed, lo: int, hi: int) -> None:
     solve_batch(kin, ga, q, method, settings, max_iters, starts, restart_q, active, iters, status, used, binding, err,
                 hist_q, hist_err, lo, hi)
     summarise(err[lo:hi], ga.counted, ga.hard, settings.tol, settings.rot_tol, worst[lo:hi], success[lo:hi])
-
-
 
 
 @njit

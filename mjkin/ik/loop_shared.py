@@ -1,8 +1,8 @@
-"""The parts of the IK loop that do not depend on a problem's goal kinds, compiled once for every loop.
+"""The parts of the IK loop that do not depend on the goal kinds, compiled once for the loop and any copy of it.
 
-:mod:`mjkin.ik.loop` is copied per set of goal kinds (:mod:`mjkin.ik.compiled`); what
-it calls from here is compiled and cached once, not once in each copy (~7 s of CPU
-a loop copy on the project's machine), and LLVM inlines or links it as before.
+A kind the user registers runs in a copy of :mod:`mjkin.ik.loop` (:mod:`mjkin.ik.generated`);
+what the loop calls from here is compiled and cached once, not again in each copy, and
+LLVM inlines or links it as before.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from mjkin.goals.compiled import GoalArrays, scratch
+from mjkin.goals.residuals import GoalArrays, scratch
 from mjkin.ik.kernel import HARD_DAMPING2, damped_solve, step_scratch
 from mjkin.kinematics.fk import Kinematics, fk_scratch
 from mjkin.kinematics.qspace import HINGE, SLIDE, integrate_kernel
@@ -26,10 +26,10 @@ def loop_scratch(kin: Kinematics, ga: GoalArrays, nq: int) -> tuple:
 
     Made once for a range of targets, not per target: for a short solve (a 6-D
     pose on a 7-DoF arm) their allocation was a measurable part of it.
-    ``solve_one`` takes them :func:`~mjkin.runtime.jit.borrowed`, so the caller keeps this tuple
+    ``solve_one`` takes them :func:`~mjkin.runtime.numba_ext.borrowed`, so the caller keeps this tuple
     alive past its last solve.
     """
-    nv, m, G, L = kin.dof_body.shape[0], ga.row[-1], ga.kind.shape[0], ga.level_rows.shape[0] - 1
+    nv, m, G, L = kin.dof_body.shape[0], ga.row[-1], ga.code.shape[0], ga.level_rows.shape[0] - 1
     h = ga.level_rows[0]  # hard constraints: rows [0, h)
     rot, pos, irot, ipos = fk_scratch(kin.parent, kin.jnt_inner)
     hard_row = np.zeros(h, dtype=np.bool_)  # the rows of hard goals (the others in [0, h) are unused)

@@ -31,7 +31,7 @@ MAX_ITERS = 10**9  # iterations (and patience) a run takes at most: hours of wor
 MAX_UNTIMED = 10**7
 
 
-class Problem(Protocol):
+class ProblemView(Protocol):
     """What a method reads of the :class:`mjkin.Problem` it runs for (set once, at the problem's construction)."""
 
     tree: Tree
@@ -104,7 +104,7 @@ class Method(metaclass=_Options):
         """The time limit per target when none is given (seconds; None: none)."""
         return None
 
-    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:
+    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
         """Check the problem suits this method and return its runner (once, at the problem's construction).
 
         The runner solves every target of a program from the starts ``q (B, nq)``
@@ -113,7 +113,7 @@ class Method(metaclass=_Options):
         """
         return partial(self.run, problem)
 
-    def run(self, problem: Problem, prog: Program, q: Array) -> Result:
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:
         """Solve every target of ``prog`` from the starts ``q (B, nq)`` (overwritten) and package the result."""
         raise NotImplementedError(f"{type(self).__name__} must define run")
 

@@ -33,7 +33,7 @@ from ..kinematics.tree import Tree
 from ..runtime.checks import check_count
 from .evaluate import evaluate_program
 from .kernel import BINDING, CONSTRAINT, CONVERGED, HARD_TOL, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE
-from .method import MAX_ITERS, Method, Problem
+from .method import MAX_ITERS, Method, ProblemView
 from .result import Result, package
 
 Array = NDArray[np.float64]
@@ -72,7 +72,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
 
     rows = prog.row
     free = np.flatnonzero(active)
-    constraint_goal = (prog.kind == Coupling.code) | prog.hard
+    constraint_goal = (prog.code == Coupling.code) | prog.hard
     scalar = np.isin(tree.jnt_type[tree.plan.dof_jnt], (HINGE, SLIDE))
     q_start = q0.copy()
     hit_limit = False
@@ -114,7 +114,7 @@ def _solve_one(tree: Tree, prog: Program, q0: Array, max_iters: int, active: NDA
                 lo[d], hi[d] = tree.jnt_range[j, 0] - q_start[a], tree.jnt_range[j, 1] - q_start[a]
         bounds = list(zip(np.minimum(lo[free], 0), np.maximum(hi[free], 0), strict=True))
         cons: list[dict] = []
-        for i in np.flatnonzero((prog.kind == Coupling.code) & (prog.sqrt_w > 0)):
+        for i in np.flatnonzero((prog.code == Coupling.code) & (prog.sqrt_w > 0)):
             cons.append({"type": "eq", "fun": lambda v, r=rows[i]: evaluate_program(tree, prog, at(v)[None])[0][0, r],
                          "jac": lambda v, r=rows[i]: evaluate_program(tree, prog, at(v)[None])[1][0, r, free]})
         hard = rows_of(prog.hard)  # the hard goals' rows: s >= 0
@@ -242,6 +242,6 @@ class Optimize(Method):
     def default_timeout(self) -> float | None:  # noqa: D102
         return OPTIMIZE_TIMEOUT
 
-    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return solve_optimize(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters),
                               problem.active, problem.starts, problem.restart_q, problem.time_limit)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from ..runtime.jit import njit
 
 if TYPE_CHECKING:
-    from ..goals.compiled import GoalArrays
+    from ..goals.residuals import GoalArrays
     from ..kinematics.fk import Kinematics
     from .kernel import Settings
 

@@ -27,10 +27,10 @@ from ..kinematics.tree import Tree, check_tree
 from ..runtime import tier
 from ..runtime.cache import stamp, stored_array
 from ..runtime.checks import check_count, check_flag, check_number
+from .by_name import METHODS
 from .evaluate import evaluate_program
 from .kernel import CONVERGED, UNREACHABLE, summarise
 from .method import MAX_UNTIMED, Method
-from .methods import METHODS
 from .reasons import certify
 from .result import History, Result, package
 
@@ -219,7 +219,7 @@ class Problem:
         """The q entries a solve wraps into (-π, π]: unlimited hinges that no Coupling goal names."""
         tree, st = self.tree, self.structure
         hinges = tree.layout.unlimited_hinge_q
-        couplings = [i for i in range(len(st.kind)) if st.kind[i] == Coupling.code]
+        couplings = [i for i in range(len(st.code)) if st.code[i] == Coupling.code]
         if not len(hinges) or not couplings:
             return hinges
         named = np.flatnonzero(np.any(st.joint_row[couplings] != 0, axis=0))

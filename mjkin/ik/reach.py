@@ -44,7 +44,7 @@ from ..kinematics.qspace import BALL, FREE, HINGE, quat_angle_clip, quat_turn
 from ..kinematics.tree import Tree
 from ..runtime.checks import check_count
 from .kernel import CONVERGED, LIMITS, MAX_ITERATIONS, TIMEOUT, UNREACHABLE, fk_into
-from .method import MAX_ITERS, Method, Problem
+from .method import MAX_ITERS, Method, ProblemView
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
@@ -282,7 +282,7 @@ def solve_reach(tree: Tree, prog: Program, q: Array, tol: float, rot_tol: float,
     taken where ``restart_q`` is True and from its own start elsewhere; the best run is kept.
     ``timeout``: seconds per target, restarts included (None: none).
     """
-    if len(prog.goals) != 1 or prog.kind[0] != Position.code:
+    if len(prog.goals) != 1 or prog.code[0] != Position.code:
         raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
     body = int(prog.body[0])
     dof_jnt = tree.plan.dof_jnt
@@ -349,12 +349,12 @@ class Reach(Method):
         super().__post_init__()
         check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
 
-    def prepare(self, problem: Problem) -> Callable[[Program, Array], Result]:  # noqa: D102
+    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:  # noqa: D102
         prog = problem.structure
-        if len(prog.kind) != 1 or prog.kind[0] != Position.code:
+        if len(prog.code) != 1 or prog.code[0] != Position.code:
             raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
         return super().prepare(problem)
 
-    def run(self, problem: Problem, prog: Program, q: Array) -> Result:  # noqa: D102
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return solve_reach(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters), problem.active,
                            problem.history, problem.starts, problem.restart_q, problem.time_limit)

@@ -35,7 +35,7 @@ from .evaluate import evaluate_program
 from .kernel import HARD_TOL
 
 if TYPE_CHECKING:
-    from .method import Problem
+    from .method import ProblemView
 
 Array = NDArray[np.float64]
 OUT_OF_REACH, LIMITS, BALANCE, NOT_FOUND = "out_of_reach", "limits", "balance", "not_found"
@@ -113,7 +113,7 @@ def _positions(tree: Tree, prog: Program, skip: set[int]) -> list[tuple[int, int
     return out
 
 
-def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool_]) -> NDArray[np.str_]:
+def certify(problem: ProblemView, prog: Program, q0: Array, success: NDArray[np.bool_]) -> NDArray[np.str_]:
     """The reason ``(B,)`` of each target: ``""`` where ``success``, else proven or ``"not_found"``.
 
     ``q0 (B, nq)`` are the solve's starts (the joints that do not move keep them).
@@ -139,7 +139,7 @@ def certify(problem: Problem, prog: Program, q0: Array, success: NDArray[np.bool
     return reason
 
 
-def _balance(problem: Problem, prog: Program, q0: Array) -> NDArray[np.bool_]:
+def _balance(problem: ProblemView, prog: Program, q0: Array) -> NDArray[np.bool_]:
     """Targets ``(B,)`` whose centre-of-mass target lies outside every support a hard Balance can reach.
 
     Each support point stays within its :func:`reach_bound` of an anchor (``q0 (B, nq)``
@@ -170,7 +170,7 @@ def _balance(problem: Problem, prog: Program, q0: Array) -> NDArray[np.bool_]:
     return proven
 
 
-def _limits(problem: Problem, prog: Program, q0: Array, goal: tuple[int, int, Array, Array]) -> NDArray[np.bool_]:
+def _limits(problem: ProblemView, prog: Program, q0: Array, goal: tuple[int, int, Array, Array]) -> NDArray[np.bool_]:
     """Targets ``(B,)`` proven blocked by the limits when one limited hinge or slide moves every goal frame.
 
     The value that puts ``goal``'s point nearest its target is computed with the

@@ -23,7 +23,6 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from ..runtime import tier
 from ..runtime.jit import njit, njit_inline
 from .mat3 import axis_angle, quat_to_mat
 from .qspace import BALL, FREE, HINGE, SLIDE, Joints
@@ -210,46 +209,6 @@ def fk_kernel_in(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jn
                         inner_pos[b, s, i] = pos[b, body, i]
                         for k in range(3):
                             inner_rot[b, s, i, k] = rot[b, body, i, k]
-
-
-def _fk_numpy(q: Array, parent: Index, fixed_rot: Array, fixed_pos: Array, jnt_start: Index, jnt_count: Index,
-              jnt_inner: Index, fixed_plain: NDArray[np.bool_], hinge_coord: Index, anchor_zero: NDArray[np.bool_],
-              jnt_type: Index, jnt_qadr: Index, jnt_axis: Array, jnt_pos: Array, qpos0: Array, rot: Array, pos: Array,
-              inner_rot: Array, inner_pos: Array, A: Array, t: Array, R: Array) -> None:
-    """:func:`fk_kernel_in` interpreted (:mod:`mjkin.runtime.tier`): the tree in order, each product by numpy."""
-    rodrigues, to_mat = tier.interpreted(axis_angle), tier.interpreted(quat_to_mat)
-    for b in range(q.shape[0]):
-        rot[b, 0], pos[b, 0] = np.eye(3), 0.0
-        for body in range(1, parent.shape[0]):
-            up = rot[b, parent[body]]
-            rot[b, body] = up if fixed_plain[body] else up @ fixed_rot[body]
-            pos[b, body] = pos[b, parent[body]] + up @ fixed_pos[body]
-            for j in range(jnt_start[body], jnt_start[body] + jnt_count[body]):
-                a, kind, c, Rb = jnt_qadr[j], jnt_type[j], hinge_coord[j], rot[b, body]
-                if c >= 0 and anchor_zero[j]:  # about a coordinate axis: columns c+1, c+2 turn
-                    angle = q[b, a] - qpos0[a]
-                    sn, cs = np.sin(angle), np.cos(angle)
-                    r1, r2 = Rb[:, (c + 1) % 3].copy(), Rb[:, (c + 2) % 3].copy()
-                    Rb[:, (c + 1) % 3], Rb[:, (c + 2) % 3] = cs * r1 + sn * r2, cs * r2 - sn * r1
-                else:
-                    if kind == HINGE:
-                        rodrigues(jnt_axis[j, 0], jnt_axis[j, 1], jnt_axis[j, 2], q[b, a] - qpos0[a], A)
-                    elif kind == BALL or kind == FREE:
-                        k = a + (3 if kind == FREE else 0)
-                        to_mat(q[b, k], q[b, k + 1], q[b, k + 2], q[b, k + 3], A)
-                    if kind == SLIDE:
-                        pos[b, body] += Rb @ (jnt_axis[j] * (q[b, a] - qpos0[a]))
-                    elif kind == FREE:
-                        pos[b, body] += Rb @ q[b, a:a + 3]
-                    elif not anchor_zero[j]:  # hinge and ball turn about the anchor
-                        pos[b, body] += Rb @ (jnt_pos[j] - A @ jnt_pos[j])
-                    if kind != SLIDE:
-                        Rb[:] = Rb @ A
-                if jnt_inner[j] >= 0:
-                    inner_pos[b, jnt_inner[j]], inner_rot[b, jnt_inner[j]] = pos[b, body], Rb
-
-
-tier.python_version(fk_kernel_in, _fk_numpy)
 
 
 def moved(local: Array, offset: Array) -> Array:

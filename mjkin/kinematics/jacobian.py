@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..runtime import tier
 from ..runtime.jit import njit, njit_inline
 from .fk import Kinematics, fk_kernel, fk_scratch, frame_world
 
@@ -55,27 +54,6 @@ def jacobian_kernel(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, 
             else:
                 J[b, 0, d], J[b, 1, d], J[b, 2, d] = u0, u1, u2
                 J[b, 3, d], J[b, 4, d], J[b, 5, d] = 0.0, 0.0, 0.0
-
-
-def _jacobian_numpy(rot: Array, pos: Array, inner_rot: Array, inner_pos: Array, dofs: Index, dof_body: Index,
-                    dof_inner: Index, dof_axis: Array, dof_world: NDArray[np.bool_], dof_rot: NDArray[np.bool_],
-                    dof_anchor: Array, point: Array, J: Array) -> None:
-    """:func:`jacobian_kernel` interpreted (:mod:`mjkin.runtime.tier`): every column at once, by numpy."""
-    s, axis, anchor = dof_inner[dofs], dof_axis[dofs], dof_anchor[dofs]
-    inner = s >= 0
-    world, turn = dof_world[dofs][:, None], dof_rot[dofs][:, None]
-    for b in range(point.shape[0]):
-        R, X = rot[b, dof_body[dofs]], pos[b, dof_body[dofs]]  # (n, 3, 3), (n, 3): the joint frames
-        if inner.any():
-            R[inner], X[inner] = inner_rot[b, s[inner]], inner_pos[b, s[inner]]
-        u = np.where(world, axis, np.einsum("nij,nj->ni", R, axis))
-        r = point[b] - X - np.einsum("nij,nj->ni", R, anchor)  # from the world anchor to the point
-        cross = u[:, [1, 2, 0]] * r[:, [2, 0, 1]] - u[:, [2, 0, 1]] * r[:, [1, 2, 0]]  # u × r (np.cross: 10x slower)
-        J[b, :3, dofs] = np.where(turn, cross, u)
-        J[b, 3:, dofs] = np.where(turn, u, 0.0)
-
-
-tier.python_version(jacobian_kernel, _jacobian_numpy)
 
 
 @njit_inline

@@ -6,8 +6,8 @@ targets, a one-q pose) of a kernel neither in memory nor on disk runs the kernel
 (:func:`interpreted`; an easy 7-DoF solve takes ~10-100 ms so), and a child process compiles the
 kernel into the disk cache; the first call after the child is done loads it (0.1-0.4 s). The child
 outlives this process, so a short script still leaves the cache warm. Within :func:`later`
-(``mjkin demo``) no child starts until its end. Kernels whose source loops over array entries may
-name a numpy stand-in for interpreted runs (:func:`python_version`).
+(``mjkin demo``) no child starts until its end. Every kernel runs its own source interpreted; only what
+compiled code alone can call (an intrinsic, a StructRef type) names a Python stand-in (:func:`python_version`).
 
 Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another process is
 compiling it), one a child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile

@@ -16,10 +16,9 @@ from mjkin.apps.cli import main
 _SOLVE = """
 import numba, mjkin
 from mjkin.goals import Pose
-from mjkin.ik.compiled import kernels
+from mjkin.ik.loop import solve_packed as solver  # the loop's one entry from Python
 tree = mjkin.load("arm7")
 mjkin.solve(tree, Pose("ee", T=tree.pose(tree.qpos0, "ee")))
-solver = kernels((Pose.code,)).solve_packed  # the loop's one entry from Python
 print(isinstance(solver, numba.core.registry.CPUDispatcher), len(solver.signatures),
       sum(solver.stats.cache_hits.values()), sum(solver.stats.cache_misses.values()))
 """

@@ -18,8 +18,8 @@ from mjkin import goals as G
 from mjkin.errors import GoalError
 from mjkin.goals.program import compile_goals
 from mjkin.ik import kernel
-from mjkin.ik.compiled import kernels
 from mjkin.ik.lm import AUTO_RESTARTS
+from mjkin.ik.loop import solve_packed
 
 
 def pose_targets(tree, site, rng, n):
@@ -520,6 +520,21 @@ def test_a_loop_is_checked_for_compiled_once_per_process_not_per_solve(rng, monk
     assert interpreted
 
 
+def test_the_loop_loaded_for_common_kinds_is_checked_again_for_the_others(rng, monkeypatch):
+    """One solve_packed serves both: loaded for a Pose problem, it is not taken as loaded for a Clearance problem,
+    whose goal arrays (with the geoms) are another compiled version, to be loaded or compiled through the tier."""
+    from mjkin.ik import lm
+
+    tree = tree_of("arm7")
+    T = pose_targets(tree, "ee", rng, 2)
+    monkeypatch.setattr(lm, "_LOADED", set())  # as in a new process: nothing loaded yet
+    mjkin.solve(tree, G.Pose("ee", T=T[0]))
+    calls, checked = [], lm.packed_kernels
+    monkeypatch.setattr(lm, "packed_kernels", lambda *a: calls.append(a) or checked(*a))
+    mjkin.solve(tree, G.Pose("ee", T=T[1]), avoid_collisions=True)
+    assert len(calls) == 1 and calls[0][1][1].geoms is tree.geoms
+
+
 @given(st.integers(0, 100_000), st.integers(1, 64), st.integers(1, 256))
 def test_chunks_cover_the_batch_once_and_shrink(n, workers, min_chunk):
     from mjkin.runtime.parallel import chunk_edges
@@ -538,13 +553,12 @@ def test_batch_sizes_share_one_compiled_kernel(rng):
     tree = tree_of("arm7")
     T = pose_targets(tree, "ee", rng, 70)
     mjkin.solve(tree, G.Pose("ee", T=T))
-    loop = kernels((G.Pose.code,)).solve_packed
-    before = len(loop.signatures)
+    before = len(solve_packed.signatures)
     assert before >= 1
     for goal in (G.Pose("ee", T=T[0]), G.Pose("ee", T=T[:1]), G.Pose("ee", T=T[:5])):
         mjkin.solve(tree, goal)
     mjkin.solve(tree, G.Pose("ee", T=T[0]), restarts=0)
-    assert len(loop.signatures) == before
+    assert len(solve_packed.signatures) == before
 
 
 def test_a_problem_solves_new_targets_of_its_structure_as_solve_does(rng):

@@ -35,7 +35,7 @@ import mjkin
 from mjkin import goals as G
 from mjkin import motion, render
 from mjkin.goals.program import compile_goals
-from mjkin.ik.methods import METHODS
+from mjkin.ik.by_name import METHODS
 from mjkin.motion import bvh
 from mjkin.motion.bvh import _is_number
 
@@ -247,7 +247,7 @@ GOALS: dict[str, tuple[str, Callable[[], G.Goal]]] = {
     "com": ("primate", lambda: G.CenterOfMass(xyz=(0.0, 0.0, 0.5))),
     "balance": ("primate", lambda: G.CenterOfMass(support=["left_foot", "right_foot"])),
 }
-GROUPED = {"clearance", "com", "balance"}  # kinds of the second IK loop (mjkin.ik.compiled.loop_kinds)
+GROUPED = {"clearance", "com", "balance"}  # the kinds that are not common (mjkin.ik.loop.other_goal)
 FIELD_VALUES = (extreme | junk | st.sampled_from([0, 2, -1, 2**70, 1.5, "site", "body", "world", (0.0, 0.1, 0.0),
                                                   {"j1": "x"}, [("a", 1)], [(0, 1)], "xz"])
                 | hnp.arrays(np.float64, st.sampled_from([(), (2,), (3,), (1, 3), (0,), (7,), (3, 3)]),

@@ -1,10 +1,16 @@
 """The numba set-up: the kernel cache (stamped by what a kernel imports, read where it cannot write), borrowed views."""
 
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import numba
 import numpy as np
 
 import mjkin
+from conftest import tree_of
 from mjkin.goals import Position
 from mjkin.ik.packed import FIELDS, Packed
 from mjkin.runtime.numba_ext import borrowed, borrowed_fields, keep_alive
@@ -56,7 +62,7 @@ def test_a_kernel_is_stamped_with_its_packages_sources_as_this_process_loaded_th
 
 
 def test_an_edit_of_the_goal_helpers_restamps_the_ik_loop(tmp_path, monkeypatch):
-    """An edit of position_rows (goals/compiled.py) restamps the loop and Position's residual that inline it: no
+    """An edit of position_rows (goals/residuals.py) restamps the loop and Position's residual that inline it: no
     stale code. Every kernel of the package is restamped with them (the price of a stamp read in ~5 ms)."""
     import shutil
 
@@ -66,7 +72,7 @@ def test_an_edit_of_the_goal_helpers_restamps_the_ik_loop(tmp_path, monkeypatch)
     shutil.copytree(cache.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
     files = [copy / "ik" / "loop.py", copy / "goals" / "position.py"]
     before = [cache.stamp(f) for f in files]
-    helpers = copy / "goals" / "compiled.py"
+    helpers = copy / "goals" / "residuals.py"
     helpers.write_text(helpers.read_text().replace("w * (pt[0, a] - ga.data[b, i, a])",
                                                    "w * (pt[0, a] + 0.1 - ga.data[b, i, a])"))
     monkeypatch.setattr(cache, "_LOADED", {})
@@ -189,36 +195,63 @@ def test_a_warm_process_draws_no_restarts_its_starts_are_read_with_the_same_bits
     assert run() == [False, True, [11, 7]]  # read: scipy.stats not imported until the check after it
 
 
-def test_the_loop_is_compiled_for_the_kinds_a_problem_holds():
-    """A Pose problem's loop dispatches to Pose alone: no distance or balance code is compiled for it."""
-    from mjkin.goals import Clearance, HalfSpace, Pose, registry
-    from mjkin.goals.com import Balance, ComTarget
-    from mjkin.ik import compiled
+def test_a_problem_of_common_kinds_compiles_no_code_of_the_others(tmp_path):
+    """A Pose problem's goal arrays carry no geoms, and the loop's branch of the other kinds compiles to nothing for
+    them: numba prunes it on the None argument, so no distance or balance code is typed (a process of its own, an
+    empty cache: nothing is loaded from disk)."""
+    script = textwrap.dedent("""
+        import numba, numpy as np, mjkin
+        from mjkin import goals as G
+        from mjkin.goals.program import compile_goals
+        from mjkin.goals.clearance import clearance_rows
+        from mjkin.goals.com import balance_rows
+        from mjkin.ik import loop
+        tree = mjkin.load("arm7")
+        prog = compile_goals(tree, G.Pose("ee", T=np.eye(4)))
+        ga = prog.arrays
+        assert ga.geoms is None and ga.pairs is None and ga.support is None
+        f, i = numba.float64, numba.int64
+        a1, a2, a3, a4 = (numba.types.Array(f, n, "C") for n in (1, 2, 3, 4))
+        ws = numba.typeof(loop.scratch(tree.nv))
+        loop.other_goal.compile((numba.typeof(tree.kin), numba.typeof(ga), numba.types.none, ws, a4, a3, a4, a3,
+                                 i, i, i, a2, a1, a2, i, a2))
+        print(len(loop.other_goal.signatures), len(clearance_rows.signatures), len(balance_rows.signatures))
+    """)
+    env = {**os.environ, "MJKIN_COMPILE": "wait", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split() == ["1", "0", "0"]
+    from mjkin.goals import Clearance, Position, compile_goals
 
-    text = compiled.source((Pose.code,))
-    assert "mjkin.goals.pose import residual" in text and text.count("ga.kind[i] ==") == 1  # the source of Pose alone
-    assert "clearance" not in text and "com import" not in text
-    both = compiled.source((Clearance.code, HalfSpace.code))
-    assert both.count("ga.kind[i] ==") == 2 and "mjkin.goals.clearance import residual" in both
-    # a problem's loop: its kinds and the common ones (cheap), so Pose and Position problems share one
-    common = compiled.loop_kinds((Pose.code,))
-    assert common == compiled.loop_kinds((HalfSpace.code,)) and Clearance.code not in common
-    # the costly kinds come as one group: any of them compiles the loop of all, which every mix of them shares
-    grouped = [c for c, k in enumerate(registry.KINDS) if k.grouped]
-    assert {Clearance.code, ComTarget.code, Balance.code} <= set(grouped) and not set(grouped) & set(common)
-    assert compiled.loop_kinds((Clearance.code,)) == tuple(sorted((*common, *grouped)))
-    assert compiled.loop_kinds((Balance.code, HalfSpace.code)) == compiled.loop_kinds((Clearance.code,))
+    tree = tree_of("arm7")
+    both = compile_goals(tree, [Position("ee", (0.3, 0.0, 0.5)), Clearance(0.01)])
+    assert both.arrays.geoms is tree.geoms and len(both.arrays.pairs)  # the other kinds' problems carry them
+
+
+def test_the_loop_of_built_in_kinds_is_the_package_file_and_a_registered_kind_gets_a_copy(monkeypatch):
+    """Built-in kinds run ``mjkin/ik/loop.py`` itself; a kind the user registers runs in a generated copy of it with
+    one more branch, which imports the kind's residual from its module."""
+    from mjkin.goals import Clearance, Pose, registry
+    from mjkin.goals.position import residual as position_residual
+    from mjkin.ik import generated, loop
+
+    assert generated.loop_for((Pose.code,)) is loop and generated.loop_for((Pose.code, Clearance.code)) is loop
+    assert generated.MARKER in Path(loop.__file__).read_text()
+    monkeypatch.setattr(registry, "KINDS", [*registry.KINDS, type("Beacon", (Pose,), {})])
+    monkeypatch.setattr(registry, "RESIDUALS", [*registry.RESIDUALS, position_residual])
+    text = generated.source((loop.BUILT_IN,))
+    assert text.count("elif code == ") == Path(loop.__file__).read_text().count("elif code == ") + 1
+    assert f"from mjkin.goals.position import residual as _k{loop.BUILT_IN}" in text
 
 
 def test_warmup_compiles_every_kernel_mjkin_runs():
     from mjkin.apps.warmup import warmup
-    from mjkin.goals import Pose
-    from mjkin.ik.compiled import kernels
+    from mjkin.ik.loop import solve_packed
     from mjkin.kinematics.fk import fk_kernel
 
     seconds, _ = warmup(jobs=1)  # here, so this process holds what it compiled or loaded
     assert seconds > 0
-    assert kernels((Pose.code,)).solve_packed.signatures and fk_kernel.signatures
+    assert len(solve_packed.signatures) >= 2 and fk_kernel.signatures  # the loop of common kinds, and of the others
 
 
 def test_borrowed_views_read_and_write_their_owners():

@@ -181,36 +181,6 @@ def test_a_cold_kernel_runs_interpreted_while_a_child_compiles_it_then_loads_it(
     assert len(notes) == 2
 
 
-@pytest.mark.parametrize("model", ["primate", "ball_chain", "planar_prismatic", GYM_ASSETS / "humanoid.xml",
-                                   GYM_ASSETS / "ant.xml"])
-def test_the_numpy_stand_ins_of_fk_and_the_jacobian_equal_the_kernels_python(model):
-    """What interpreted IK runs for FK and each goal's Jacobian (:func:`tier.python_version`) against the kernels' own
-    source, on slide, hinge, ball and free joints and bodies with several (gymnasium's humanoid)."""
-    from mjkin.kinematics import fk, jacobian
-
-    tree = tree_of(model)
-    k, q = tree.kin, tree.random_q(np.random.default_rng(5), 3)
-    inner = int(k.jnt_inner.max()) + 1
-    out = []
-    for fn in (fk.fk_kernel_in.py_func, tier.PYTHON[id(fk.fk_kernel_in)]):
-        frames = (np.zeros((3, tree.model.nbody, 3, 3)), np.zeros((3, tree.model.nbody, 3)),
-                  np.zeros((3, inner, 3, 3)), np.zeros((3, inner, 3)))
-        fn(q, k.parent, k.fixed_rot, k.fixed_pos, k.jnt_start, k.jnt_count, k.jnt_inner, k.fixed_plain, k.hinge_coord,
-           k.anchor_zero, k.jnt_type, k.jnt_qadr, k.jnt_axis, k.jnt_pos, k.qpos0, *frames, np.empty((3, 3)),
-           np.empty(3), np.empty((3, 3)))
-        out.append(frames)
-    for a, b in zip(*out, strict=True):
-        np.testing.assert_allclose(b, a, rtol=0, atol=1e-15)
-    for body in range(1, tree.model.nbody):
-        dofs = k.body_dof_idx[k.body_dof_ptr[body]:k.body_dof_ptr[body + 1]]
-        point = out[0][1][:, body] + 0.1
-        J = [np.full((3, 6, tree.nv), 7.0) for _ in range(2)]  # columns of other dofs stay as they were
-        kernels = (jacobian.jacobian_kernel.py_func, tier.PYTHON[id(jacobian.jacobian_kernel)])
-        for fn, into in zip(kernels, J, strict=True):
-            fn(*out[0], dofs, k.dof_body, k.dof_inner, k.dof_axis, k.dof_world, k.dof_rot, k.dof_anchor, point, into)
-        np.testing.assert_allclose(J[1], J[0], rtol=0, atol=1e-15)
-
-
 @pytest.mark.parametrize("model", ["panda", "arm7", "primate", "ball_chain", "planar_prismatic"])
 def test_a_one_q_pose_interpreted_equals_the_compiled_one(model):
     """The one-q chain kernels as Python (what tree.pose runs while a child compiles them) give the same poses."""

@@ -132,17 +132,19 @@ def test_a_cache_folder_others_may_write_is_neither_read_nor_written(tmp_path):
 
 
 def test_a_pyc_planted_beside_the_generated_loop_never_runs(tmp_path, monkeypatch):
-    """The generated loop module is compiled from its own text, never from a ``.pyc`` that sits beside it."""
-    from mjkin.goals import Pose
-    from mjkin.ik import compiled
+    """The loop generated for a registered kind is compiled from its own text, never from a ``.pyc`` beside it."""
+    from mjkin.goals import Position, registry
+    from mjkin.goals.position import residual
+    from mjkin.ik import generated, loop
 
     place = tmp_path / "generated"
     place.mkdir()
     monkeypatch.setattr(cache, "_places", lambda name: (place,))
-    monkeypatch.setattr(compiled, "_LOADED", {})
-    key = compiled.loop_kinds((Pose.code,))
-    text = compiled.source(key)
-    name = f"{compiled.PREFIX}{__import__('hashlib').sha256(text.encode()).hexdigest()[:16]}"
+    monkeypatch.setattr(generated, "_LOADED", {})
+    monkeypatch.setattr(registry, "KINDS", [*registry.KINDS, type("Beacon", (Position,), {})])
+    monkeypatch.setattr(registry, "RESIDUALS", [*registry.RESIDUALS, residual])
+    text = generated.source((loop.BUILT_IN,))
+    name = f"{generated.PREFIX}{__import__('hashlib').sha256(text.encode()).hexdigest()[:16]}"
     real = place / f"{name}.py"
     real.write_text(text)
     marker = tmp_path / "ran"
@@ -155,11 +157,11 @@ def test_a_pyc_planted_beside_the_generated_loop_never_runs(tmp_path, monkeypatc
                        doraise=True)
     saved = sys.modules.get(name)
     try:
-        module = compiled.kernels((Pose.code,))
+        module = generated.loop_for((Position.code, loop.BUILT_IN))
     finally:
         if saved is not None:
             sys.modules[name] = saved
-    assert not marker.exists() and hasattr(module, "solve_packed")
+    assert not marker.exists() and hasattr(module, "solve_packed") and module is not loop
 
 
 def test_an_edit_while_a_kernel_compiles_is_not_stored_under_the_new_stamp(tmp_path):

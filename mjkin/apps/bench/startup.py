@@ -110,7 +110,7 @@ class Height(FrameGoal):
 
 @njit_ir_inline
 def residual(kin, ga, ws, rot, pos, irot, ipos, i, b, q, g, J, r0, err):
-    J6, pt = ws[0], ws[1]  # the frame's Jacobian and point (mjkin.goals.compiled.goal_frame)
+    J6, pt = ws[0], ws[1]  # the frame's Jacobian and point (mjkin.goals.residuals.goal_frame)
     w = ga.sqrt_w[i]
     g[r0] = w * (pt[0, 2] - ga.data[b, i, 0])
     for j in range(J.shape[1]):

@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 from ..kinematics.fk import Kinematics
 from ..kinematics.geoms import Geoms
 from ..kinematics.jacobian import jacobian_kernel
-from ..runtime import tier
 from ..runtime.jit import njit, njit_inline
 
 Array = NDArray[np.float64]
@@ -30,7 +29,7 @@ Index = NDArray[np.int64]
 class GoalArrays(NamedTuple):
     """Goals as the compiled code reads them (see :class:`mjkin.goals.program.Program`)."""
 
-    kind: Index  # (G,) registry code
+    code: Index  # (G,) each goal's kind, by its registry code (mjkin.goals.registry)
     body: Index  # (G,) -1 for joint-space goals
     lrot: Array  # (G, 3, 3) goal frame in its body
     lpos: Array  # (G, 3)
@@ -44,11 +43,12 @@ class GoalArrays(NamedTuple):
     level_rows: Index  # (L + 1,)
     counted: NDArray[np.bool_]  # (G,)
     hard: NDArray[np.bool_]  # (G,) a hard constraint (its rows, first of all, are values s >= 0 and ds/dv)
-    geoms: Geoms  # the model's geoms, for distances
-    bounded: Geoms  # the same, geoms mjkin cannot measure against a partner as bounding spheres
-    pairs: Index  # (P, 4) geom pairs [geom1, geom2, goal, bounded] that goals keep apart (each goal's contiguous)
-    support: Index  # (S, 2) [goal, body] of the support points that goals balance over (each goal's contiguous)
-    support_pos: Array  # (S, 3) those points in their bodies
+    # the rest is None in a problem of common kinds only (Program.arrays): the IK loop compiles no code for them
+    geoms: Geoms | None  # the model's geoms, for distances
+    bounded: Geoms | None  # the same, geoms mjkin cannot measure against a partner as bounding spheres
+    pairs: Index | None  # (P, 4) geom pairs [geom1, geom2, goal, bounded] goals keep apart (each goal's contiguous)
+    support: Index | None  # (S, 2) [goal, body] of the support points that goals balance over (each goal's contiguous)
+    support_pos: Array | None  # (S, 3) those points in their bodies
 
 
 @njit
@@ -198,29 +198,3 @@ def orientation_rows(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Arr
             J[r0 + a, j] = w * (Li[a, 0] * J6[0, 3, j] + Li[a, 1] * J6[0, 4, j] + Li[a, 2] * J6[0, 5, j])
     err[i, 1] = theta
 
-
-def _position_rows_numpy(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Array, r0: int,
-                         err: Array) -> None:
-    """:func:`position_rows` interpreted (:mod:`mjkin.runtime.tier`): its rows at once, by numpy."""
-    J6, pt = ws[0], ws[1]
-    w, d = ga.sqrt_w[i], pt[0] - ga.data[b, i, :3]
-    g[r0:r0 + 3] = w * d
-    J[r0:r0 + 3] = w * J6[0, :3]
-    err[i, 0] = np.sqrt(d @ d)
-
-
-def _orientation_rows_numpy(ga: GoalArrays, ws: tuple, i: int, b: int, g: Array, J: Array, r0: int,
-                            err: Array) -> None:
-    """:func:`orientation_rows` interpreted (:mod:`mjkin.runtime.tier`): its products by numpy."""
-    J6, R, E, Li, v = ws[0], ws[2], ws[3], ws[4], ws[5]
-    w = ga.sqrt_w[i]
-    E[:] = R @ ga.data[b, i, 3:12].reshape(3, 3).T  # E = R Rtᵀ: data holds the target Rt row by row
-    theta, cot_half = tier.interpreted(log_rotation)(E, v)
-    tier.interpreted(left_jacobian_inverse)(v, theta, cot_half, Li)
-    g[r0:r0 + 3] = w * v
-    J[r0:r0 + 3] = w * (Li @ J6[0, 3:6])
-    err[i, 1] = theta
-
-
-tier.python_version(position_rows, _position_rows_numpy)
-tier.python_version(orientation_rows, _orientation_rows_numpy)
