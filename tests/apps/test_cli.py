@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import imageio.v3 as imageio
 import numpy as np
@@ -224,16 +225,14 @@ def test_bad_scripts_give_one_line(command, change, text, capsys, tmp_path, monk
     one_line_exit_2(argv + ["-o", "out.mp4"], text, capsys, tmp_path, keep=["five.json", "bad.json"])
 
 
-@pytest.mark.parametrize("kind", ["/dev/zero", "fifo", "huge"])
-@pytest.mark.parametrize("command", ["mapping", "poses", "replay"])
-def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys, tmp_path, monkeypatch):
-    """``--mapping``, ``--poses`` and ``replay`` given /dev/zero read until the memory ran out; a FIFO hung."""
-    monkeypatch.chdir(tmp_path)
-    clip = tmp_path / "a.bvh"
+def clip_and_odd_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, name: str, kind: str) -> tuple[Path, Path]:
+    """A small clip ``a.bvh`` and a file ``name`` that is a FIFO, a link to /dev/zero or ("huge") over the JSON
+    limit, in ``tmp_path``, the working folder."""
     from test_retarget import crouch_bvh
 
+    monkeypatch.chdir(tmp_path)
+    clip, odd = tmp_path / "a.bvh", tmp_path / name
     clip.write_text(crouch_bvh(4))
-    odd = tmp_path / "odd.json"
     if kind == "fifo":
         os.mkfifo(odd)
     elif kind == "/dev/zero":
@@ -241,6 +240,14 @@ def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys
     else:
         with odd.open("wb") as f:
             f.truncate(files.LIMITS["json"] + 1)
+    return clip, odd
+
+
+@pytest.mark.parametrize("kind", ["/dev/zero", "fifo", "huge"])
+@pytest.mark.parametrize("command", ["mapping", "poses", "replay"])
+def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys, tmp_path, monkeypatch):
+    """``--mapping``, ``--poses`` and ``replay`` given /dev/zero read until the memory ran out; a FIFO hung."""
+    clip, odd = clip_and_odd_file(tmp_path, monkeypatch, "odd.json", kind)
     argv, what = {"mapping": (["retarget", str(clip), "--model", "primate", "--mapping", str(odd), "-o", "a.json"],
                               "mapping file"),
                   "poses": (["place-base", "arm7", "--frame", "ee", "--poses", str(odd), "--region", "-1,-1,1,1",
@@ -261,16 +268,7 @@ def test_an_input_file_that_is_no_regular_file_is_one_line(command, kind, capsys
 @pytest.mark.parametrize("given", ["ik model", "retarget --model", "retarget --scene"])
 def test_a_model_or_scene_that_is_no_regular_file_is_one_line(given, kind, capsys, tmp_path, monkeypatch):
     """A FIFO as the model or the scene was said to be "not found" (MuJoCo, which reads it, would wait for ever)."""
-    monkeypatch.chdir(tmp_path)
-    clip = tmp_path / "a.bvh"
-    from test_retarget import crouch_bvh
-
-    clip.write_text(crouch_bvh(4))
-    odd = tmp_path / "odd.xml"
-    if kind == "fifo":
-        os.mkfifo(odd)
-    else:
-        odd.symlink_to("/dev/zero")
+    clip, odd = clip_and_odd_file(tmp_path, monkeypatch, "odd.xml", kind)
     argv, what, hint = {
         "ik model": (["ik", str(odd), "--frame", "ee", "--pos", "0.3,0,0.5"], "model file",
                      "give the MJCF/URDF file itself"),
