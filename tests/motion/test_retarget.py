@@ -205,7 +205,6 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert "unknown role 'elbow'" in capsys.readouterr().err
 
 
-@need_mocap
 def test_a_clip_of_over_max_frames_is_refused_before_any_work(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                               monkeypatch: pytest.MonkeyPatch) -> None:
     """A 1e6-frame clip (13 MB of BVH) raised MemoryError while its targets were laid out."""
@@ -224,6 +223,7 @@ def test_a_clip_of_over_max_frames_is_refused_before_any_work(tmp_path: Path, ca
     assert row["status"].startswith(told)
 
 
+@need_mocap
 def test_command_line_scale_moves_the_root_proportionally(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     travel, said = {}, {}
     for scale in ("0.01", "0.005"):
