@@ -6,8 +6,8 @@ loop's source: written to a folder no other user can write
 (:func:`mjkin.runtime.cache.generated_file`), named by a digest of its text, and
 imported from there. The copy has a branch for every kind registered so far, so one
 copy serves every problem until another kind is registered; it is cached on disk like
-every kernel, stamped with the files it imports (:mod:`mjkin.runtime.cache`), those
-of its kinds' residuals among them. Problems of built-in kinds alone run
+every kernel (:mod:`mjkin.runtime.cache`), and its text names each registered kind's
+residual (its module, or a digest of its source). Problems of built-in kinds alone run
 :mod:`mjkin.ik.loop` itself.
 """
 
