@@ -53,8 +53,8 @@ def seeded_starts(tree: Tree, seed: int, n: int) -> Array:
     for a in (tree.qpos0, lay.scalar_q, lay.scalar_hinge, lay.scalar_lo, lay.scalar_hi, lay.ball_q, lay.ball_max,
               lay.free_q):
         inputs.update(np.ascontiguousarray(a).tobytes() + b"|")
-    key = f"starts {seed} {n} {tree.nq} {inputs.hexdigest()} {np.__version__} {scipy.__version__} " \
-          f"{stamp(qspace.__file__)}"
+    key = (f"starts {seed} {n} {tree.nq} {inputs.hexdigest()} {np.__version__} {scipy.__version__} "
+           f"{stamp(qspace.__file__)}")
     return stored_array("starts", key, lambda: np.ascontiguousarray(
         qspace.random(tree, np.random.default_rng(seed), n, spread=True)))
 
