@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from ..errors import GoalError, InputError
 from ..goals import Goal
-from ..goals.program import as_goals, encode
+from ..goals.program import as_goals
 from ..ik.evaluate import evaluate_program
 from ..ik.kernel import summarise
 from ..ik.method import Method
@@ -200,7 +200,7 @@ def _errors(problem: Problem, given: tuple[Goal, ...], q: Array) -> tuple[Array,
     A row succeeds when every counted goal is within ``tol`` and ``rot_tol`` and ``q`` is inside the limits.
     """
     tree, k = problem.tree, len(q)
-    prog = encode(tree, problem.structure, tuple(_repeated(g, k) for g in given))
+    prog = problem.program(tuple(_repeated(g, k) for g in given))
     _, _, err = evaluate_program(tree, prog, np.ascontiguousarray(q))
     worst, met = np.empty((k, 2)), np.empty(k, dtype=bool)
     summarise(err, prog.counted, prog.hard, problem.tol, problem.rot_tol, worst, met)

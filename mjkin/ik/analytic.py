@@ -9,7 +9,6 @@ images about the line from the base to the goal. (The seeds write θ1 with an
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
@@ -150,14 +149,13 @@ class Analytic2(Method):
             raise _closed_form(list(options))
         return cls()
 
-    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
+    def prepare(self, problem: ProblemView) -> None:
         """Refuse what a closed form cannot honour (a subset of joints, a planted root, a history)."""
         bad = ["restarts"] if self.restarts else []
         bad += [k for k in ("base", "joints", "root") if getattr(problem, k) is not None]
         bad += [k for k in ("history", "avoid_collisions") if getattr(problem, k)]
         if bad:
             raise _closed_form(bad)
-        return super().prepare(problem)
 
     def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return replace(solve_analytic2(problem.tree, prog, q, problem.tol), tree=problem.tree)

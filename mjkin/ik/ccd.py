@@ -15,7 +15,6 @@ a limit cut a joint's move in the last sweep (the limit blocks the way), else
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -232,11 +231,10 @@ class CCD(Method):
             warnings.warn(f"sweep={self.sweep!r} is now sweep={SWEEPS[self.sweep]!r}", DeprecationWarning,
                           stacklevel=3)
 
-    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:  # noqa: D102
+    def prepare(self, problem: ProblemView) -> None:  # noqa: D102
         prog = problem.structure
         if len(prog.code) != 1 or prog.code[0] != Position.code:
             raise GoalError("method 'ccd' handles one Position goal; use 'lm' (auto) for other or several goals")
-        return super().prepare(problem)
 
     def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return solve_ccd(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters),

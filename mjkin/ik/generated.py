@@ -30,12 +30,17 @@ _BRANCH = ("        elif code == {code}:\n"
 _LOADED: dict[tuple[int, ...], ModuleType] = {}
 
 
+def built_in(codes: tuple[int, ...]) -> bool:
+    """Whether every goal kind of ``codes`` (registry codes, ascending) is built in: its problems run :mod:`.loop`."""
+    return not codes or codes[-1] < loop.BUILT_IN
+
+
 def loop_for(codes: tuple[int, ...]) -> ModuleType:
     """The loop module for a problem with the goal kinds ``codes`` (registry codes, ascending).
 
     :mod:`mjkin.ik.loop` when every kind is built in; else the copy with a branch for each registered one.
     """
-    if not codes or codes[-1] < loop.BUILT_IN:
+    if built_in(codes):
         return loop
     registered = tuple(range(loop.BUILT_IN, len(registry.KINDS)))
     module = _LOADED.get(registered)

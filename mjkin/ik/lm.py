@@ -10,6 +10,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from types import ModuleType
 from typing import TYPE_CHECKING, ClassVar
 
 import numba
@@ -20,8 +21,8 @@ from ..runtime import tier
 from ..runtime.checks import check_count, check_flag, check_number
 from ..runtime.numba_private import entry
 from ..runtime.parallel import parallel_chunks
-from . import kernel
-from .generated import loop_for
+from . import kernel, loop
+from .generated import built_in, loop_for
 from .method import MAX_ITERS, Array, Method, ProblemView
 from .packed import Packed, pack, packed_kernels
 from .result import History, Result, result_of
@@ -90,8 +91,8 @@ class Jacobian(Method):
         """The transpose's step size (0 = Buss's), 0 for the others."""
         return 0.0
 
-    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
-        """The compiled loop with this problem's settings, made once.
+    def prepare(self, problem: ProblemView) -> Loop:
+        """The problem's :class:`Loop`: the compiled loop with this problem's settings, made once.
 
         Raises:
             InputError: ``history`` with more than :data:`MAX_HISTORY` iterations a run.
@@ -100,6 +101,11 @@ class Jacobian(Method):
             raise InputError(f"history keeps every iterate: max_iters must be at most {MAX_HISTORY:,} with it, "
                              f"got {self.max_iters}")
         return Loop(problem, self.code, self.settings(problem), int(self.max_iters))
+
+    def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:
+        """Every target of ``prog`` from ``q (B, nq)`` (overwritten) through the problem's :class:`Loop`."""
+        runner: Loop = problem.prepared
+        return runner.solve(prog, q)
 
 
 @dataclass(frozen=True)
@@ -164,18 +170,18 @@ class Auto(LM):
         return TIMED_RESTARTS if timed else AUTO_RESTARTS
 
 
-# the loops' solve_packed kernels loaded in this process (Loop.compiled), with whether for goals of common kinds only
-_LOADED: set[tuple[Callable, bool]] = set()
+# the loop modules loaded in this process (Loop.compiled), with whether for goals of common kinds only
+_LOADED: set[tuple[ModuleType, bool]] = set()
 
 
 class Loop:
     """The compiled loop run for one problem: every target of a program from the starts ``q (B, nq)`` (overwritten).
 
-    Each call packs its arrays for the compiled code (:mod:`mjkin.ik.packed`), all
-    C-contiguous as every array here, so one compiled specialisation serves every batch
-    size. A single target reuses the arrays packed at its first solve: only its targets
-    and start are copied in, and the answers out (a call made while another thread runs
-    one packs its own).
+    Targets run in :func:`mjkin.ik.loop.solve_packed` (of :attr:`module`). Each call packs its
+    arrays for the compiled code (:mod:`mjkin.ik.packed`), all C-contiguous as every array
+    here, so one compiled specialisation serves every batch size. A single target reuses the
+    arrays packed at its first solve: only its targets and start are copied in, and the
+    answers out (a call made while another thread runs one packs its own).
     """
 
     def __init__(self, problem: ProblemView, code: int, st: kernel.Settings, max_iters: int) -> None:
@@ -183,7 +189,7 @@ class Loop:
         self.H = max_iters + 1 if problem.history else 0
         self.one: tuple | None = None  # (packed, its arrays) of single targets
         self.starts_in_one: Array | None = None  # the problem's restart starts those arrays hold a copy of
-        self.solve_packed: Callable[[Packed, int, int], None] | None = None
+        self.call_one: Callable[[Packed, int, int], None] | None = None  # solve_packed on those arrays, compiled
         self.lock = threading.Lock()
 
     def arrays(self, prog: Program, q: Array) -> tuple:
@@ -193,7 +199,7 @@ class Loop:
                 np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros((B, G, 2)), np.full((B, H, nq), np.nan),
                 np.zeros((B, H, 2)), np.empty((B, 2)), np.empty(B, dtype=bool))
 
-    def __call__(self, prog: Program, q: Array) -> Result:
+    def solve(self, prog: Program, q: Array) -> Result:
         """Solve every target of ``prog`` from ``q (B, nq)`` (overwritten; the result's ``q`` is a view of it)."""
         if prog.B == 1 and self.lock.acquire(blocking=False):
             try:
@@ -201,13 +207,13 @@ class Loop:
             finally:
                 self.lock.release()
         arrays = self.arrays(prog, q)
-        solve_packed = self.loop
+        module = self.module
         if self.compiled(prog, arrays):
             packed = self.pack(arrays)
             # the compiled code releases the GIL
-            parallel_chunks(lambda lo, hi: solve_packed(packed, lo, hi), prog.B)
+            parallel_chunks(lambda lo, hi: module.solve_packed(packed, lo, hi), prog.B)
         else:
-            tier.interpreted_call(solve_packed, self.fields(arrays), 0, prog.B)
+            tier.interpreted_call(module.solve_packed, self.fields(arrays), 0, prog.B)
         return self.result(prog, arrays)
 
     def fields(self, arrays: tuple) -> tuple:
@@ -222,9 +228,12 @@ class Loop:
         return pack(*self.fields(arrays))
 
     @cached_property
-    def loop(self) -> Callable:
-        """:func:`mjkin.ik.loop.solve_packed` (of the loop's copy for a kind the user registered: :mod:`.generated`)."""
-        return loop_for(self.problem.structure.codes).solve_packed
+    def module(self) -> ModuleType:
+        """:mod:`mjkin.ik.loop` for built-in goal kinds; for a kind the user registered, its copy with a branch for it
+        (:func:`mjkin.ik.generated.loop_for`).
+        """  # noqa: D205
+        codes = self.problem.structure.codes
+        return loop if built_in(codes) else loop_for(codes)
 
     def compiled(self, prog: Program, arrays: tuple) -> bool:
         """Whether to run compiled, else interpreted while a child compiles (:func:`mjkin.runtime.tier.compiled`).
@@ -234,25 +243,26 @@ class Loop:
         check (numba typing the 18 packed fields, ~1 ms) runs once per loop and such type, not per
         :func:`mjkin.solve` call.
         """
-        key = (self.loop, self.problem.structure.common)
+        key = (self.module, self.problem.structure.common)
         if key in _LOADED and tier.mode() != "interpret":
             return True
-        if tier.compiled(packed_kernels(self.loop, self.fields(arrays)), small=prog.B <= tier.SMALL_BATCH):
+        kernels = packed_kernels(self.module.solve_packed, self.fields(arrays))
+        if tier.compiled(kernels, small=prog.B <= tier.SMALL_BATCH):
             _LOADED.add(key)
             return True
         return False
 
     def single(self, prog: Program, q: Array) -> Result:
-        """One target through the arrays packed once (:meth:`__call__` holds the lock)."""
+        """One target through the arrays packed once (:meth:`solve` holds the lock)."""
         if self.one is None:
             arrays = self.arrays(prog, q.copy())
             self.one, self.starts_in_one = (None, arrays), self.problem.starts
         packed, arrays = self.one
-        if self.solve_packed is None and self.compiled(prog, arrays):
+        if self.call_one is None and self.compiled(prog, arrays):
             packed = self.pack(arrays)
             self.one = (packed, arrays)
             # the packed arrays are always these types: the call skips numba's dispatch (mjkin.runtime.jit.entry)
-            self.solve_packed = entry(self.loop, numba.typeof(packed), numba.int64, numba.int64)
+            self.call_one = entry(self.module.solve_packed, numba.typeof(packed), numba.int64, numba.int64)
         ga, q_in, starts = arrays[:3]
         ga.data[...] = prog.data
         if prog.structure.joint_targets:
@@ -263,10 +273,10 @@ class Loop:
         if self.H:
             arrays[8].fill(np.nan)
             arrays[9].fill(0.0)
-        if self.solve_packed is not None:
-            self.solve_packed(packed, 0, 1)
+        if self.call_one is not None:
+            self.call_one(packed, 0, 1)
         else:
-            tier.interpreted_call(self.loop, self.fields(arrays), 0, 1)
+            tier.interpreted_call(self.module.solve_packed, self.fields(arrays), 0, 1)
         q[...] = q_in
         if prog.batch:  # the result keeps (views of) its arrays: copies, not the packed ones
             return self.result(prog, (arrays[0], *(a.copy() for a in arrays[1:])))

@@ -6,9 +6,7 @@ the same thing; a name takes the method's options as keywords (``max_iters=...``
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, fields
-from functools import partial
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
@@ -48,6 +46,7 @@ class ProblemView(Protocol):
     active: NDArray[np.bool_]  # (nv,) dofs that may move
     restart_q: NDArray[np.bool_]  # (nq,) entries a restart randomises
     starts: Array  # (K, nq) restart configurations
+    prepared: Any  # what the method's prepare made for this problem
 
 
 class _Options(type):
@@ -104,14 +103,13 @@ class Method(metaclass=_Options):
         """The time limit per target when none is given (seconds; None: none)."""
         return None
 
-    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:
-        """Check the problem suits this method and return its runner (once, at the problem's construction).
+    def prepare(self, problem: ProblemView) -> Any:
+        """Check the problem suits this method; return what :meth:`run` keeps for it (once, at its construction).
 
-        The runner solves every target of a program from the starts ``q (B, nq)``
-        (overwritten). Raises GoalError or InputError for goals or options this
-        method cannot take.
+        The problem holds it as ``prepared`` (None here: nothing). Raises GoalError or
+        InputError for goals or options this method cannot take.
         """
-        return partial(self.run, problem)
+        return None
 
     def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:
         """Solve every target of ``prog`` from the starts ``q (B, nq)`` (overwritten) and package the result."""

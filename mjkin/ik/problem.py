@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -35,7 +35,6 @@ from .reasons import certify
 from .result import History, Result, package
 
 Array = NDArray[np.float64]
-Runner = Callable[[Program, Array], Result]
 # avoid_collisions' clearance (m): past the hard constraints' tolerance (1e-6), so MuJoCo finds no contact
 AVOID_MARGIN = 1e-5
 # restart starts drawn per tree, seed and count (Problem._random_starts); gone with the tree
@@ -149,15 +148,15 @@ class Problem:
         self.n_restarts = self.method.restart_count(self.time_limit is not None)
         self.starts = self._random_starts(self.n_restarts) if self.seed is not None else np.zeros((0, tree.nq))
         self.goals = user  # as given (with the root's pose goal first); a solve's goals replace their targets
-        self._run: Runner = self.method.prepare(self)
+        self.prepared = self.method.prepare(self)  # what the method keeps for this problem (Jacobian ones: a Loop)
 
     def __getstate__(self) -> dict:
-        """Pickle the problem without its compiled runner (made again on arrival)."""
-        return {k: v for k, v in self.__dict__.items() if k != "_run"}
+        """Pickle the problem without what its method prepared (made again on arrival)."""
+        return {k: v for k, v in self.__dict__.items() if k != "prepared"}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._run = self.method.prepare(self)
+        self.prepared = self.method.prepare(self)
 
     # ------------------------------------------------------------------ solve
     def solve(self, q0: ArrayLike | None = None, goals: Goal | Sequence[Goal] | None = None) -> Result:
@@ -196,14 +195,14 @@ class Problem:
             if pose.ndim > 2:
                 raise InputError("root= needs one q0 (nq,): the planted body has one pose")
             given = (Pose(self.root, kind="body", T=pose),) + given[1:]
-        prog = encode(tree, self.structure, given)
+        prog = self.program(given)
         q = self._start(q_start, prog)
         if self.seed is None and self.n_restarts:
             self.starts = self._random_starts(self.n_restarts)
         if not self.mobile:  # nothing may move: the start is the answer, whatever the method
             result = self._immobile(prog, q)
         else:
-            result = self._run(prog, q)  # the run overwrites its starts
+            result = self.method.run(self, prog, q)  # the run overwrites its starts
         ok = result.success  # np.all of one target's np.bool_ costs ~1 µs, a tenth of a solve's Python
         if not (ok if isinstance(ok, np.bool_) else np.all(ok)):  # only a failure pays for telling a proof from a miss
             reason = certify(self, prog, q, np.reshape(result.success, -1))
@@ -213,6 +212,10 @@ class Problem:
             qspace.wrap(tree, q_out, self.wrap)
             result = replace(result, q=q_out)
         return result
+
+    def program(self, given: tuple[Goal, ...]) -> Program:
+        """The targets of ``given`` (goals of the problem's structure, ordered as :attr:`goals`) encoded on it."""
+        return encode(self.tree, self.structure, given)
 
     # ------------------------------------------------------------ once per problem
     def _wrapped_hinges(self) -> NDArray[np.int64]:

@@ -29,7 +29,6 @@ and on 3-, 6- and 12-hinge chains), so they are refused.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
@@ -349,11 +348,10 @@ class Reach(Method):
         super().__post_init__()
         check_count(self.max_iters, "max_iters", 0, whole_floats=True, most=MAX_ITERS)
 
-    def prepare(self, problem: ProblemView) -> Callable[[Program, Array], Result]:  # noqa: D102
+    def prepare(self, problem: ProblemView) -> None:  # noqa: D102
         prog = problem.structure
         if len(prog.code) != 1 or prog.code[0] != Position.code:
             raise GoalError("method 'reach' handles one Position goal; use 'lm' (auto) for other or several goals")
-        return super().prepare(problem)
 
     def run(self, problem: ProblemView, prog: Program, q: Array) -> Result:  # noqa: D102
         return solve_reach(problem.tree, prog, q, problem.tol, problem.rot_tol, int(self.max_iters), problem.active,

@@ -16,7 +16,7 @@ import mjkin
 from conftest import TESTS, tree_of
 from mjkin import goals as G
 from mjkin.goals.base import METRES, FrameGoal, Units
-from mjkin.ik import evaluate
+from mjkin.ik import evaluate, generated
 from mjkin.kinematics.jacobian import jacobian_kernel
 from mjkin.runtime.jit import njit_ir_inline
 
@@ -89,6 +89,7 @@ def check_distance_kind() -> None:
             fd[j] = (evaluate(tree, hands, tree.integrate(q[k], e))[0][0, 0]
                      - evaluate(tree, hands, tree.integrate(q[k], -e))[0][0, 0]) / 2e-6
         np.testing.assert_allclose(J[0, 0], fd, atol=1e-6)  # the Jacobian against central differences
+    assert mjkin.Problem(tree, hands).prepared.module.__name__.startswith(generated.PREFIX)  # the loop's copy
     os.environ["MJKIN_COMPILE"] = "interpret"
     res = mjkin.solve(tree, [hands, G.Position("head", tree.pose(tree.qpos0, "head")[:3, 3])], root="lower_torso")
     assert res.success and res.goal_errors[1, 0] <= 1e-6  # after the root's pose goal, the distance

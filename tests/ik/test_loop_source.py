@@ -56,6 +56,18 @@ def test_an_interpreted_solve_stops_at_a_breakpoint_in_the_loops_file(monkeypatc
     assert not [f for f in files if Path(f).name.startswith(generated.PREFIX)]
 
 
+def test_a_problem_hands_its_solve_to_its_method_and_built_in_kinds_run_the_loops_own_module():
+    """``Problem`` solves through ``method.run`` with what the method prepared for it: for the Jacobian methods a
+    ``Loop`` whose targets run in :mod:`mjkin.ik.loop` itself (a generated copy serves only a kind the user
+    registered)."""
+    tree = tree_of("arm7")
+    T = tree.pose(tree.random_q(np.random.default_rng(5), 1)[0], "ee")
+    problem = mjkin.Problem(tree, G.Pose("ee", T=T))
+    assert problem.prepared.module is loop and generated.built_in(problem.structure.codes)
+    assert problem.solve().success
+    assert mjkin.Problem(tree, G.Position("ee", T[:3, 3]), method="ccd").prepared is None
+
+
 _PATCHED = """
 import mujoco
 import numpy as np

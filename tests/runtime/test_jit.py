@@ -284,10 +284,10 @@ def test_borrowed_fields_are_the_structrefs_own_arrays():
 
     problem = mjkin.Problem(mjkin.load("arm7"), Position("ee", (0.3, 0.1, 0.4)))
     problem.solve()
-    packed, arrays = problem._run.one
+    packed, arrays = problem.prepared.one
     assert isinstance(packed, Packed) and FIELDS[8] == "q" and FIELDS[4] == "max_iters"
     before = arrays[1][0, 0]
-    assert first_q_plus_one(packed) == (problem._run.max_iters, before + 1.0)
+    assert first_q_plus_one(packed) == (problem.prepared.max_iters, before + 1.0)
     assert arrays[1][0, 0] == before + 1.0
 
 
