@@ -4,7 +4,8 @@ The method, per clip (targets for every frame worked out at once, then one warm-
 solve per frame through one :class:`mjkin.Problem`):
 
 1. The source is read (:mod:`mjkin.motion.bvh`), put in metres (``scale`` metres per BVH unit, by
-   default the unit its height suggests), turned z-up and so that it first faces the figure's +x.
+   default the unit its height suggests), turned z-up and so that it first faces as the figure does (its
+   left hip toward the figure's).
 2. Roles (pelvis, hips, knees, ankles, toes, shoulders, elbows, wrists, head) are
    matched to source joints by name (Mixamo, LAFAN1/AMASS, CMU/MotionBuilder, the 19-joint
    ``Hips/Chest/LeftHip`` rig) and to figure bodies from the figure's tree and names
