@@ -100,8 +100,8 @@ class Worker:
 
 def _actors(tree: Tree, workers: int | None, threads_per_worker: int, jobs: int) -> list[Any]:
     """Start the actors: ``workers`` of them, or as many as the cluster's CPUs hold (never more than jobs)."""
-    if isinstance(threads_per_worker, bool) or not isinstance(threads_per_worker, (int, np.integer)) \
-            or threads_per_worker < 1:
+    if (isinstance(threads_per_worker, bool) or not isinstance(threads_per_worker, (int, np.integer))
+            or threads_per_worker < 1):
         raise InputError(f"threads_per_worker must be a positive integer, got {threads_per_worker!r}")
     cpus = int(ray.cluster_resources().get("CPU", 0))
     if threads_per_worker > cpus:

@@ -917,8 +917,8 @@ def frames(tree: Tree, qs: ArrayLike, width: int = 640, height: int = 480, camer
     trail = tree.pose(qs, ov.trail)[:, :3, 3] if ov.trail else None
     seen = points  # what the default camera keeps in view besides the figure: markers and the trail
     if trail is not None:
-        seen = np.concatenate([points, trail[:, None]], axis=1) if points.ndim == 3 \
-            else np.concatenate([points.reshape(-1, 3), trail])
+        seen = (np.concatenate([points, trail[:, None]], axis=1) if points.ndim == 3
+            else np.concatenate([points.reshape(-1, 3), trail]))
     cams = cameras(tree, camera, qs, seen, width / height, view, follow)
 
     def draw() -> Iterator[NDArray[np.uint8]]:

@@ -98,8 +98,8 @@ class Scene:
         capsule = kind == mujoco.mjtGeom.mjGEOM_CAPSULE
         exact = capsule | (kind == mujoco.mjtGeom.mjGEOM_SPHERE)
         self._half = np.where(capsule, np.asarray(m.geom_size)[:, 1], 0.0)
-        reach = np.where(exact, np.asarray(m.geom_size)[:, 0], np.asarray(m.geom_rbound)) \
-            + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0)
+        reach = (np.where(exact, np.asarray(m.geom_size)[:, 0], np.asarray(m.geom_rbound))
+            + np.asarray(m.geom_margin) + 1e-9 * max(float(m.stat.extent), 1.0))
         is_plane = plane[pairs]
         self._prefilter = not bool(np.any(is_plane & (weld[pairs] != 0)))
         mujoco.mj_kinematics(m, self.data)  # the world's planes are where qpos0 puts them
@@ -113,8 +113,8 @@ class Scene:
         self._geom_body, self._geom_pos = body.astype(np.int64), np.array(m.geom_pos, dtype=np.float64)
         quat = np.asarray(m.geom_quat)
         w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]  # the geom's z axis in its body frame
-        self._geom_axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1) \
-            / np.sum(quat * quat, axis=1)[:, None]
+        self._geom_axis = (np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1)
+            / np.sum(quat * quat, axis=1)[:, None])
 
     def set(self, q: ArrayLike) -> mujoco.MjData:
         """Write ``q (nq,)`` into ``qpos`` and update what drawing and collision need."""

@@ -52,8 +52,8 @@ class Rest(Goal):
 
     def static(self, tree: Tree) -> tuple[int, Array, Array, int, Array | None]:
         """No frame; the square roots of the stiffness ``(nv,)`` as the goal's row."""
-        k = np.broadcast_to(np.asarray(self.stiffness, dtype=np.float64), (tree.nv,)) \
-            if np.ndim(self.stiffness) == 0 else array(self.stiffness, (tree.nv,), "Rest stiffness")
+        k = (np.broadcast_to(np.asarray(self.stiffness, dtype=np.float64), (tree.nv,))
+            if np.ndim(self.stiffness) == 0 else array(self.stiffness, (tree.nv,), "Rest stiffness"))
         if k.ndim != 1 or np.any(k < 0) or not np.isfinite(k).all():
             raise GoalError(f"Rest stiffness must be >= 0, one number or {tree.nv} (nv)")
         return -1, np.eye(3), np.zeros(3), 0, np.sqrt(k)

@@ -138,8 +138,8 @@ class _Chain:
         self.body, self.lpos, self.joints = body, lpos, joints
         self.tree = tree
         axes = self.frames(tree.qpos0)[1]
-        planar = all(tree.jnt_type[j] == HINGE for j in joints) and len(joints) > 0 and \
-            bool(np.all(np.linalg.norm(np.cross(axes, axes[0]), axis=-1) < 1e-9))
+        planar = (all(tree.jnt_type[j] == HINGE for j in joints) and len(joints) > 0 and
+            bool(np.all(np.linalg.norm(np.cross(axes, axes[0]), axis=-1) < 1e-9)))
         self.normal = axes[0] / np.linalg.norm(axes[0]) if planar else None  # the plane of a planar chain
 
     def frames(self, q: Array) -> tuple[Array, Array, Array, list[Array]]:

@@ -124,8 +124,8 @@ def certify(problem: ProblemView, prog: Program, q0: Array, success: NDArray[np.
     st = prog.structure
     free = active & (tree.jnt_type[tree.plan.dof_jnt] == FREE)  # dofs of free joints that may move
     # goal frames a free joint carries: their reach bound is infinite (no FK for it) and more than one joint moves
-    carried = {b for b in {int(b) for b in st.body[st.counted]} if b >= 0 and free[tree.body_dofs[b]].any()} \
-        if free.any() else set()
+    carried = ({b for b in {int(b) for b in st.body[st.counted]} if b >= 0 and free[tree.body_dofs[b]].any()}
+        if free.any() else set())
     goals = _positions(tree, prog, carried)
     for _, body, point, target in goals:
         anchor, bound = reach_bound(tree, body, point, active, q0)

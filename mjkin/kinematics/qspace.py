@@ -137,8 +137,8 @@ def _rng(rng: np.random.Generator | int | None) -> np.random.Generator:
     try:
         return np.random.default_rng(rng)
     except (TypeError, ValueError):
-        raise InputError(f"rng must be a numpy Generator, a seed (a whole number >= 0) or None, got {rng!r:.40}") \
-            from None
+        raise InputError("rng must be a numpy Generator, "
+                         f"a seed (a whole number >= 0) or None, got {rng!r:.40}") from None
 
 
 def random_quat(rng: np.random.Generator, shape: tuple[int, ...]) -> Array:

@@ -583,8 +583,8 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     try:
         given = [sources] if isinstance(sources, str | os.PathLike) else list(sources)
     except TypeError:
-        raise InputError(f"sources must be a clip file or folder, or a list of them, got {type(sources).__name__}") \
-            from None
+        raise InputError("sources must be a clip file or folder, "
+                         f"or a list of them, got {type(sources).__name__}") from None
     try:
         previous = read_report(folder / REPORT)
     except MjkinIOError:
@@ -605,9 +605,9 @@ def retarget_many(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[s
     work = Work(tree, body_model, options, made_from(tree, options, body_model))
     for j in jobs:
         row = None if overwrite else previous.get(j.name)
-        if row is not None and all(row.get(k) == v for k, v in work.made_from(j).items()) \
+        if (row is not None and all(row.get(k) == v for k, v in work.made_from(j).items())
                 and isinstance(row.get("frame_error_p95"), float) and _reads(j.output(folder, fmt), row.get("frames"),
-                                                                             tree.nq):
+                                                                             tree.nq)):
             report_file.put({**row, "status": verdict(row["frame_error_p95"], max_error)})  # judged by this bound
     todo = [j for j in jobs if j.name not in report_file.rows]
     # largest first, so that no worker ends on a long clip alone (a clip gone since is left to fail in its job)

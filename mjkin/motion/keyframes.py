@@ -93,8 +93,8 @@ def waypoints(points: ArrayLike, n: int, times: ArrayLike | None = None, corner:
         raise InputError("waypoints: give times, or corner/ease (timed by the path's length), not both")
     if corner > 0:
         p = _rounded(p, corner)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]) if times is None \
-        else check_array(times, "waypoint times")
+    s = (np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]) if times is None
+        else check_array(times, "waypoint times"))
     if s.shape != (len(p),) or not np.all(np.diff(s) > 0) or not np.isfinite(s).all():
         raise InputError("waypoint times must increase strictly, one per point")
     u = np.linspace(0.0, 1.0, _count(n))

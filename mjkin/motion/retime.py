@@ -37,8 +37,8 @@ DENSE = 16  # samples per grid interval of the final check
 
 def _limits(value: ArrayLike, nv: int, what: str) -> Array:
     """``value`` (a number or ``(nv,)``) as ``(nv,)`` positive finite limits."""
-    a = np.broadcast_to(np.asarray(value, dtype=np.float64), (nv,)) if np.ndim(value) == 0 else \
-        np.asarray(value, dtype=np.float64)
+    a = (np.broadcast_to(np.asarray(value, dtype=np.float64), (nv,)) if np.ndim(value) == 0 else
+        np.asarray(value, dtype=np.float64))
     if a.shape != (nv,) or not (np.isfinite(a).all() and (a > 0).all()):
         raise InputError(f"retime: {what} must be a positive number or {nv} positive numbers (one per dof), "
                          f"got {np.asarray(value).tolist()!r}")

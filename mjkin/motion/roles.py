@@ -583,8 +583,8 @@ def read_mapping(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
     try:
         doc = json.loads(text)
     except (ValueError, RecursionError) as e:
-        raise MjkinIOError(f"cannot read mapping {str(path)!r}: {' '.join(str(e).split()) or 'nested too deeply'}") \
-            from None
+        raise MjkinIOError(f"cannot read mapping {str(path)!r}: "
+                           f"{' '.join(str(e).split()) or 'nested too deeply'}") from None
     if not isinstance(doc, dict) or set(doc) - {"source", "figure"} or not all(
             isinstance(v, dict) and all(isinstance(a, str) and isinstance(b, str) for a, b in v.items())
             for v in doc.values()):

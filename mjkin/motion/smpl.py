@@ -165,8 +165,8 @@ class _Archive:
                 version = np.lib.format.read_magic(m)
                 if version not in ((1, 0), (2, 0)):
                     raise ValueError(f"the .npy format version {version} is not read")
-                header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                    np.lib.format.read_array_header_2_0
+                header = (np.lib.format.read_array_header_1_0 if version == (1, 0) else
+                    np.lib.format.read_array_header_2_0)
                 shape, fortran, dtype = header(m)
                 if dtype.hasobject or dtype.kind not in "biuf":
                     kind = "object" if dtype.hasobject else str(dtype)

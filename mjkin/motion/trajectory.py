@@ -155,8 +155,8 @@ class Trajectory:
         path = as_path(path, "trajectory path")
         name = repr(str(path))
         try:
-            doc = journal.script(path) if Path(path).suffix == ".jsonl" else \
-                json.loads(files.read_input_text(path, "trajectory file", files.LIMITS["json"]))
+            doc = (journal.script(path) if Path(path).suffix == ".jsonl" else
+                json.loads(files.read_input_text(path, "trajectory file", files.LIMITS["json"])))
         except RecursionError:
             raise MjkinIOError(f"cannot read trajectory {name}: its JSON is nested too deeply") from None
         except (OSError, ValueError) as e:
@@ -189,8 +189,8 @@ class Trajectory:
             raise InputError(f"trajectory {name}: 'success' must hold one true/false for each of the {len(q)} frames")
         model, frame, meta = doc.get("model", ""), doc.get("frame", doc.get("site")), doc.get("meta") or {}
         source = doc.get("source") or ""
-        if not all(isinstance(v, str) for v in (model, source)) or not (frame is None or isinstance(frame, str)) \
-                or not isinstance(meta, dict):
+        if (not all(isinstance(v, str) for v in (model, source)) or not (frame is None or isinstance(frame, str))
+                or not isinstance(meta, dict)):
             raise InputError(f"trajectory {name}: 'model', 'source' and 'site' must be strings (or site null), "
                              "'meta' an object")
         traj = cls(times=times, q=q, fingerprint=fp, model=model, frame=frame, targets=targets, success=success,

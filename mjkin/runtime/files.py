@@ -324,5 +324,5 @@ def read_input_text(path: str | os.PathLike[str], what: str, limit: int, error: 
     try:
         return data.decode("utf-8", errors)
     except UnicodeDecodeError as e:
-        raise error(f"cannot read {what} {os.fspath(path)!r}: it is not UTF-8 text (byte {e.start}); {hint}") \
-            from None
+        raise error(f"cannot read {what} {os.fspath(path)!r}: it is not UTF-8 text (byte {e.start}); "
+                    f"{hint}") from None

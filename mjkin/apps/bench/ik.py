@@ -183,8 +183,8 @@ def mjkin_single(arm: Arm, targets: Array, q0: Array, tol: float, rot_tol: float
     tree, frame, kind = arm.tree, arm.frame, arm.kind
     problem = Problem(tree, G.Pose(frame, T=targets[0], kind=kind), tol=tol, rot_tol=rot_tol, **options)
     problem.solve(q0)  # compile
-    call = (lambda goal: solve(tree, goal, q0=q0, tol=tol, rot_tol=rot_tol, **options)) if functional else \
-        (lambda goal: problem.solve(q0, [goal]))
+    call = ((lambda goal: solve(tree, goal, q0=q0, tol=tol, rot_tol=rot_tol, **options)) if functional else
+        (lambda goal: problem.solve(q0, [goal])))
     N = len(targets)
     q, seconds, cpu = np.empty((N, tree.nq)), np.empty(N), np.empty(N)
     iters, used, status = np.empty(N), np.empty(N), np.empty(N, dtype="<U16")

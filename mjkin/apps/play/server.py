@@ -659,8 +659,8 @@ def bind(playground: Playground, host: str, port: int, idle_timeout: int = IDLE_
         sock.listen(BACKLOG)
     except OSError as e:
         sock.close()
-        raise MjkinIOError(f"cannot serve on {host}:{port} ({e.strerror or e}); choose another --port or --host") \
-            from None
+        raise MjkinIOError(f"cannot serve on {host}:{port} ({e.strerror or e}); "
+                           "choose another --port or --host") from None
     return PlayServer(playground, sock, host, idle_timeout)
 
 
