@@ -152,27 +152,44 @@ def _geom(tree: Tree, g: int | str) -> int:
 
 @njit
 def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, i: int, rot: Array, pos: Array,
-                   irot: Array, ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> None:
+                   irot: Array, ipos: Array, margin: float, reach: float, g: Array, J: Array, r0: int, k: int) -> int:
     """Rows ``r0:r0+k``: ``d - margin`` and ``∂d/∂v`` of the ``k`` closest of goal ``i``'s pairs near the margin.
 
     ``pairs (P, 4)``: ``[geom1, geom2, goal, bounded]``, each goal's contiguous; a pair marked
     ``bounded`` is measured on ``bounded`` (:func:`bounded_geoms`). Spare rows read
     ``reach - margin`` with a zero gradient, and so does a pair found farther than ``reach`` (its measure
-    stops there). Each pair is measured once: the ``k`` closest keep their witness points and normal for
-    their gradients.
+    stops there). The broad phase's pairs are measured nearest lower bound first, each only as far as the
+    ``k``-th closest so far (a GJK stops past it), and none whose lower bound is past it: the rows are those
+    of measuring every pair. The ``k`` closest keep their witness points and normal for their gradients.
+    Returns the number of pairs measured.
     """
     lo, hi = owned(pairs[:, 2], i)
     near = np.empty(hi - lo, dtype=np.int64)
-    n = near_pairs(geoms, rot, pos, pairs[lo:hi, :2], reach, near)
+    low = np.empty(hi - lo)
+    n = near_pairs(geoms, rot, pos, pairs[lo:hi, :2], reach, near, low)
+    for c in range(n):  # a bounded pair's measure is under its geoms' own (a sphere for a geom): no bound known
+        if pairs[lo + near[c], 3]:
+            low[c] = -np.inf
+    for c in range(1, n):  # nearest lower bound first (insertion sort: a few dozen pairs)
+        x, y, j = low[c], near[c], c
+        while j > 0 and low[j - 1] > x:
+            low[j], near[j] = low[j - 1], near[j - 1]
+            j -= 1
+        low[j], near[j] = x, y
     S = on_stack(KEPT * k + 9)  # the k closest, sorted, each [d, pair, p1, p2, normal]; then the pair at hand
     best = unshared(S, 0, (k, KEPT))
     for j in range(k):
         best[j, 0], best[j, 1] = np.inf, -1.0
     here = unshared(S, KEPT * k, (9,))
+    measured = 0
     for c in range(n):
+        if low[c] >= best[k - 1, 0]:  # this pair and the rest are no nearer than the k kept
+            break
         p = lo + near[c]
+        measured += 1
         d = pair_distance_normal(bounded if pairs[p, 3] else geoms, rot, pos, pairs[p, 0], pairs[p, 1],
-                                 unshared(here, 0, (3,)), unshared(here, 3, (3,)), unshared(here, 6, (3,)), reach)
+                                 unshared(here, 0, (3,)), unshared(here, 3, (3,)), unshared(here, 6, (3,)),
+                                 min(reach, best[k - 1, 0]))
         if d <= reach and d < best[k - 1, 0]:
             j = k - 1
             while j > 0 and best[j - 1, 0] > d:
@@ -193,6 +210,7 @@ def clearance_rows(kin: Kinematics, geoms: Geoms, bounded: Geoms, pairs: Index, 
             distance_gradient(kin, rot, pos, irot, ipos, geoms.body[pairs[p, 0]], geoms.body[pairs[p, 1]],
                               unshared(S, o + 2, (1, 3)), unshared(S, o + 5, (1, 3)), unshared(S, o + 8, (3,)), J[r])
             g[r] = best[j, 0] - margin
+    return measured
 
 
 @njit_ir_inline

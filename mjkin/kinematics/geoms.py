@@ -224,6 +224,12 @@ def geom_world(geoms: Geoms, rot: Array, pos: Array, g: int, R: Array, x: Array)
 
 
 @njit_inline
+def _box_radius(box: Array, g: int) -> float:
+    """The radius of the sphere about geom ``g``'s box (``box``, see :class:`Geoms`) through its corners."""
+    return np.sqrt(box[g, 3] * box[g, 3] + box[g, 4] * box[g, 4] + box[g, 5] * box[g, 5])
+
+
+@njit_inline
 def _box_gap(W: Array, box: Array, g1: int, g2: int, ax: Array) -> float:
     """A lower bound (m) of the distance between geoms ``g1`` and ``g2``: their boxes' (``box``, placed by ``W``,
     see :func:`near_pairs`) largest separation over the 15 separating axes (0 or less where the boxes overlap).
@@ -261,28 +267,34 @@ def _box_gap(W: Array, box: Array, g1: int, g2: int, ax: Array) -> float:
 
 
 @njit
-def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float, out: Index) -> int:
+def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float, out: Index, low: Array) -> int:
     """Pairs that may come within ``reach`` (m) of each other, for one configuration's FK.
 
-    Writes the indices into ``pairs (P, 2)`` of those pairs to ``out[:k]`` and returns
-    ``k``: those whose bounding spheres come within ``reach`` and whose boxes (MuJoCo's
-    ``geom_aabb`` in each geom's axes) too, by the separating axes. Every pair whose geoms
-    are within ``reach`` is among them. A plane (unbounded) counts the other geom's bounding
-    sphere's height above it. Pass ``reach`` = the clearance margin plus a slack for how far
-    the geoms may move before the next call.
+    Writes the indices into ``pairs (P, 2)`` of those pairs to ``out[:k]``, a lower bound (m) of each one's
+    distance to ``low[:k]``, and returns ``k``: those whose bounding spheres (about the geom's origin, and
+    about its box's centre) come within ``reach`` and whose boxes (MuJoCo's ``geom_aabb`` in each geom's axes)
+    too, by the separating axes. Every pair whose geoms are within ``reach`` is among them. A plane (unbounded)
+    counts the other geom's bounding sphere's height above it. Pass ``reach`` = the clearance margin plus a
+    slack for how far the geoms may move before the next call.
     """
-    geoms, rot, pos, pairs, out = borrowed((geoms, rot, pos, pairs, out))
+    geoms, rot, pos, pairs, out, low = borrowed((geoms, rot, pos, pairs, out, low))
     ng = geoms.type.shape[0]
-    S = on_stack(13 * ng + 3)  # per geom: world axes (9), origin (3), placed yet (1); an axis
+    # per geom: world axes (9), origin (3), placed yet (1), its box's centre (3); then an axis. A mesh's origin
+    # is often its joint, far from its middle: the sphere about its box's centre is the tighter one (the G1's
+    # meshes: a third of the pairs the origin's sphere let through)
+    S = on_stack(16 * ng + 3)
     for g in range(ng):
-        S[13 * g + 12] = 0.0
+        S[16 * g + 12] = 0.0
     for p in range(pairs.shape[0]):  # each geom placed once, not once per pair
         for g in (pairs[p, 0], pairs[p, 1]):
-            if S[13 * g + 12] == 0.0:
-                S[13 * g + 12] = 1.0
-                geom_world(geoms, rot, pos, g, unshared(S, 13 * g, (3, 3)), unshared(S, 13 * g + 9, (3,)))
-    W = unshared(S, 0, (ng, 13))  # a plane's normal: its z axis, W[g, 2], W[g, 5], W[g, 8]; its origin W[g, 9:12]
-    ax = unshared(S, 13 * ng, (3,))
+            if S[16 * g + 12] == 0.0:
+                S[16 * g + 12] = 1.0
+                geom_world(geoms, rot, pos, g, unshared(S, 16 * g, (3, 3)), unshared(S, 16 * g + 9, (3,)))
+                for i in range(3):
+                    S[16 * g + 13 + i] = S[16 * g + 9 + i] + (S[16 * g + 3 * i] * geoms.box[g, 0] + S[
+                        16 * g + 3 * i + 1] * geoms.box[g, 1] + S[16 * g + 3 * i + 2] * geoms.box[g, 2])
+    W = unshared(S, 0, (ng, 16))  # a plane's normal: its z axis, W[g, 2], W[g, 5], W[g, 8]; its origin W[g, 9:12]
+    ax = unshared(S, 16 * ng, (3,))
     k = 0
     for p in range(pairs.shape[0]):
         g1, g2 = pairs[p, 0], pairs[p, 1]
@@ -294,7 +306,13 @@ def near_pairs(geoms: Geoms, rot: Array, pos: Array, pairs: Index, reach: float,
         else:
             gap = np.sqrt((W[g2, 9] - W[g1, 9]) ** 2 + (W[g2, 10] - W[g1, 10]) ** 2 + (W[g2, 11] - W[g1, 11]) ** 2) - (
                 geoms.rbound[g1] + geoms.rbound[g2])
-        if gap <= reach and (plane or _box_gap(W, geoms.box, g1, g2, ax) <= reach):
+            if gap <= reach:
+                gap = max(gap, np.sqrt((W[g2, 13] - W[g1, 13]) ** 2 + (W[g2, 14] - W[g1, 14]) ** 2 + (
+                    W[g2, 15] - W[g1, 15]) ** 2) - _box_radius(geoms.box, g1) - _box_radius(geoms.box, g2))
+            if gap <= reach:
+                gap = max(gap, _box_gap(W, geoms.box, g1, g2, ax))
+        if gap <= reach:
             out[k] = p
+            low[k] = gap
             k += 1
     return k

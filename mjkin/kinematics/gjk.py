@@ -146,17 +146,19 @@ def _solve_small(G: Array, r: Array, m: int, out: Array) -> bool:
 def _simplex_closest(W: Array, A: Array, B: Array, lam: Array, k: int, v: Array) -> int:
     """Reduce the simplex ``W[:k]`` (its support points ``A``, ``B``) to the face nearest the origin.
 
-    Every face is tried (at most 15): the nearest point of its affine hull, kept if its
-    barycentric weights are all non-negative; the nearest kept point is the simplex's
-    (Gilbert, Johnson and Keerthi's sub-algorithm, by enumeration). Writes it to ``v``
-    and its weights to ``lam``, keeps only the face's rows; returns the face's size.
+    Every face with the newest point ``W[k - 1]`` is tried (at most 8): the nearest point of its affine
+    hull, kept if its barycentric weights are all non-negative; the nearest kept point is the simplex's
+    (Gilbert, Johnson and Keerthi's sub-algorithm, by enumeration). The faces without it are left out: the
+    simplex before it already had its nearest point on them, and the newest point is nearer the origin along
+    ``v`` than that (else GJK had stopped). Writes it to ``v`` and its weights to ``lam``, keeps only the
+    face's rows; returns the face's size.
     """
-    best, best_mask = np.inf, 1
+    best, best_mask = np.inf, 1 << (k - 1)
     S = on_stack(26)  # scratch on the stack, views without reference counts (see mjkin.runtime.jit)
     G, r = unshared(S, 0, (3, 3)), unshared(S, 9, (3,))
     mu, weights, x = unshared(S, 12, (3,)), unshared(S, 15, (4,)), unshared(S, 19, (3,))
     idx = unshared_int64(S, 22, (4,))
-    for mask in range(1, 1 << k):
+    for mask in range(1 << (k - 1), 1 << k):  # the faces with the newest point
         m = 0
         for i in range(k):
             if (mask >> i) & 1:

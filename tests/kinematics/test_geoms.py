@@ -293,11 +293,11 @@ def test_near_pairs_are_those_whose_bounding_spheres_and_boxes_come_within_reach
     pairs = contact_pairs(tree)
     gs = tree.geoms
     reach = 0.05
-    out = np.empty(len(pairs), np.int64)
+    out, low = np.empty(len(pairs), np.int64), np.empty(len(pairs))
     fewer = 0
     for q in tree.random_q(rng, 20):
         f = forward(tree, q[None])
-        k = G.near_pairs(gs, f.rot, f.pos, pairs, reach, out)
+        k = G.near_pairs(gs, f.rot, f.pos, pairs, reach, out, low)
         R, x = D.geom_frames(tree, f.rot, f.pos, np.arange(tree.model.ngeom))
         a, b = pairs[:, 0], pairs[:, 1]
         gap = np.linalg.norm(x[a] - x[b], axis=1) - gs.rbound[a] - gs.rbound[b]
@@ -306,7 +306,9 @@ def test_near_pairs_are_those_whose_bounding_spheres_and_boxes_come_within_reach
         gap[plane_b] = np.einsum("ij,ij->i", R[b, :, 2], x[a] - x[b])[plane_b] - gs.rbound[a][plane_b]
         near = set(out[:k].tolist())
         assert near <= set(np.flatnonzero(gap <= reach).tolist())
-        assert set(np.flatnonzero(tree.distances(q, pairs) <= reach)) <= near
+        d = tree.distances(q, pairs)
+        assert set(np.flatnonzero(d <= reach)) <= near
+        assert (low[:k] <= d[out[:k]]).all()  # each near pair's lower bound is one
         fewer += int((gap <= reach).sum()) - k
     assert fewer > 0 or name != "gmr_g1"
 

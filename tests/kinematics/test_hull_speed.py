@@ -13,9 +13,11 @@ import mjkin
 from conftest import tree_of
 from mjkin import goals as G
 from mjkin.apps.bench.report import shared_models_dir
+from mjkin.goals.clearance import clearance_rows
 from mjkin.goals.program import compile_goals
 from mjkin.ik.evaluate import evaluate_program
 from mjkin.kinematics import distance as D
+from mjkin.kinematics.distance import geom_frames
 from mjkin.kinematics.frames import forward
 from mjkin.kinematics.geoms import DIRS, MESH, cell_centres, direction_cell, near_pairs
 from mjkin.kinematics.gjk import hull_support
@@ -117,14 +119,14 @@ def test_clearance_rows_are_mujocos_nearest_pairs(name, rng):
     prog = compile_goals(tree, [goal])
     m = tree.model.__copy__()
     m.opt.ccd_tolerance, m.opt.ccd_iterations = 1e-12, 500
-    out = np.empty(len(pairs), np.int64)
+    out, low = np.empty(len(pairs), np.int64), np.empty(len(pairs))
     for q in near_rest(tree, rng, 4):
         d = mujoco.MjData(m)
         d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
         ref = np.array([mujoco.mj_geomDistance(m, d, a, b, 1.0, None) for a, b in pairs.tolist()])
         f = forward(tree, q[None])
-        near = set(out[:near_pairs(tree.geoms, f.rot, f.pos, pairs, reach, out)].tolist())
+        near = set(out[:near_pairs(tree.geoms, f.rot, f.pos, pairs, reach, out, low)].tolist())
         assert set(np.flatnonzero(ref <= reach).tolist()) <= near  # the broad phase skips none of them
         rows = evaluate_program(tree, prog, q[None])[0][0] + SELF_CLEARANCE
         live = np.sort(rows[rows < reach])
@@ -132,3 +134,32 @@ def test_clearance_rows_are_mujocos_nearest_pairs(name, rng):
         apart = np.sort(ref[ref <= reach])
         np.testing.assert_allclose(live[apart > 0], apart[apart > 0], atol=1e-6)
         assert (live[apart <= 0] <= 1e-9).all()
+
+
+def test_clearance_measures_only_the_pairs_that_may_be_kept(rng):
+    """Issue 55 (speed): the retarget's self-clearance on the G1's meshes measures its broad phase's pairs nearest
+    lower bound first and stops at the k-th closest: its rows are those of measuring every pair, from far fewer
+    GJK runs than the pairs whose bounding spheres come within its reach (each a GJK on two hulls of up to
+    2 000 vertices)."""
+    tree = robot("gmr_g1")
+    pairs = np.array(self_pairs(tree, SELF_CLEARANCE))
+    reach, k = SELF_CLEARANCE + SELF_REACH, 8
+    ga = compile_goals(tree, [G.Clearance(SELF_CLEARANCE, pairs=pairs, reach=SELF_REACH, closest=k)]).arrays
+    g, J = np.empty(k), np.empty((k, tree.nv))
+    out, low = np.empty(len(pairs), np.int64), np.empty(len(pairs))
+    measured, near, spheres = 0, 0, 0
+    for q in near_rest(tree, rng, 5):
+        f = forward(tree, q[None])
+        measured += clearance_rows(tree.kin, ga.geoms, ga.bounded, ga.pairs, 0, f.rot, f.pos, f.inner_rot,
+                                   f.inner_pos, SELF_CLEARANCE, reach, g, J, 0, k)
+        n = near_pairs(tree.geoms, f.rot, f.pos, pairs, reach, out, low)
+        near += n
+        d = tree.distances(q, pairs)
+        assert (low[:n] <= d[out[:n]]).all()  # lower bounds
+        np.testing.assert_array_equal(np.sort(g), np.sort(np.minimum(d, reach))[:k] - SELF_CLEARANCE)
+        R, x = geom_frames(tree, f.rot, f.pos, np.arange(tree.model.ngeom))
+        rb = tree.geoms.rbound
+        spheres += int((np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1) - rb[pairs[:, 0]] - rb[pairs[:, 1]]
+                        <= reach).sum())
+    assert measured <= near < spheres
+    assert measured < spheres / 3
