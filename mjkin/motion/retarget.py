@@ -4,7 +4,8 @@ The method, per clip (targets for every frame worked out at once, then one warm-
 solve per frame through one :class:`mjkin.Problem`):
 
 1. The source is read (:mod:`mjkin.motion.bvh`), put in metres (``scale`` metres per BVH unit, by
-   default the unit its height suggests), turned z-up and so that it first faces the figure's +x.
+   default the unit its height suggests), turned z-up and so that it first faces as the figure does (its
+   left hip toward the figure's).
 2. Roles (pelvis, hips, knees, ankles, toes, shoulders, elbows, wrists, head) are
    matched to source joints by name (Mixamo, LAFAN1/AMASS, CMU/MotionBuilder, the 19-joint
    ``Hips/Chest/LeftHip`` rig) and to figure bodies from the figure's tree and names
@@ -126,10 +127,14 @@ def _yaw(angle: float) -> Array:
 Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # BVH (x, y up, z) -> (y, z up, x)
 
 
-def _facing(p: Array, roles: dict[str, int]) -> Array:
-    """``p (F, J, 3)`` z-up turned about z so that frame 0 faces +x (its left hip on +y)."""
+def _facing(p: Array, roles: dict[str, int], left_of: Array) -> Array:
+    """``p (F, J, 3)`` z-up turned about z so that frame 0 faces as the figure does.
+
+    The figure's left hip is ``left_of (3,)`` (world) from its right: +y for one facing +x.
+    """
     left = p[0, roles["left_hip"]] - p[0, roles["right_hip"]]
-    return p @ _yaw(-np.arctan2(-left[0], left[1])).T  # the left vector to +y, so forward (= left x up) to +x
+    turn = np.arctan2(-left[0], left[1]) - np.arctan2(-left_of[0], left_of[1])
+    return p @ _yaw(-turn).T  # the left vector to the figure's, so forward (= left x up) to its too
 
 
 @dataclass(frozen=True)
@@ -374,18 +379,19 @@ def plan(clip: bvh.Clip, tree: Tree, mapping: dict[str, dict[str, str]] | None =
                                                                        strict=True)
     if not SCALE[0] <= unit <= SCALE[1]:  # 1e-300 divided by zero further on
         raise InputError(f"scale must be from {SCALE[0]:g} to {SCALE[1]:g} metres per BVH unit, got {scale!r}")
-    p = _facing(clip.positions() @ Z_UP.T * unit, roles)
-    rest = _facing(clip.positions(rest=True) @ Z_UP.T * unit, roles)[0]
-    F = clip.frames
-    feet_idx = [[j for j in (roles.get(f"{s}_ankle"), roles.get(f"{s}_toe")) if j is not None] for s in SIDES]
-    floor = float(np.percentile(p[:, sum(feet_idx, []), 2].min(axis=1), 2))  # feet's lowest points
-    rest_floor = float(rest[:, 2].min())
-
     # the figure at qpos0: role points, segment lengths, orientations
     q0 = tree.qpos0
     offsets = role_offsets(tree, bodies)
     fig_T = {r: tree.pose(q0, b, "body") for r, b in bodies.items()}
     fig = {r: fig_T[r][:3, :3] @ offsets[r] + fig_T[r][:3, 3] for r in bodies}
+    left_of = fig["left_hip"] - fig["right_hip"]
+    p = _facing(clip.positions() @ Z_UP.T * unit, roles, left_of)
+    rest = _facing(clip.positions(rest=True) @ Z_UP.T * unit, roles, left_of)[0]
+    F = clip.frames
+    feet_idx = [[j for j in (roles.get(f"{s}_ankle"), roles.get(f"{s}_toe")) if j is not None] for s in SIDES]
+    floor = float(np.percentile(p[:, sum(feet_idx, []), 2].min(axis=1), 2))  # feet's lowest points
+    rest_floor = float(rest[:, 2].min())
+
     feet_geom = [_foot(tree, bodies[f"{s}_knee"], bodies[f"{s}_ankle"], fig_T[f"{s}_ankle"]) for s in SIDES]
     fig_floor = min(float(lowest(fig_T[f"{s}_ankle"], f.points, f.radius)[:, 2].min())
                     for f, s in zip(feet_geom, SIDES, strict=True))

@@ -76,6 +76,17 @@ def _tokens(name: str) -> set[str]:
     return {t.lower() for t in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", name)}
 
 
+def _paired(names: list[str]) -> dict[int, set[str]]:
+    """Tokens of names whose side is a bare first letter: 'lfemur' beside 'rfemur' -> {l, femur} (CMU's rig).
+
+    Only where both sides' names are there, so a lone 'rib' or 'leg' is not taken for a side.
+    """
+    low = [n.lower() for n in names]
+    have = set(low)
+    return {i: {n[0], *_tokens(n[1:])} for i, n in enumerate(low)
+            if len(n) > 2 and n[0] in "lr" and n[1].isalpha() and {"l": "r", "r": "l"}[n[0]] + n[1:] in have}
+
+
 # ------------------------------------------------------------------ the source
 def find_source(clip: bvh.Clip, given: dict[str, str] | None = None) -> dict[str, int]:
     """Role -> joint index in ``clip`` for the roles found: ``given`` names first, the rest by :data:`SOURCE_NAMES`.
@@ -148,7 +159,9 @@ class _Zero:
         self.joints: list[list[int]] = [[] for _ in range(n)]
         for j in range(m.njnt):
             self.joints[int(m.jnt_bodyid[j])].append(j)
-        self.tokens = [_tokens(self.names[b]).union(*(_tokens(jnames[j]) for j in self.joints[b])) for b in range(n)]
+        paired = _paired(self.names)
+        self.tokens = [_tokens(self.names[b]).union(paired.get(b, set()), *(_tokens(jnames[j]) for j in self.joints[b]))
+                       for b in range(n)]
         free = [int(m.jnt_bodyid[j]) for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
         self.root = free[0] if free else max(self.children[0], key=lambda c: len(self.subtree(c)), default=0)
         ids = np.flatnonzero(~np.isin(m.geom_type, _FLAT))
@@ -162,8 +175,21 @@ class _Zero:
         body = self.subtree(self.root)
         z = np.concatenate([self.points[b][:, 2] for b in body])
         self.floor, self.height = float(z.min()), max(float(np.ptp(z)), 1e-9)
-        R = self.T[self.root, :3, :3]
-        self.lateral = (self.pos - self.pos[self.root]) @ R[:, 1]  # (nbody,) m to the root's left
+        self.lateral = (self.pos - self.pos[self.root]) @ self._left()  # (nbody,) m to the figure's left
+
+    def _left(self) -> Array:
+        """The figure's left ``(3,)`` at ``qpos0``, level: from its bodies named left to those named right.
+
+        Else its root's y (CMU's humanoid has its root's y up, its left on the world's x).
+        """
+        left, right = ([b for b in range(1, len(self.pos)) if self.tokens[b] & side and not self.tokens[b] & other]
+                       for side, other in ((LEFT, RIGHT), (RIGHT, LEFT)))
+        if left and right:
+            d = self.pos[left].mean(axis=0) - self.pos[right].mean(axis=0)
+            d[2] = 0.0
+            if np.linalg.norm(d) > 1e-6:
+                return d / np.linalg.norm(d)
+        return self.T[self.root, :3, 1]
 
     def world(self, b: int, local: Array) -> Array:
         """Points ``(..., 3)`` in ``b``'s frame to world."""

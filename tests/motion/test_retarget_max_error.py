@@ -106,3 +106,28 @@ def test_a_bad_max_error_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--max-error: must be" in err
     assert not (tmp_path / "a.json").exists()
+
+
+@need_mocap
+def test_the_primates_crouch_fails_the_bound_only_by_its_hips_reach(primate: mjkin.Tree) -> None:
+    """The shared 19-joint crouch onto the primate misses the default 10 cm bound (95th percentile 14 cm): in its
+    deepest frames the pelvis stays 17 cm above its target with a hip at the end of its 1.8 rad cone (the source
+    folds further at the hip). The same figure with 2.6 rad hips follows it within 5 cm: the bound is out of the
+    primate's reach, not a fault of the roles or the scaling."""
+    path = MOCAP / "mocapbank_19joint.bvh"
+    traj = mjkin.retarget(path, primate)
+    info = traj.meta["retarget"]
+    errors = np.asarray(info["errors"])
+    assert info["status"] == "failed" and np.percentile(errors, 95) > MAX_ERROR
+    worst = int(np.argmax(errors))
+    hips = []
+    for side in ("left", "right"):
+        j = primate.id(f"{side}_hip", "joint")
+        w = traj.q[worst, primate.model.jnt_qposadr[j]]
+        hips.append((2 * np.arccos(min(1.0, abs(w))), primate.model.jnt_range[j, 1]))
+    assert any(angle >= limit - 1e-3 for angle, limit in hips), hips  # a hip at the end of its cone
+    text = Path(mjkin.kinematics.tree.bundled_models()["primate"]).read_text()
+    wide = text.replace('_hip" type="ball" range="0 1.8"', '_hip" type="ball" range="0 2.6"')
+    assert wide.count('range="0 2.6"') == text.count('range="0 2.6"') + 2
+    deep = mjkin.retarget(path, mjkin.load(wide)).meta["retarget"]
+    assert deep["status"] == "ok" and np.percentile(deep["errors"], 95) < 0.06

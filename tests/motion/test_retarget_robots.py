@@ -8,10 +8,12 @@ not shaking. A few dozen frames of each clip (the walk's start, the crouch's way
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import replace
 from functools import cache
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -21,7 +23,7 @@ from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.goals import HalfSpace
 from mjkin.motion import Trajectory, bvh
 from mjkin.motion.quality import score
-from mjkin.motion.retarget import KEYS, SIDES, report, self_pairs
+from mjkin.motion.retarget import KEYS, SIDES, Retarget, frame_goals, plan, report, self_pairs
 from mjkin.motion.roles import role_offsets
 from mjkin.motion.terrain import foot_points, lowest
 
@@ -99,14 +101,17 @@ def mean_acceleration(tree: mjkin.Tree, traj: Trajectory) -> float:
 
 
 def check_figure(model: str, name: str, mean_bound: float | None) -> dict:
-    tree, traj = figure(model), retargeted(model, name)
+    return check_trajectory(figure(model), retargeted(model, name), mean_bound)
+
+
+def check_trajectory(tree: mjkin.Tree, traj: Trajectory, mean_bound: float | None, p95: float = P95) -> dict:
     rep = report(tree, traj)
     err = keypoint_errors(tree, traj)
     got = {"mean": float(err.mean()), "p95": float(np.percentile(err, 95)), **rep}
     assert not traj.meta["retarget"]["constraint_unmet"], got
     if mean_bound is not None:
         assert got["mean"] <= mean_bound, got
-    assert got["p95"] <= P95, got
+    assert got["p95"] <= p95, got
     assert rep["self_contact_deepest"] >= -DEPTH, got
     assert rep["floor_min"] >= -SINK, got
     heights = feet_heights(tree, traj)
@@ -206,3 +211,115 @@ def test_gmr_g1_joints_accelerate_no_more_than_gmrs(name: str) -> None:
     assert got["self_contact_frames"] == 0 and got["foot_penetration"] <= SINK, got
     assert got["float_share"] <= AIRBORNE_SHARE and got["slide_speed_mean"] <= SLIDE, got
     assert not traj.meta["retarget"]["constraint_unmet"], got
+
+
+# ------------------------------------------------------------------ goal 4: humanoids mjkin was not tuned on
+GYM_HUMANOID = Path(importlib.util.find_spec("gymnasium").origin).parent / "envs" / "mujoco" / "assets" / \
+    "humanoid.xml" if importlib.util.find_spec("gymnasium") else Path("gymnasium-is-not-installed/humanoid.xml")
+
+
+def scaled(source: str | Path, k: float) -> mjkin.Tree:
+    """The figure of ``source`` (an MJCF path or "primate") made ``k`` times as large: every body, joint, geom and
+    site place and size, slide ranges and mesh scales (its masses as they are: kinematics does not see them)."""
+    path = mjkin.kinematics.tree.bundled_models()["primate"] if source == "primate" else source
+    spec = mujoco.MjSpec.from_file(str(path))
+    for b in spec.bodies:
+        b.pos = np.asarray(b.pos) * k
+    for g in spec.geoms:
+        g.pos, g.size = np.asarray(g.pos) * k, np.asarray(g.size) * k
+        if not np.isnan(g.fromto[0]):
+            g.fromto = np.asarray(g.fromto) * k
+    for s in spec.sites:
+        s.pos, s.size = np.asarray(s.pos) * k, np.asarray(s.size) * k
+    for j in spec.joints:
+        j.pos = np.asarray(j.pos) * k
+        if j.type == mujoco.mjtJoint.mjJNT_SLIDE:
+            j.range = np.asarray(j.range) * k
+    for m in spec.meshes:
+        m.scale = np.asarray(m.scale) * k
+    return mjkin.load(spec)
+
+
+# name -> (the model file or "primate", scale): gymnasium's humanoid (capsules, 23 dofs: a torso-head, hands on the
+# forearms, no ankles), small and large copies of it, of GMR's G1 (meshes, 35 dofs) and of the Booster T1, a large
+# primate; the mesh-free G1 with its hands (43 dofs) is in test_other_figures_hold_the_same_limits
+UNSEEN = {"gym_humanoid": (GYM_HUMANOID, 1.0), "gym_humanoid_x0.5": (GYM_HUMANOID, 0.5),
+          "gym_humanoid_x1.3": (GYM_HUMANOID, 1.3), "gym_humanoid_x1.5": (GYM_HUMANOID, 1.5),
+          "gmr_g1_x0.5": (GMR_G1, 0.5), "gmr_g1_x1.3": (GMR_G1, 1.3), "gmr_g1_x1.5": (GMR_G1, 1.5),
+          "gmr_t1_x0.6": (GMR_T1, 0.6), "gmr_t1_x1.5": (GMR_T1, 1.5), "primate_x1.5": ("primate", 1.5)}
+
+
+# The crouch's way down folds further at the hips than these figures reach: the nearest pose they can take with the
+# feet where they stand leaves the pelvis 15-18 cm (at their own size) above its target (see
+# test_the_crouch_is_out_of_these_figures_reach and, for the primate's 1.8 rad hips,
+# test_the_primates_crouch_fails_the_bound_only_by_its_hips_reach). The miss is a share of the figure's size (the
+# gym humanoid's 17.4, 22.5 and 26.3 cm at 1, 1.3 and 1.5 times; the T1's 11.3, 18.4 and 27.7 cm at 0.6, 1 and 1.5),
+# so at 1.3-1.5 times it passes 20 cm.
+OUT_OF_REACH = {("gym_humanoid_x1.3", "mocapbank_19joint"), ("gym_humanoid_x1.5", "mocapbank_19joint"),
+                ("gmr_t1_x1.5", "mocapbank_19joint"), ("primate_x1.5", "mocapbank_19joint")}
+
+
+def unseen_params() -> list:
+    out = []
+    for robot, (f, _) in UNSEEN.items():
+        for name in CLIPS:
+            marks = [need(Path(f))] if f != "primate" else []
+            if (robot, name) in OUT_OF_REACH:
+                marks.append(pytest.mark.xfail(strict=True, reason="the crouch folds deeper than the large figure's "
+                                                                   "hips reach: key points over 20 cm off"))
+            out.append(pytest.param(robot, name, marks=marks, id=f"{name}-{robot}"))
+    return out
+
+
+@need_mocap
+@pytest.mark.parametrize(("robot", "name"), unseen_params())
+def test_humanoids_not_tuned_on_hold_the_limits(robot: str, name: str) -> None:
+    """Goal 4 on figures no constant was tuned on, small and large, with and without collision meshes, 23-35 dofs:
+    default options, no mapping file; the same limits as above, key points within 20 cm (95th percentile)."""
+    tree = unseen(robot)
+    check_trajectory(tree, mjkin.retarget(clip(name), tree), None)
+
+
+@cache
+def unseen(robot: str) -> mjkin.Tree:
+    source, k = UNSEEN[robot]
+    return scaled(source, k)
+
+
+def nearest_frame(tree: mjkin.Tree, plan_: Retarget, f: int) -> np.ndarray:
+    """Frame ``f``'s key-point errors ``(5,)`` (m, as :func:`keypoint_errors`) at the best pose its own goals
+    (feet held, sole corners above the ground, pelvis, turns, limbs, head: :func:`frame_goals`) reach when searched
+    from 24 random starts, with no previous frame to stay near and no speed limit."""
+    goals = list(frame_goals(tree, plan_).frames[f])
+    q = tree.qpos0.copy()
+    q[tree.layout.free_q[0][:3]] += plan_.points["pelvis"][f] - tree.pose(q, plan_.bodies["pelvis"], "body")[:3, 3]
+    q = mjkin.Problem(tree, goals, tol=1e-6, max_iters=300, restarts=24, timeout=np.inf).solve(q).q
+    b, got = plan_.bodies, []
+    for r in KEYS:
+        T = tree.pose(q, b[r], "body")
+        got.append(T[:3, :3] @ plan_.offsets[r] + T[:3, 3])
+    feet = {f"{s}_ankle": plan_.feet[i, f, :3, :3] @ plan_.offsets[f"{s}_ankle"] + plan_.feet[i, f, :3, 3]
+            for i, s in enumerate(SIDES)}
+    target = np.array([feet.get(r, plan_.points[r][f]) for r in KEYS])
+    return np.linalg.norm((np.array(got[1:]) - got[0]) - (target[1:] - target[0]), axis=-1)
+
+
+@need_mocap
+@pytest.mark.parametrize("robot", [pytest.param("gym_humanoid_x1.5", marks=need(GYM_HUMANOID)),
+                                   pytest.param("gmr_t1_x1.5", marks=need(GMR_T1))])
+def test_the_crouch_is_out_of_these_figures_reach(robot: str) -> None:
+    """The large copies miss the crouch (OUT_OF_REACH) only where the figure cannot go: in the clip's worst frame
+    the best pose that frame's own goals reach, searched from 24 random starts with no previous frame or speed limit,
+    misses by more than the bound too, and the retargeted frame by no more than it (within 3 cm). The gym
+    humanoid's hips flex 110 degrees and it has no ankles (a flat foot holds the shin upright); the T1's hips pitch
+    1.8 rad while its waist only yaws, so its pelvis leans with the trunk (59 degrees here) and the thighs would
+    fold 150 degrees from it."""
+    tree = unseen(robot)
+    name = "mocapbank_19joint"
+    traj = mjkin.retarget(clip(name), tree)
+    got = check_trajectory(tree, traj, None, p95=np.inf)  # every other limit holds
+    assert got["p95"] > P95, got
+    err = keypoint_errors(tree, traj)
+    f = int(np.argmax(err.max(axis=1)))
+    best = nearest_frame(tree, plan(clip(name), tree), f)
+    assert best.max() > P95 and err[f].max() <= best.max() + 0.03, (f, err[f], best)

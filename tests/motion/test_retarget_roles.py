@@ -430,3 +430,54 @@ def test_a_long_hand_mesh_does_not_make_the_wrist_the_elbow() -> None:
     for side in ("left", "right"):
         assert (bodies[f"{side}_shoulder"], bodies[f"{side}_elbow"], bodies[f"{side}_wrist"]) == (
             f"{side}_shoulder_roll_link", f"{side}_elbow_link", f"{side}_wrist_pitch_link")
+
+
+def primate_spec(turn: np.ndarray | None = None, root_frame: np.ndarray | None = None,
+                 short_sides: bool = False) -> mujoco.MjSpec:
+    """The bundled primate, its world geometry as it is but: the whole figure turned by the quaternion ``turn``;
+    its root body's frame turned by ``root_frame`` (its children, geoms and sites put back where they were, as CMU's
+    humanoid has its root's y up); sides named by a bare first letter (``lthigh``/``rthigh``, as CMU's rig)."""
+    text = Path(mjkin.kinematics.tree.bundled_models()["primate"]).read_text()
+    if short_sides:
+        text = text.replace('"left_', '"l').replace('"right_', '"r')
+    spec = mujoco.MjSpec.from_string(text)
+    root = spec.body("lower_torso")
+    if root_frame is not None:
+        back = mjkin.spatial.quat_conj(root_frame)
+        for e in [*root.bodies, *root.geoms, *root.sites]:
+            e.pos = mjkin.spatial.quat_rotate(back, e.pos)
+            e.quat = mjkin.spatial.quat_mul(back, e.quat)
+        root.quat = mjkin.spatial.quat_mul(root_frame, root.quat)
+    if turn is not None:
+        root.quat = mjkin.spatial.quat_mul(turn, root.quat)
+        root.pos = mjkin.spatial.quat_rotate(turn, root.pos)
+    return spec
+
+
+def test_a_root_frame_with_y_up_and_one_letter_sides_keep_the_roles() -> None:
+    """CMU's humanoid (dm_control's suite, 62 dofs) has its root's y up and its sides named by a first letter
+    (``lfemur``, ``rfemur``): before, every body was taken for the left (sides from the root's y) and the right arm
+    was not found. The primate made so keeps its roles, and retargets as the primate does."""
+    spec = primate_spec(root_frame=mjkin.spatial.quat_from_axis_angle([1.0, 0.0, 0.0], np.pi / 2), short_sides=True)
+    tree = mjkin.load(spec)
+    primate = mjkin.load("primate")
+    assert np.allclose(tree.fk(tree.qpos0)[1:, :3, 3], primate.fk(primate.qpos0)[1:, :3, 3])  # the same figure
+    short = {r: b.replace("left_", "l").replace("right_", "r") for r, b in find_figure(primate).bodies.items()}
+    assert find_figure(tree).bodies == short
+    clip_ = bvh.parse(crouch_bvh(frames=12))
+    a, b = mjkin.retarget(clip_, tree), mjkin.retarget(clip_, primate)
+    assert np.allclose(a.meta["retarget"]["errors"], b.meta["retarget"]["errors"], atol=1e-3)
+
+
+def test_a_figure_facing_another_way_moves_as_it_faces() -> None:
+    """A figure built facing +y (the primate turned a quarter about z) gets the clip turned to face as it does: the
+    same motion turned, key points as near. Before, the source faced +x whatever the figure did."""
+    turn = mjkin.spatial.quat_from_axis_angle([0.0, 0.0, 1.0], np.pi / 2)
+    tree = mjkin.load(primate_spec(turn=turn))
+    primate = mjkin.load("primate")
+    clip_ = bvh.parse(crouch_bvh(frames=12))
+    a, b = mjkin.retarget(clip_, tree), mjkin.retarget(clip_, primate)
+    assert np.allclose(a.meta["retarget"]["errors"], b.meta["retarget"]["errors"], atol=1e-3)
+    pelvis = tree.id("lower_torso", "body")
+    R = mjkin.spatial.quat_to_mat(turn)
+    assert np.allclose(tree.fk(a.q)[:, pelvis, :3, 3], primate.fk(b.q)[:, pelvis, :3, 3] @ R.T, atol=1e-3)
