@@ -22,6 +22,7 @@ from mjkin.apps.bench.report import shared_models_dir
 from mjkin.apps.bench.retarget import mocap_dir
 from mjkin.goals import HalfSpace
 from mjkin.motion import Trajectory, bvh
+from mjkin.motion.quality import score
 from mjkin.motion.retarget import KEYS, SIDES, Retarget, frame_goals, plan, report, self_pairs
 from mjkin.motion.roles import role_offsets
 from mjkin.motion.terrain import foot_points, lowest
@@ -176,6 +177,40 @@ def test_frames_whose_constraints_cannot_be_met_are_counted() -> None:
     assert report(primate, traj)["constraint_unmet_frames"] == 6 and np.isfinite(traj.q).all()
     free = mjkin.retarget(clip_, primate)
     assert free.meta["retarget"]["constraint_unmet"] == [] and report(primate, free)["constraint_unmet_frames"] == 0
+
+
+# ------------------------------------------------------------------ goal 3: joints as smooth as GMR's, whole clips
+# GMR's own on its G1, scored by mjkin.motion.quality.score (`mjkin bench retarget --models gmr_unitree_g1`, GMR
+# beside): key points mean and 95th percentile (m), mean joint acceleration (rad/s²), rounded down
+GMR_SCORE = {"mixamo_freebvh": {"keypoint_mean": 0.07628, "keypoint_p95": 0.1022, "joint_accel_mean": 10.12},
+             "mocapbank_19joint": {"keypoint_mean": 0.2586, "keypoint_p95": 0.4315, "joint_accel_mean": 2.123}}
+
+
+def gmr_score_params() -> list:
+    # the walk is goal 3's open item: 13.3 rad/s² against GMR's 10.1 (branch accel-wip meets it, 9.99, but changes
+    # the weights three other tests of tests/motion depend on)
+    gap = pytest.mark.xfail(strict=True, reason="goal 3 open: the walk's joints accelerate 13.3 rad/s², GMR's 10.1")
+    return [pytest.param(n, marks=[gap] if n == "mixamo_freebvh" else [], id=n) for n in GMR_SCORE]
+
+
+@need_mocap
+@need(GMR_G1)
+@pytest.mark.parametrize("name", gmr_score_params())
+def test_gmr_g1_joints_accelerate_no_more_than_gmrs(name: str) -> None:
+    """Goal 3's smoothness on whole clips: mean joint acceleration at most GMR's, the key points no further from the
+    source than GMR's (mean; 95th percentile within 2 cm), the feet planted and nothing through itself. The walk's
+    joints accelerate 13.3 rad/s² (GMR 10.1): a planted foot's pitch switches on in one frame once the source's
+    heel is 6 cm up, and the hips and waist shake with it (where a foot lands or lifts)."""
+    path = MOCAP / f"{name}.bvh"
+    tree = figure(str(GMR_G1))
+    traj = mjkin.retarget(path, tree)
+    got = score(tree, traj.q, path)
+    gmr = GMR_SCORE[name]
+    assert got["joint_accel_mean"] <= gmr["joint_accel_mean"], got
+    assert got["keypoint_mean"] <= gmr["keypoint_mean"] and got["keypoint_p95"] <= gmr["keypoint_p95"] + 0.02, got
+    assert got["self_contact_frames"] == 0 and got["foot_penetration"] <= SINK, got
+    assert got["float_share"] <= AIRBORNE_SHARE and got["slide_speed_mean"] <= SLIDE, got
+    assert not traj.meta["retarget"]["constraint_unmet"], got
 
 
 # ------------------------------------------------------------------ goal 4: humanoids mjkin was not tuned on
