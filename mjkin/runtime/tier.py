@@ -261,7 +261,10 @@ def _child_path() -> list[str]:
 
 
 # The child runs isolated (``-I``: no working folder on its path, no PYTHON* variables, no user site) in "/",
-# with this process's path given explicitly; the site folders it lacks (a user site) are added with their .pth files
+# with this process's path given explicitly; the site folders it lacks (a user site) are added with their .pth files.
+# The jobs are unpickled only then: their argument types name mjkin's classes (a StructRef, a NamedTuple), and
+# unpickling imports mjkin, which before would be whichever the isolated path finds (an installed one, not the copy
+# this process runs), compiling into that one's cache folder under its stamp, where this process never looks
 _BOOT = ("import pickle, site, sys\n"
          "paths, jobs = pickle.loads(sys.stdin.buffer.read())\n"
          "for p in paths:\n"
@@ -269,7 +272,7 @@ _BOOT = ("import pickle, site, sys\n"
          "        site.addsitedir(p)\n"
          "sys.path[:] = paths + [p for p in sys.path if p not in paths]\n"
          "from mjkin.runtime.tier import _main\n"
-         "_main(jobs)\n")
+         "_main(pickle.loads(jobs))\n")
 
 
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
@@ -281,7 +284,7 @@ def _spawn(jobs: list[tuple]) -> subprocess.Popen:
     child = subprocess.Popen([sys.executable, "-I", "-c", _BOOT], stdin=subprocess.PIPE, cwd="/",
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
     assert child.stdin is not None
-    child.stdin.write(pickle.dumps((_child_path(), jobs)))
+    child.stdin.write(pickle.dumps((_child_path(), pickle.dumps(jobs))))  # see _BOOT
     child.stdin.close()
     return child
 
