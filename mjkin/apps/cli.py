@@ -382,8 +382,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise InputError(f"--seconds x --fps must give at least 2 frames, got {count}")
     total = sum(scene_frames(args.scene, args.seconds, args.fps).values())
     frame = check_output(args, total)
-    with tier.later():  # a child compiling beside the renderer's threads would slow the first run more
-        write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), total, frame)
+    write_images(args, showcase(args.scene, args.seconds, args.fps, args.width, args.height), total, frame)
     return 0
 
 

@@ -1,16 +1,10 @@
 """Where compiled kernels and generated code are kept, whom to trust there, and when a kept kernel is stale.
 
-numba stamps a kept kernel with its own source file only, but a kernel carries the code of the
-kernels it calls, from other files (inlined or linked in). :func:`stamp` digests the sources of the
-kernel's package, and mjkin's, as this process loaded them: an edit recompiles the kernels, and an
-edit or an upgrade while a kernel compiles never stores the old code under the new stamp.
-
-Nothing is loaded from a folder or file another user can write (:func:`secure`,
-:func:`trusted_file`): numba's cache files are pickles, and a planted one would run as code.
-Generated source (:func:`generated_file`) and arrays that cost more to make than to read
-(:func:`stored_array`) are kept the same way. A process that compiles a kernel holds its compile
-lock (:func:`locked`), so that processes that need it compile it once between them. numba's side
-of the cache is in :mod:`.numba_private`.
+A kernel is kept under a :func:`stamp` of its package's sources and mjkin's, as this process loaded
+them. Nothing is loaded from a folder or file another user can write (:func:`secure`,
+:func:`trusted_file`): numba's cache files are pickles, and a planted one would run as code. A
+process that compiles a kernel holds its compile lock (:func:`locked`), so that processes compile
+it once between them. numba's side of the cache is in :mod:`.numba_private`.
 """
 
 from __future__ import annotations
@@ -18,6 +12,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import fcntl
+import functools
 import grp
 import hashlib
 import os
@@ -87,53 +82,68 @@ def trusted_file(path: str | os.PathLike[str]) -> bool:
 
 # ---- when a kept kernel is stale
 
-_LOADED: dict[str, str] = {}  # a package's folder (or a module in none) -> the digest of its sources as loaded
+_LOADED: dict[str, tuple[list, str]] = {}  # a package's folder -> its sources' (file, mtime, size) as loaded, digest
 
 
+@functools.cache
 def _top(path: str) -> str:
     """The folder of the top-level package that holds the source file ``path``; ``path`` itself when none does."""
-    top, folder = path, os.path.dirname(path)
-    while os.path.isfile(os.path.join(folder, "__init__.py")):
-        top, folder = folder, os.path.dirname(folder)
+    top = os.path.realpath(path)
+    while os.path.isfile(os.path.join(folder := os.path.dirname(top), "__init__.py")):
+        top = folder
     return top
 
 
-def loaded(path: str | os.PathLike[str]) -> str:
-    """The digest of every source file of ``path``'s package as this process has it (read when first asked).
-
-    Asked when a kernel is defined, its module imported (and for mjkin at its import: ~5 ms), so it digests what
-    the kernel compiles, whatever the disk holds later.
-    """
-    top = _top(os.path.realpath(path))
-    if top not in _LOADED:
-        h = hashlib.sha256()
-        for file in _sources(top):
-            with contextlib.suppress(OSError):
-                h.update(f"{os.path.relpath(file, top)}\0".encode() + Path(file).read_bytes() + b"\0")
-        _LOADED[top] = h.hexdigest()
-    return _LOADED[top]
-
-
-def _sources(top: str) -> list[str]:
-    """The module ``top``, or the ``.py`` files of the package folder ``top``, in a fixed order."""
-    if os.path.isfile(top):
-        return [top]
-    found = []
+def _state(top: str) -> list[tuple[str, int, int]]:
+    """The (file, mtime, size) of the module ``top``, or of the ``.py`` files of the package folder ``top``."""
+    files = [top] if os.path.isfile(top) else []
     for folder, subfolders, names in os.walk(top):
         subfolders[:] = sorted(d for d in subfolders if d != "__pycache__")  # (generated modules live there)
-        found += [os.path.join(folder, name) for name in sorted(names) if name.endswith(".py")]
-    return found
+        files += [os.path.join(folder, name) for name in sorted(names) if name.endswith(".py")]
+    state = []
+    for file in files:
+        with contextlib.suppress(OSError):
+            st = os.stat(file)
+            state.append((file, st.st_mtime_ns, st.st_size))
+    return state
+
+
+def loaded(path: str | os.PathLike[str]) -> str:
+    """The folder of ``path``'s package; its sources' sizes and times are noted when first asked (no file is read).
+
+    Asked when a kernel is defined, and for mjkin when it is imported: before the code a kernel compiles is loaded.
+    """
+    top = _top(str(path))
+    if top not in _LOADED:
+        _LOADED[top] = (_state(top), "")
+    return top
+
+
+def _digest(top: str) -> str:
+    """The digest of the sources of ``top`` as noted by :func:`loaded`, read when first asked.
+
+    A file changed since it was noted (its size or time) makes a digest no process shares: this process compiles
+    the code it loaded, which is not what the disk holds now.
+    """
+    state, digest = _LOADED[top]
+    if not digest:
+        h = hashlib.sha256()
+        for file, _, _ in state:
+            with contextlib.suppress(OSError):
+                h.update(f"{os.path.relpath(file, top)}\0".encode() + Path(file).read_bytes() + b"\0")
+        if _state(top) != state:
+            h.update(f"changed since loaded: {os.getpid()} {time.time_ns()}".encode())
+        _LOADED[top] = (state, digest := h.hexdigest())
+    return digest
 
 
 def stamp(path: str | os.PathLike[str]) -> str:
     """What a kernel of the source file ``path`` is kept under: its package's sources and mjkin's, as loaded.
 
     A kernel carries the code of the kernels it calls (inlined or linked in), from its package and from mjkin, so
-    an edit of any of those files recompiles it: numba's own stamp (the kernel's file alone) would leave the IK loop
-    running an old FK. Not the files a kernel imports alone: finding those parsed its sources (0.3 s, 1.4 s under
-    load, in each process's first call of a kernel) where reading the package's takes ~5 ms.
+    an edit of any of those files recompiles it (numba's own stamp, the kernel's file alone, would not).
     """
-    return hashlib.sha256(f"{loaded(path)} {loaded(__file__)}".encode()).hexdigest()
+    return hashlib.sha256(f"{_digest(loaded(path))} {_digest(loaded(__file__))}".encode()).hexdigest()
 
 
 loaded(__file__)  # mjkin as imported

@@ -1,13 +1,10 @@
 """numba's private API, in this module alone: the kernels' dispatcher and their disk cache.
 
-mjkin asks of numba more than numba documents: a dispatcher whose first small calls
-may run interpreted (:mod:`.tier`), a disk cache stamped by what a kernel imports and
-read only where no other user can write (:mod:`.cache`), loading a version another
-process wrote. Those subclass numba's internals, which change between releases, so the
-release is checked here, once, when mjkin is imported, and no other module imports
-``numba.core``. Kernels are kept, as numba keeps them, under ``$NUMBA_CACHE_DIR``,
-else beside their source, else in the user's cache folder: the first of those that is
-ours to write (none: compiled in memory each run), and read from any of them we trust.
+mjkin asks more of numba than it documents: a dispatcher whose first small calls may run
+interpreted (:mod:`.tier`), and a disk cache stamped by the kernel's package (:mod:`.cache`),
+read from every folder we trust and written to the first that is ours (``$NUMBA_CACHE_DIR``,
+beside the source, the user's cache folder; none: compiled in memory each run). Those
+subclass numba's internals, so the release is checked here when mjkin is imported.
 """
 
 from __future__ import annotations
@@ -133,11 +130,7 @@ class KernelCache(caching.FunctionCache):
 
 
 class _Lazy:
-    """Mixin of a dispatcher or cfunc: its ``_cache``, a :class:`KernelCache`, made on first use.
-
-    The stamp reads the sources the kernel imports (0.3 s over the package's kernels), which a process that never
-    calls the kernel (``import mjkin``) need not pay.
-    """
+    """Mixin of a dispatcher or cfunc: its ``_cache``, a :class:`KernelCache`, made on first use (not at import)."""
 
     @property
     def _cache(self) -> KernelCache:

@@ -1,22 +1,13 @@
 """Interpreted first, compiled behind: a cold kernel's first small calls run as Python while a child compiles it.
 
-From an empty cache numba spends ~50 s on the IK loop before a first solve on 2 cores. With
-``MJKIN_COMPILE=background`` (the default) a small call within :func:`first_use` (a solve of a few
-targets, a one-q pose) of a kernel neither in memory nor on disk runs the kernel's own Python source
-(:func:`interpreted`; an easy 7-DoF solve takes ~10-100 ms so), and a child process compiles the
-kernel into the disk cache; the first call after the child is done loads it (0.1-0.4 s). The child
-outlives this process, so a short script still leaves the cache warm. Within :func:`later`
-(``mjkin demo``) no child starts until its end. Every kernel runs its own source interpreted; only what
-compiled code alone can call (an intrinsic, a StructRef type) names a Python stand-in (:func:`python_version`).
-
-Large calls, a kernel that has run interpreted for :data:`BUDGET` seconds (unless another process is
-compiling it), one a child cannot import (defined in ``__main__``) and ``MJKIN_COMPILE=wait`` compile
-in this process first, as numba does (``wait``: what tests and benchmarks use, the same bits each run).
-``MJKIN_COMPILE=interpret`` compiles nothing for those calls (to debug a kernel in Python). The
-interpreted answers may differ from the compiled ones in the last bits (numpy's and LLVM's sums and
-library calls); with a ``timeout``, an interpreted solve (~100x slower) can meet its time limit where the
-compiled one would not, so ``status``, ``restarts`` and ``q`` of a target that does not converge may
-differ more (docs/concepts/results.md, "Time limits and the first run").
+From an empty cache numba spends ~50 s on the IK loop. With ``MJKIN_COMPILE=background`` (the default), a
+small call within :func:`first_use` of a kernel neither in memory nor on disk runs the kernel's own Python
+source (:func:`interpreted`), and a child process compiles the kernel into the disk cache; the first call after
+that loads it. The child runs at low priority and outlives this process, so a short script leaves the cache warm.
+Large calls, ``MJKIN_COMPILE=wait`` (tests, benchmarks) and a kernel a child cannot import (defined in
+``__main__``) compile here first, as numba does; ``MJKIN_COMPILE=interpret`` compiles nothing for those calls.
+Interpreted answers may differ from compiled ones in the last bits, and more under a ``timeout``
+(docs/concepts/results.md, "Time limits and the first run").
 """
 
 from __future__ import annotations
@@ -45,10 +36,6 @@ from .cache import PACKAGE
 MODES = ("background", "wait", "interpret")
 SMALL = 10_000  # a call interprets only if every array it passes holds at most this many numbers
 SMALL_BATCH = 64  # a solve interprets only if it has at most this many targets
-# seconds a kernel (other than the IK loop) may run interpreted in a process; then it is compiled here: many small
-# calls (a renderer's FK of each frame) would otherwise cost more than the compile
-BUDGET = 2.0
-_SPENT: dict[int, float] = {}
 _local = threading.local()
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -163,30 +150,27 @@ def _address(kernel: Any) -> tuple[str, str, str] | None:
 
 
 class _Compiler:
-    """Compiles kernels in one child process at a time, in the order asked, and tracks what each child did.
+    """Compiles kernels in one child process at a time, in the order asked; a killed child is started once more.
 
-    A kernel another process is compiling already (its compile lock is held: another run's child) is not
-    asked for again: its small calls run interpreted until that process is done, then it is loaded. A child
-    that dies (killed) is started once more for its kernels; a finished child is reaped at once.
+    A kernel another process is compiling (it holds the kernel's compile lock: another run's child) is not asked
+    for while it does: its small calls run interpreted, then load what that process wrote.
     """
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.state: dict[tuple, str] = {}  # (id(kernel), signature) -> queued, running, done, failed
-        self.queue: list[tuple] = []  # (key, address, signature)
+        self.queue: list[tuple] = []  # (key, address, signature) for the next child
         self.child: subprocess.Popen | None = None
         self.running: list[tuple] = []  # the child's (key, address, signature)
         self.retried = False  # whether a child that died was started again
         self.since: float | None = None  # when the first child started
-        self.took: float | None = None  # seconds from then until the last child finished
-        self.held = 0  # open :func:`later` blocks: no child starts while > 0
+        self.took: float | None = None  # seconds from then until the last child ended
 
     def status(self, jobs: list[tuple[Any, tuple]], submit: bool = True) -> str:
         """The least advanced state of ``jobs`` (kernel, argument types), asked for in a child if ``submit``.
 
-        ``elsewhere`` where another process is compiling a kernel (it holds its compile lock): not asked for while it
-        does; ``failed`` where a child cannot find a kernel (one defined in ``__main__``) or its child failed;
-        ``unknown`` where one was never asked for.
+        ``elsewhere``: another process compiles one; ``failed``: a child cannot import one, or failed;
+        ``unknown``: never asked for.
         """
         with self.lock:
             for kernel, sig in jobs if submit else ():
@@ -196,7 +180,7 @@ class _Compiler:
                     self.state[key] = "failed" if address is None else "queued"
                     if address is not None:
                         self.queue.append((key, address, sig))
-                        progress.notice(LATER if self.held else BACKGROUND)
+                        progress.notice(BACKGROUND)
             self._advance()
             states = {self.state.get((id(k), s)) or ("elsewhere" if numba_private.busy(k) else "unknown")
                       for k, s in jobs}
@@ -205,21 +189,21 @@ class _Compiler:
         return next((s for s in ("failed", "unknown", "queued", "elsewhere", "running") if s in states), "done")
 
     def _advance(self) -> None:
-        """Note what a finished child did, and start a child for the queue if none runs."""
+        """Note what a child that ended did, and start one for the queue if none runs."""
         if self.child is not None:
             if self.child.poll() is None:
                 return
-            if self.child.returncode != 0 and not self.retried:  # killed: once more, rather than compile here
+            if self.child.returncode and not self.retried:  # killed: once more, rather than compile here
                 self.retried = True
                 self.queue[:0] = self.running
             else:
                 for key, _, _ in self.running:
-                    self.state[key] = "done" if self.child.returncode == 0 else "failed"
+                    self.state[key] = "failed" if self.child.returncode else "done"
             self.child, self.running = None, []
             if not self.queue and self.since is not None:
                 self.took = time.monotonic() - self.since
                 progress.notice(f"kernels compiled in the background in {self.took:.0f} s")
-        if self.queue and not self.held:
+        if self.queue:
             self.since = self.since or time.monotonic()
             self.child, self.running, self.queue = _spawn([(a, s) for _, a, s in self.queue]), self.queue, []
             for key, _, _ in self.running:
@@ -227,45 +211,27 @@ class _Compiler:
             threading.Thread(target=self._reap, args=(self.child,), daemon=True).start()
 
     def _reap(self, child: subprocess.Popen) -> None:
-        """Wait for ``child`` to end, then note it (no zombie is left under a long-lived process)."""
+        """Wait for ``child`` to end, then note it (no zombie under a long-lived process)."""
         child.wait()
         with self.lock:
             self._advance()
 
-    @contextlib.contextmanager
-    def hold(self) -> Iterator[None]:
-        """See :func:`later`."""
-        with self.lock:
-            self.held += 1
-        try:
-            yield
-        finally:
-            with self.lock:
-                self.held -= 1
-                self._advance()
-
     def settle(self) -> float | None:
-        """Wait until no child runs and none is queued; the seconds they took (None: none ran).
-
-        Within :func:`later` what is queued stays queued (no child can start): it waits for a running child only.
-        """
+        """Wait until no child runs; the seconds the children took (None: none ran)."""
         while True:
             with self.lock:
                 self._advance()
-                if self.child is None and (not self.queue or self.held):
+                if self.child is None:
                     return self.took
             time.sleep(0.05)
 
     def flush(self) -> None:
-        """At exit: start a child for what is still queued (the cache is warm for the next run); say if one goes on."""
+        """At exit: a child for what is still queued, beside the one at work (we are ending); say that one goes on."""
         with self.lock:
-            if self.queue and self.child is not None and self.child.poll() is None:
-                _spawn([(address, sig) for _, address, sig in self.queue])  # beside the one at work: we are ending
+            self._advance()
+            if self.queue:
+                _spawn([(address, sig) for _, address, sig in self.queue])
                 self.queue = []
-            else:  # as _advance starts one (tracked: a CLI command ends, its process may go on), held or not
-                held, self.held = self.held, 0
-                self._advance()
-                self.held = held
             if self.child is not None and self.child.poll() is None:
                 progress.notice(f"a background process (pid {self.child.pid}, low priority) goes on compiling "
                                 "kernels for later runs")
@@ -275,16 +241,6 @@ _COMPILER = _Compiler()
 atexit.register(_COMPILER.flush)
 settle = _COMPILER.settle
 flush = _COMPILER.flush  # the CLI calls it as a command ends, while its notices still print
-
-
-def later() -> contextlib.AbstractContextManager[None]:
-    """Within it, no child starts: small calls of cold kernels run interpreted, and a child compiles them at its end.
-
-    For a job that keeps every core busy (``mjkin demo`` renders with Mesa's threads), where a child compiling
-    beside it would slow it more than interpreted calls do. Large calls, and kernels past their :data:`BUDGET`,
-    still compile here meanwhile.
-    """
-    return _COMPILER.hold()
 
 
 def _child_path() -> list[str]:
@@ -305,7 +261,10 @@ def _child_path() -> list[str]:
 
 
 # The child runs isolated (``-I``: no working folder on its path, no PYTHON* variables, no user site) in "/",
-# with this process's path given explicitly; the site folders it lacks (a user site) are added with their .pth files
+# with this process's path given explicitly; the site folders it lacks (a user site) are added with their .pth files.
+# The jobs are unpickled only then: their argument types name mjkin's classes (a StructRef, a NamedTuple), and
+# unpickling imports mjkin, which before would be whichever the isolated path finds (an installed one, not the copy
+# this process runs), compiling into that one's cache folder under its stamp, where this process never looks
 _BOOT = ("import pickle, site, sys\n"
          "paths, jobs = pickle.loads(sys.stdin.buffer.read())\n"
          "for p in paths:\n"
@@ -313,7 +272,7 @@ _BOOT = ("import pickle, site, sys\n"
          "        site.addsitedir(p)\n"
          "sys.path[:] = paths + [p for p in sys.path if p not in paths]\n"
          "from mjkin.runtime.tier import _main\n"
-         "_main(jobs)\n")
+         "_main(pickle.loads(jobs))\n")
 
 
 def _spawn(jobs: list[tuple]) -> subprocess.Popen:
@@ -325,27 +284,22 @@ def _spawn(jobs: list[tuple]) -> subprocess.Popen:
     child = subprocess.Popen([sys.executable, "-I", "-c", _BOOT], stdin=subprocess.PIPE, cwd="/",
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
     assert child.stdin is not None
-    child.stdin.write(pickle.dumps((_child_path(), jobs)))
+    child.stdin.write(pickle.dumps((_child_path(), pickle.dumps(jobs))))  # see _BOOT
     child.stdin.close()
     return child
 
 
 BACKGROUND = ("compiling kernels for their first use in a background process (cached for later runs; a minute or "
               "two); running them interpreted until then...")
-LATER = ("this first run runs kernels interpreted where it can (slower); a background process compiles them when it "
-         "ends, for later runs...")
 ELSEWHERE = "another mjkin process is compiling kernels this run needs; running them interpreted until it is done..."
 
 
-def compiled(jobs: list[tuple[Any, tuple]], small: bool, patient: bool = False) -> bool:
+def compiled(jobs: list[tuple[Any, tuple]], small: bool) -> bool:
     """Whether the caller should call ``jobs``' kernels compiled (True) or :func:`interpreted` (False).
 
-    Each job is a kernel and the numba types of its arguments. True when all are in memory or on
-    disk (loaded so), or else once they are compiled here, as numba would, when the call is not
-    ``small`` or the mode is ``wait``. False when a child is compiling them (started if need be) for a
-    small call in ``background`` mode, and for a ``patient`` one (small arguments, past its :data:`BUDGET`)
-    while another process compiles one of them: waiting for its lock could take that process's whole
-    compile, and the call after it ends loads what it wrote.
+    Each job is a kernel and the numba types of its arguments. True when all are in memory or on disk (loaded so),
+    or else once they are compiled here, as numba would. False for a ``small`` call in ``background`` mode while
+    a child (started if need be) or another process compiles them.
     """
     if mode() == "interpret":
         return False
@@ -357,8 +311,6 @@ def compiled(jobs: list[tuple[Any, tuple]], small: bool, patient: bool = False) 
             return False
         if state == "done" and all(numba_private.load(k, s) for k, s in jobs):  # else the child could not save
             return True
-    if patient and mode() == "background" and any(numba_private.busy(k) for k, _ in jobs):
-        return False
     for kernel, sig in jobs:
         kernel.compile(sig)
     return True
@@ -371,22 +323,10 @@ def on_miss(kernel: Any, args: tuple) -> Callable | None:
     """
     if numba_private.DISABLE_JIT:
         return functools.partial(interpreted_call, kernel)
-    if not getattr(_local, "depth", 0):
+    if not getattr(_local, "depth", 0) or compiled([(kernel, numba_private.argument_types(kernel, args))],
+                                                   all(_small(a) for a in args)):
         return None
-    little = all(_small(a) for a in args)
-    small = little and _SPENT.get(id(kernel), 0.0) < BUDGET
-    if compiled([(kernel, numba_private.argument_types(kernel, args))], small, patient=little):
-        return None
-    return functools.partial(_interpreted, kernel)
-
-
-def _interpreted(kernel: Any, *args: Any) -> Any:
-    """:func:`interpreted_call`, its seconds counted against :data:`BUDGET`."""
-    start = time.perf_counter()
-    try:
-        return interpreted_call(kernel, *args)
-    finally:
-        _SPENT[id(kernel)] = _SPENT.get(id(kernel), 0.0) + time.perf_counter() - start
+    return functools.partial(interpreted_call, kernel)
 
 
 def _main(jobs: list[tuple]) -> None:

@@ -61,6 +61,40 @@ def test_a_kernel_is_stamped_with_its_packages_sources_as_this_process_loaded_th
     assert cache.stamp(pkg / "kern.py") != after
 
 
+def test_importing_mjkin_reads_no_source_file_for_its_stamps():
+    """The stamp notes the sources' sizes and times at import; it reads them at a process's first compile only."""
+    script = textwrap.dedent("""
+        import sys
+        read = []
+        def hook(event, args):  # opens by code that is not the import system's
+            if event == "open" and str(args[0]).endswith(".py") and "/mjkin/" in str(args[0]) \\
+                    and not sys._getframe(1).f_code.co_filename.startswith("<frozen"):
+                read.append(str(args[0]))
+        sys.addaudithook(hook)
+        import mjkin
+        print(len(read))
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True)
+    assert run.stdout.split() == ["0"]
+
+
+def test_a_source_edited_after_its_import_is_not_stamped_as_the_new_file(tmp_path, monkeypatch):
+    """The sources are read when the first kernel is saved, not at import: a file changed in between (its size or
+    time) gives a stamp no process shares, so the code this process loaded is never found under the new file's."""
+    from mjkin.runtime import cache
+
+    pkg = _package(tmp_path)
+    monkeypatch.setattr(cache, "_LOADED", {})
+    cache.loaded(pkg / "kern.py")  # its kernel defined: the package noted as loaded
+    (pkg / "help.py").write_text(_HELP.format(k=2.0))
+    later = os.stat(pkg / "help.py").st_mtime_ns + 10**9  # a second on: a coarse clock's tick cannot hide it
+    os.utime(pkg / "help.py", ns=(later, later))
+    edited = cache.stamp(pkg / "kern.py")
+    assert cache.stamp(pkg / "kern.py") == edited  # one stamp for the process
+    monkeypatch.setattr(cache, "_LOADED", {})  # a new process, which loads the edited file
+    assert cache.stamp(pkg / "kern.py") != edited
+
+
 def test_an_edit_of_the_goal_helpers_restamps_the_ik_loop(tmp_path, monkeypatch):
     """An edit of position_rows (goals/residuals.py) restamps the loop and Position's residual that inline it: no
     stale code. Every kernel of the package is restamped with them (the price of a stamp read in ~5 ms)."""

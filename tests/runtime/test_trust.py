@@ -83,6 +83,33 @@ def test_the_child_is_given_the_parents_path_but_not_its_working_folder(monkeypa
     assert tier._child_path() == [str(tmp_path / "lib"), str(tmp_path)]  # the one Python put first goes
 
 
+_SETTINGS_KERNEL = "from mjkin.runtime.jit import njit\n\n\n@njit\ndef tolerance(st):\n    return st.tol\n"
+_SPAWN = textwrap.dedent("""
+    import mjkin, numba
+    from mjkin.ik.kernel import settings
+    from mjkin.probe import tolerance
+    from mjkin.runtime import numba_private, tier
+    sig = (numba.typeof(settings(1e-6, 1e-6, 1e-3)),)  # a NamedTuple of mjkin's: the child imports mjkin to unpickle it
+    child = tier._spawn([(tier._address(tolerance), sig)])
+    print(mjkin.__file__, child.wait(), numba_private.load(tolerance, sig))
+""")
+
+
+def test_the_child_compiles_for_the_copy_of_mjkin_this_process_runs(tmp_path):
+    """A copy of mjkin run beside an installed one: the child compiles the copy's kernels where this process loads them.
+
+    The child unpickled its jobs, whose types name mjkin's classes, before it set its path: it imported the
+    installed mjkin, and kept its compile under that one's folder and stamp (the IK loop was never found on disk).
+    """
+    shutil.copytree(cache.PACKAGE, tmp_path / "mjkin", ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "mjkin" / "probe.py").write_text(_SETTINGS_KERNEL)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(PYTHONPATH=str(tmp_path), XDG_CACHE_HOME=str(tmp_path / "xdg"))
+    out = subprocess.run([sys.executable, "-c", _SPAWN], cwd=tmp_path, capture_output=True, text=True, env=env,
+                         timeout=300, check=True).stdout.split()
+    assert out == [str(tmp_path / "mjkin" / "__init__.py"), "0", "True"]  # this copy; the child's compile loaded
+
+
 def _plant_index(index: Path, marker: Path) -> None:
     """An index file whose unpickling opens ``marker`` for writing (a stand-in for any code)."""
 
